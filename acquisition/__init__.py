@@ -1,0 +1,1 @@
+"""The acquisition service: the capture sequencer, cameras, the session store and the CLI."""

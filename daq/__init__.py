@@ -1,0 +1,54 @@
+"""micam's driver layer: board models, scan configurations, the board interface, sync groups.
+
+The USB driver for real Data Translation boards lives in `daq.usb`; the simulated boards in
+`sim.boards`. Everything above this layer talks to the `Board` protocol only.
+"""
+
+from ._config import ClockSource, InputChannel, OutputChannel, ScanConfig, TriggerSource
+from ._errors import (
+    BoardStateError,
+    ConfigurationError,
+    DaqError,
+    DeviceDisconnectedError,
+    OverrunError,
+    SyncError,
+    TriggerTimeoutError,
+    UnderrunError,
+)
+from ._interface import (
+    CODE_FULL_SCALE,
+    Block,
+    Board,
+    BoardIdentity,
+    codes_to_volts,
+    volts_to_codes,
+)
+from ._models import BOARD_MODELS, BoardModel, board_model
+from ._sync import GroupRecording, SyncGroup
+
+__all__ = [
+    "BOARD_MODELS",
+    "CODE_FULL_SCALE",
+    "Block",
+    "Board",
+    "BoardIdentity",
+    "BoardModel",
+    "BoardStateError",
+    "ClockSource",
+    "ConfigurationError",
+    "DaqError",
+    "DeviceDisconnectedError",
+    "GroupRecording",
+    "InputChannel",
+    "OutputChannel",
+    "OverrunError",
+    "ScanConfig",
+    "SyncError",
+    "SyncGroup",
+    "TriggerSource",
+    "TriggerTimeoutError",
+    "UnderrunError",
+    "board_model",
+    "codes_to_volts",
+    "volts_to_codes",
+]
