@@ -1,0 +1,141 @@
+"""The capture configuration: what hardware records what, frozen into every session's manifest.
+
+It is the contract between acquisition and calibration: which column of a recording is which
+microphone (or the reference microphone), the volts per code of each column, which output
+drives which speaker, the burst, the rig and the cameras.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from daq import CODE_FULL_SCALE, InputChannel, OutputChannel, ScanConfig
+
+
+class BoardEntry(BaseModel):
+    """One board of the sync group (the first is the clock and trigger master)."""
+
+    model_config = ConfigDict(frozen=True)
+
+    model: str
+    serial: str
+    inputs: tuple[InputChannel, ...]
+    outputs: tuple[OutputChannel, ...] = ()
+
+
+class ColumnEntry(BaseModel):
+    """One column of every recording: where it comes from and what it is."""
+
+    model_config = ConfigDict(frozen=True)
+
+    board: str = Field(description="serial of the board")
+    channel: int
+    range_v: float
+    role: Literal["mic", "reference"]
+    mic_id: int | None = None
+
+    @property
+    def volts_per_code(self) -> float:
+        return self.range_v / CODE_FULL_SCALE
+
+
+class SpeakerEntry(BaseModel):
+    """A rig speaker: the output that drives it and its position in the rig frame (metres)."""
+
+    model_config = ConfigDict(frozen=True)
+
+    index: int
+    board: str
+    output_channel: int
+    rig_position_m: tuple[float, float, float]
+
+
+class ReferenceMicEntry(BaseModel):
+    """The reference microphone: its input column and its distance from a speaker during the
+    reference recordings (paper IV-C)."""
+
+    model_config = ConfigDict(frozen=True)
+
+    board: str
+    channel: int
+    distance_from_speaker_m: float = 0.002
+
+
+class BurstConfig(BaseModel):
+    """The MLS burst each speaker plays: `pre_samples` of silence, one period of an MLS of
+    `mls_order` at `amplitude_v` volts, then `post_samples` of recording while it dies away."""
+
+    model_config = ConfigDict(frozen=True)
+
+    mls_order: int = Field(default=14, ge=4, le=20)
+    amplitude_v: float = Field(default=1.0, gt=0, le=10)
+    pre_samples: int = Field(default=512, ge=0)
+    post_samples: int = Field(default=2048, ge=0)
+
+    @property
+    def n_samples(self) -> int:
+        """Length of one recording, samples per channel."""
+        return self.pre_samples + 2**self.mls_order - 1 + self.post_samples
+
+
+class RigEntry(BaseModel):
+    """The calibration rig (see sim.geometry.Rig for the frame)."""
+
+    model_config = ConfigDict(frozen=True)
+
+    corners_x: int
+    corners_y: int
+    square_m: float
+    speakers_m: tuple[tuple[float, float, float], ...]
+    reference_mark_m: tuple[float, float, float]
+
+
+class CameraEntry(BaseModel):
+    model_config = ConfigDict(frozen=True)
+
+    name: str
+    device_id: str
+
+
+class CaptureConfig(BaseModel):
+    """Everything a capture session needs to know about its hardware and its plan."""
+
+    model_config = ConfigDict(frozen=True)
+
+    schema_version: Literal[1] = 1
+    sample_rate_hz: float = Field(gt=0)
+    boards: tuple[BoardEntry, ...]
+    columns: tuple[ColumnEntry, ...]
+    speakers: tuple[SpeakerEntry, ...]
+    reference: ReferenceMicEntry
+    burst: BurstConfig = BurstConfig()
+    rig: RigEntry
+    cameras: tuple[CameraEntry, ...]
+    n_poses: int = Field(ge=1)
+
+    @model_validator(mode="after")
+    def _consistent(self) -> CaptureConfig:
+        inputs = [(b.serial, c.channel) for b in self.boards for c in b.inputs]
+        cols = [(c.board, c.channel) for c in self.columns]
+        if cols != inputs:
+            raise ValueError("columns must list every board input, board after board, in order")
+        outputs = {(b.serial, c.channel) for b in self.boards for c in b.outputs}
+        for s in self.speakers:
+            if (s.board, s.output_channel) not in outputs:
+                raise ValueError(
+                    f"speaker {s.index} is wired to output {s.output_channel} of board {s.board}, "
+                    "which is not configured as an output"
+                )
+        if (self.reference.board, self.reference.channel) not in inputs:
+            raise ValueError("the reference microphone's channel is not a configured input")
+        return self
+
+    def scan_configs(self) -> list[ScanConfig]:
+        """One finite scan configuration per board (the sync group sets clock and trigger)."""
+        return [
+            ScanConfig(inputs=b.inputs, outputs=b.outputs, sample_rate_hz=self.sample_rate_hz,
+                       samples_per_channel=self.burst.n_samples)
+            for b in self.boards
+        ]

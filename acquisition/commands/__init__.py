@@ -1,0 +1,1 @@
+"""The subcommands of `micam`, one module each, each with `register(subparsers)`."""

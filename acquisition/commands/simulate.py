@@ -1,0 +1,101 @@
+"""`micam simulate`: a capture session recorded by the real sequencer on the simulated world."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+
+from pydantic import ValidationError
+from tqdm import tqdm
+
+from ..errors import UserError
+
+TRUTH_FILE = "truth.json"
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "simulate",
+        help="record a capture session on the simulated world",
+        description="Run the capture sequencer on simulated boards and cameras and write a "
+                    "session to DIR, with the simulation's ground truth in DIR/truth.json.",
+    )
+    p.add_argument("--out", required=True, type=Path, metavar="DIR",
+                   help="session directory (new or empty; with --resume, an interrupted one)")
+    p.add_argument("--resume", action="store_true",
+                   help="continue an interrupted session in DIR with its original settings")
+    p.add_argument("--array", default="sphere72",
+                   help="array layout: sphere72, planar64 or scatter48 (default sphere72)")
+    p.add_argument("--poses", type=int, default=20, help="rig poses to capture (default 20)")
+    p.add_argument("--distance", type=float, nargs=2, default=(0.6, 1.0), metavar=("MIN", "MAX"),
+                   help="rig distance range from camera 0 in metres (default 0.6 1.0)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the simulated world")
+    p.add_argument("--noise", type=float, default=1.0,
+                   help="scale of all noise: 1 = a real lab (default), 0 = none")
+    p.add_argument("--temperature", type=float, default=20.0, help="air temperature, degC")
+    p.add_argument("--mls-order", type=int, default=14,
+                   help="MLS order of the bursts (14 = 171 ms at 96 kS/s)")
+    p.add_argument("--body-diffraction", action="store_true",
+                   help="sound reaches microphones behind a sphere array around its surface")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(run=run)
+
+
+def _options_from_args(args: argparse.Namespace):
+    from sim.capture import SimulationOptions
+
+    try:
+        return SimulationOptions(
+            array=args.array, poses=args.poses, distance_m=tuple(args.distance), seed=args.seed,
+            noise=args.noise, temperature_c=args.temperature, mls_order=args.mls_order,
+            body_diffraction=args.body_diffraction,
+        )
+    except ValidationError as exc:
+        problems = "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
+        raise UserError(f"invalid simulation options: {problems}") from None
+
+
+def _write_json_atomic(path: Path, data: dict) -> None:
+    tmp = path.with_name(path.name + ".partial")
+    with open(tmp, "w") as f:
+        json.dump(data, f, indent=1)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def run(args: argparse.Namespace) -> int:
+    from acquisition.sequencer import CaptureSequencer
+    from acquisition.session import SessionError, SessionWriter
+    from sim.capture import SimulationOptions, build_simulated_capture, truth_document
+
+    out: Path = args.out
+    try:
+        if args.resume:
+            truth_path = out / TRUTH_FILE
+            if not truth_path.is_file():
+                raise UserError(f"{out} holds no simulated session ({TRUTH_FILE} is missing); "
+                                "only sessions made by `micam simulate` can be resumed this way")
+            options = SimulationOptions(**json.loads(truth_path.read_text())["simulation"])
+            sim = build_simulated_capture(options)
+            writer = SessionWriter.resume(out)
+        else:
+            options = _options_from_args(args)
+            sim = build_simulated_capture(options)
+            writer = SessionWriter.create(out, capture=sim.config.model_dump(mode="json"))
+            _write_json_atomic(out / TRUTH_FILE, truth_document(sim))
+    except SessionError as exc:
+        raise UserError(str(exc)) from None
+
+    sequencer = CaptureSequencer(sim.config, sim.group, sim.cameras, sim.operator, writer)
+    remaining = len(sequencer.remaining_steps())
+    with tqdm(total=remaining, unit="step", disable=args.quiet, desc="capture") as bar:
+        sequencer.on_progress = lambda p: (bar.set_postfix_str(p.step), bar.update(1))
+        sequencer.run()
+    if not args.quiet:
+        print(f"session written to {out} ({options.poses} poses, "
+              f"{len(sim.config.speakers)} speakers, {len(sim.config.columns)} channels); "
+              f"ground truth in {out / TRUTH_FILE}")
+    return 0

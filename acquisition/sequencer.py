@@ -1,0 +1,155 @@
+"""The capture sequencer: the steps of a calibration capture, run on whatever hardware is given.
+
+It knows boards only through `daq.SyncGroup`, cameras through `acquisition.camera.Camera` and
+the person moving the rig through `acquisition.operator.Operator`, so the same code drives real
+boards, simulated ones and emulated USB devices.
+
+Steps, in order (paper IV-C):
+1. `reference/<k>` for every speaker k: the reference microphone ~2 mm from speaker k, k's
+   burst recorded on every channel;
+2. `refmic`: the reference microphone on its stand, touched by the rig's reference mark, one
+   image from every camera (locates the reference microphone for the speed of sound);
+3. `pose/<nnnn>` for every rig pose: one image from every camera, then every speaker's burst
+   recorded on every channel (the reference microphone stays on its stand).
+
+A step is atomic: if anything fails inside it, its attempt stays open in the journal and the
+whole step is captured again on resume, into a new attempt directory.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from daq import SyncGroup, volts_to_codes
+
+from .camera import Camera
+from .capture_config import CaptureConfig
+from .operator import Instruction, InstructionKind, Operator
+from .session import SessionWriter
+from .stimulus import mls_burst
+
+
+@dataclass(frozen=True)
+class Step:
+    """One atomic capture step: its journal id and what the operator must set up first."""
+
+    id: str
+    instruction: Instruction
+
+
+@dataclass(frozen=True)
+class Progress:
+    """Reported after every completed step."""
+
+    done: int
+    total: int
+    step: str
+
+
+def plan_steps(config: CaptureConfig) -> list[Step]:
+    """Every step of a capture with `config`, in order."""
+    steps = [
+        Step(f"reference/{s.index}", Instruction(
+            kind=InstructionKind.REFERENCE_AT_SPEAKER, speaker=s.index,
+            text=f"Hold the reference microphone about "
+                 f"{config.reference.distance_from_speaker_m * 1000:.0f} mm in front of "
+                 f"speaker {s.index}."))
+        for s in config.speakers
+    ]
+    steps.append(Step("refmic", Instruction(
+        kind=InstructionKind.REFERENCE_ON_STAND,
+        text="Put the reference microphone on its stand just outside the camera view and touch "
+             "it with the rig's reference mark, the board in view.")))
+    steps += [
+        Step(f"pose/{i:04d}", Instruction(
+            kind=InstructionKind.RIG_AT_POSE, pose=i,
+            text=f"Hold the rig still at pose {i + 1} of {config.n_poses}, in view of the "
+                 "cameras."))
+        for i in range(config.n_poses)
+    ]
+    return steps
+
+
+class CaptureSequencer:
+    """Runs (or continues) the capture of one session."""
+
+    def __init__(
+        self,
+        config: CaptureConfig,
+        group: SyncGroup,
+        cameras: Sequence[Camera],
+        operator: Operator,
+        writer: SessionWriter,
+        on_progress: Callable[[Progress], None] | None = None,
+        camera_timeout_s: float = 2.0,
+    ) -> None:
+        names = [c.name for c in cameras]
+        if names != [c.name for c in config.cameras]:
+            raise ValueError(f"cameras {names} do not match the configuration's "
+                             f"{[c.name for c in config.cameras]}")
+        self.config = config
+        self.group = group
+        self.cameras = list(cameras)
+        self.operator = operator
+        self.writer = writer
+        self.on_progress = on_progress
+        self.camera_timeout_s = camera_timeout_s
+        self._board_index = {b.serial: i for i, b in enumerate(config.boards)}
+        self._burst_v = config.burst.amplitude_v * mls_burst(config.burst.mls_order)
+
+    def remaining_steps(self) -> list[Step]:
+        done = self.writer.completed_steps()
+        return [s for s in plan_steps(self.config) if s.id not in done]
+
+    def run(self) -> None:
+        """Capture every step not yet completed, then close the session as complete."""
+        steps = plan_steps(self.config)
+        done = self.writer.completed_steps()
+        self.group.configure(self.config.scan_configs())
+        for step in steps:
+            if step.id in done:
+                continue
+            self.operator.perform(step.instruction)
+            self._capture(step)
+            if self.on_progress is not None:
+                self.on_progress(Progress(len(self.writer.completed_steps()), len(steps),
+                                          step.id))
+        self.writer.stop("success")
+
+    def _capture(self, step: Step) -> None:
+        kind = step.instruction.kind
+        self.writer.begin_step(step.id)
+        if kind is InstructionKind.REFERENCE_AT_SPEAKER:
+            self._record_speaker(step.id, step.instruction.speaker or 0)
+        elif kind is InstructionKind.REFERENCE_ON_STAND:
+            self._take_images(step.id)
+        else:
+            self._take_images(step.id)
+            for speaker in self.config.speakers:
+                self._record_speaker(step.id, speaker.index)
+        self.writer.end_step(step.id)
+
+    def _take_images(self, step_id: str) -> None:
+        for camera in self.cameras:
+            frame = camera.grab(self.camera_timeout_s)
+            self.writer.write_image(step_id, f"{camera.name}.png", frame.image,
+                                    meta={"device_id": camera.device_id})
+
+    def _record_speaker(self, step_id: str, speaker_index: int) -> None:
+        speaker = self.config.speakers[speaker_index]
+        board = self._board_index[speaker.board]
+        entry = self.config.boards[board]
+        column = [c.channel for c in entry.outputs].index(speaker.output_channel)
+        volts = np.zeros((self.config.burst.n_samples, len(entry.outputs)))
+        start = self.config.burst.pre_samples
+        volts[start: start + len(self._burst_v), column] = self._burst_v
+        codes = volts_to_codes(volts, entry.outputs[column].range_v)
+        recording = self.group.acquire({board: codes})
+        self.writer.write_recording(
+            step_id, f"speaker_{speaker_index}.wav", recording.codes,
+            int(round(self.config.sample_rate_hz)),
+            meta={"speaker": speaker_index, "burst_start_sample": start},
+        )

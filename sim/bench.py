@@ -1,0 +1,221 @@
+"""The simulated lab bench: the analog world every simulated or emulated board is wired to.
+
+A bench stands for the cables and the air: the speakers hang on board outputs, the microphones
+on board inputs, and all boards share one sample clock and one trigger line. A board (the plain
+simulated board of `sim.boards`, or the emulated USB device of `sim.usb`) talks to the bench
+through the `AnalogBench` protocol only:
+
+1. before the trigger, every board with outputs loads the waveform it will play;
+2. the master fires the trigger: a new *scan* begins, sample 0 is the first clock edge after it;
+3. every board asks for its input codes by scan number and sample range, in any block sizes,
+   and always gets the same samples for the same (scan, channel, index), whatever the order of
+   the calls: the recording is a function of the world's seed, not of the read pattern.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from daq import CODE_FULL_SCALE, InputChannel, board_model, volts_to_codes
+
+from .sound import creeping_path_length, fft_length, propagate
+from .world import World
+
+
+class AnalogBench(Protocol):
+    """What a simulated or emulated board needs from the simulated world."""
+
+    def load_output(self, serial: str, channels: Sequence[int], codes: np.ndarray,
+                    range_v: float) -> None:
+        """Queue int16 output codes (n_samples, len(channels)) of board `serial` for the next
+        scan; they play from the trigger edge, then the outputs return to 0 V."""
+
+    def fire_trigger(self) -> int:
+        """Release the shared trigger: start a new scan and return its number (1, 2, ...)."""
+
+    def wait_for_trigger(self, after_scan: int, timeout_s: float) -> int | None:
+        """Block until a scan numbered above `after_scan` has started; None on timeout."""
+
+    def input_codes(self, serial: str, channels: Sequence[InputChannel], scan: int,
+                    start: int, n_samples: int) -> np.ndarray:
+        """int16 codes (n_samples, len(channels)) that board `serial` samples on `channels`
+        during `scan`, for sample indices start .. start + n_samples - 1."""
+
+NOISE_CHUNK = 4096
+"""Noise is drawn in chunks of this many samples, each from its own seeded generator, so that
+any read pattern sees the same noise."""
+
+TAIL_SAMPLES = 4096
+"""Samples rendered after the last output sample plus the longest path: the speaker's decay."""
+
+
+@dataclass(frozen=True)
+class _Source:
+    """What one input channel hears: an array microphone, the reference microphone, or nothing."""
+
+    kind: str  # "mic", "reference" or "none"
+    mic: int = -1
+
+
+@dataclass
+class _Scan:
+    """Everything needed to produce the inputs of one scan."""
+
+    number: int
+    drives: dict[int, np.ndarray]  # speaker index -> drive volts from sample 0
+    rig_pose_speakers: np.ndarray  # (n_speakers, 3) speaker positions at trigger time
+    reference_mic_m: np.ndarray | None
+    signals: dict[tuple[int, int], np.ndarray] | None = None  # (board, channel) -> volts
+
+
+class AcousticBench:
+    """The `AnalogBench` of the simulated world: speakers, air, microphones and the clock.
+
+    Thread-safe: boards may read from several threads (the USB emulator does).
+    """
+
+    def __init__(self, world: World) -> None:
+        self.world = world
+        layout = world.layout
+        self._board_index = {b.serial: i for i, b in enumerate(layout.boards)}
+        self._speaker_of_output = {(r.board, r.channel): k
+                                   for k, r in enumerate(layout.speaker_outputs)}
+        self._sources: dict[tuple[int, int], _Source] = {
+            (r.board, r.channel): _Source("mic", m) for m, r in enumerate(layout.mic_inputs)
+        }
+        ref = layout.reference_input
+        self._sources[(ref.board, ref.channel)] = _Source("reference")
+        self._pending: dict[int, np.ndarray] = {}
+        self._scan_number = 0
+        self._scans: dict[int, _Scan] = {}
+        self._cond = threading.Condition()
+
+    def board_index(self, serial: str) -> int:
+        try:
+            return self._board_index[serial]
+        except KeyError:
+            raise ValueError(f"board serial {serial!r} is not wired to this bench") from None
+
+    def load_output(self, serial: str, channels: Sequence[int], codes: np.ndarray,
+                    range_v: float) -> None:
+        b = self.board_index(serial)
+        volts = np.asarray(codes, dtype=np.float64) * (range_v / CODE_FULL_SCALE)
+        with self._cond:
+            for col, ch in enumerate(channels):
+                speaker = self._speaker_of_output.get((b, ch))
+                if speaker is not None and np.any(volts[:, col]):
+                    self._pending[speaker] = volts[:, col].copy()
+
+    def fire_trigger(self) -> int:
+        with self._cond:
+            self._scan_number += 1
+            n = self._scan_number
+            w = self.world
+            self._scans[n] = _Scan(n, self._pending, w.speaker_positions(),
+                                   None if w.reference_mic_m is None else w.reference_mic_m.copy())
+            self._pending = {}
+            for old in [k for k in self._scans if k < n - 2]:
+                del self._scans[old]
+            self._cond.notify_all()
+            return n
+
+    def wait_for_trigger(self, after_scan: int, timeout_s: float) -> int | None:
+        with self._cond:
+            if self._cond.wait_for(lambda: self._scan_number > after_scan, timeout=timeout_s):
+                return self._scan_number
+            return None
+
+    @property
+    def current_scan(self) -> int:
+        with self._cond:
+            return self._scan_number
+
+    def input_codes(self, serial: str, channels: Sequence[InputChannel], scan: int,
+                    start: int, n_samples: int) -> np.ndarray:
+        b = self.board_index(serial)
+        with self._cond:
+            record = self._scans.get(scan)
+            if record is None:
+                raise ValueError(f"scan {scan} is unknown or too old to read")
+            if record.signals is None:
+                record.signals = self._render(record)
+        volts = self._noise(scan, b, start, n_samples)
+        out = np.empty((n_samples, len(channels)), dtype=np.int16)
+        for col, ch in enumerate(channels):
+            v = volts[:, ch.channel].copy()
+            signal = record.signals.get((b, ch.channel))
+            if signal is not None and start < signal.shape[0]:
+                stop = min(start + n_samples, signal.shape[0])
+                v[: stop - start] += signal[start:stop]
+            out[:, col] = volts_to_codes(v, ch.range_v)
+        return out
+
+    def _noise(self, scan: int, board: int, start: int, n: int) -> np.ndarray:
+        """Input noise in volts (n, n_inputs of the board) for samples start .. start + n - 1."""
+        model_inputs = board_model(self.world.layout.boards[board].model).n_inputs
+        sigma = np.full(model_inputs, self.world.noise.array_noise_v)
+        ref = self.world.layout.reference_input
+        if ref.board == board:
+            sigma[ref.channel] = self.world.noise.reference_noise_v
+        first, last = start // NOISE_CHUNK, (start + n - 1) // NOISE_CHUNK
+        chunks = [
+            np.random.default_rng([self.world.seed, 2, scan, board, c]).standard_normal(
+                (NOISE_CHUNK, model_inputs))
+            for c in range(first, last + 1)
+        ]
+        offset = start - first * NOISE_CHUNK
+        return np.concatenate(chunks)[offset: offset + n] * sigma
+
+    def _render(self, scan: _Scan) -> dict[tuple[int, int], np.ndarray]:
+        """Noise-free input voltages of every wired channel for one scan."""
+        w = self.world
+        layout = w.layout
+        fs = w.sample_rate_hz
+        signals: dict[tuple[int, int], np.ndarray] = {}
+        if not scan.drives:
+            return signals
+        mic_keys = [(r.board, r.channel) for r in layout.mic_inputs]
+        positions = [layout.mic_positions_m]
+        latencies = [w.board_latencies_s[[r.board for r in layout.mic_inputs]]]
+        gains = [w.mic_gains]
+        keys = list(mic_keys)
+        if scan.reference_mic_m is not None:
+            ref = layout.reference_input
+            positions.append(scan.reference_mic_m[None, :])
+            latencies.append(np.array([w.board_latencies_s[ref.board]]))
+            gains.append(np.array([w.reference_gain]))
+            keys.append((ref.board, ref.channel))
+        receivers = np.vstack(positions)
+        latency = np.concatenate(latencies)
+        gain = np.concatenate(gains) * w.speaker_pressure_gain
+        n_drive = max(len(d) for d in scan.drives.values())
+        max_range = 4.0 + float(np.max(np.linalg.norm(receivers, axis=1)))
+        n_out = n_drive + int(np.ceil((max_range / w.speed_of_sound_m_s + latency.max()) * fs))
+        n_out += TAIL_SAMPLES
+        n_fft = fft_length(n_out + TAIL_SAMPLES)
+        freqs = np.fft.rfftfreq(n_fft, 1 / fs)
+        response = w.speaker.frequency_response(freqs, fs)
+        total = np.zeros((len(keys), n_out))
+        for speaker, drive in scan.drives.items():
+            source = scan.rig_pose_speakers[speaker]
+            paths = self._path_lengths(source, receivers, n_mics=len(mic_keys))
+            spectrum = np.fft.rfft(drive, n_fft) * response
+            total += propagate(spectrum, n_fft, fs, paths / w.speed_of_sound_m_s + latency,
+                               gain / paths, n_out)
+        for key, row in zip(keys, total, strict=True):
+            signals[key] = row
+        return signals
+
+    def _path_lengths(self, source: np.ndarray, receivers: np.ndarray, n_mics: int) -> np.ndarray:
+        """Acoustic path length from a source to every receiver (array mics first)."""
+        paths = np.linalg.norm(receivers - source, axis=1)
+        body = self.world.layout.body
+        if self.world.body_diffraction and body is not None:
+            paths[:n_mics] = creeping_path_length(source, receivers[:n_mics], body.centre_m,
+                                                  body.radius_m)
+        return np.maximum(paths, 1e-4)

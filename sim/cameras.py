@@ -1,0 +1,54 @@
+"""Simulated cameras: the acquisition `Camera` protocol rendering the simulated world."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from acquisition.camera import CameraTimeoutError, Frame
+
+from .geometry import CameraModel
+from .light import render_rig_image
+from .world import World
+
+
+class SimulatedCamera:
+    """Renders what camera `model` sees of the rig at the world's current pose.
+
+    `fail_next_grabs` makes the next grabs time out, as a camera that returns no frame does.
+    """
+
+    def __init__(self, model: CameraModel, world: World, index: int) -> None:
+        self.model = model
+        self.world = world
+        self._rng_key = (world.seed, 3, index)
+        self._grabs = 0
+        self.fail_next_grabs = 0
+
+    @property
+    def name(self) -> str:
+        return self.model.name
+
+    @property
+    def device_id(self) -> str:
+        return f"sim:{self.world.layout.name}:{self.model.name}"
+
+    def grab(self, timeout_s: float = 2.0) -> Frame:
+        if self.fail_next_grabs > 0:
+            self.fail_next_grabs -= 1
+            raise CameraTimeoutError(
+                f"camera {self.name} ({self.device_id}) returned no frame within {timeout_s} s"
+            )
+        self._grabs += 1
+        rng = np.random.default_rng([*self._rng_key, self._grabs])
+        w = self.world
+        image = render_rig_image(
+            self.model, w.rig, w.rig_pose if w.rig_in_view else None, rng,
+            noise_grey=w.noise.image_noise_grey * w.noise.scale,
+            blur_sigma_px=w.noise.image_blur_px,
+        )
+        return Frame(image=image, timestamp_s=time.monotonic(), camera=self.name)
+
+    def close(self) -> None:
+        """Nothing to release."""

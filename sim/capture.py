@@ -1,0 +1,187 @@
+"""A simulated capture set-up: the world, its boards and cameras, its operator, its truth.
+
+`micam simulate` builds one of these and runs the real capture sequencer on it; nothing here
+writes a session.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from acquisition.camera import Camera
+from acquisition.capture_config import (
+    BoardEntry,
+    BurstConfig,
+    CameraEntry,
+    CaptureConfig,
+    ColumnEntry,
+    ReferenceMicEntry,
+    RigEntry,
+    SpeakerEntry,
+)
+from daq import Board, InputChannel, OutputChannel, SyncGroup, board_model
+
+from .arrays import ARRAY_KINDS, ArrayLayout, array_layout
+from .bench import AcousticBench
+from .boards import SimulatedBoard
+from .cameras import SimulatedCamera
+from .geometry import Rig, RigidTransform
+from .operator import SimulatedOperator, reference_stand_position
+from .poses import sample_poses
+from .world import NoiseModel, World
+
+
+class SimulationOptions(BaseModel):
+    """The knobs of a simulated capture (all of them, so that a session can be resumed)."""
+
+    model_config = ConfigDict(frozen=True)
+
+    array: str = "sphere72"
+    poses: int = Field(default=20, ge=1, le=10_000)
+    distance_m: tuple[float, float] = (0.6, 1.0)
+    seed: int = 0
+    noise: float = Field(default=1.0, ge=0.0, description="scale of every noise; 0 = none")
+    temperature_c: float = Field(default=20.0, ge=-40.0, le=60.0)
+    mls_order: int = Field(default=14, ge=6, le=18)
+    body_diffraction: bool = False
+
+    @field_validator("array")
+    @classmethod
+    def _known_array(cls, v: str) -> str:
+        if v not in ARRAY_KINDS:
+            raise ValueError(f"unknown array {v!r}; choose one of {', '.join(ARRAY_KINDS)}")
+        return v
+
+    @field_validator("distance_m")
+    @classmethod
+    def _distance_range(cls, v: tuple[float, float]) -> tuple[float, float]:
+        if not 0.2 <= v[0] <= v[1] <= 5.0:
+            raise ValueError(f"distance range {v} must satisfy 0.2 <= min <= max <= 5 m")
+        return v
+
+
+@dataclass
+class SimulatedCapture:
+    """Everything the capture sequencer needs, plus the world that holds the truth."""
+
+    options: SimulationOptions
+    world: World
+    bench: AcousticBench
+    group: SyncGroup
+    cameras: list[Camera]
+    operator: SimulatedOperator
+    config: CaptureConfig
+    poses: list[RigidTransform]
+
+
+def capture_config_for(layout: ArrayLayout, rig: Rig, n_poses: int, sample_rate_hz: float,
+                       burst: BurstConfig, cameras: list[Camera]) -> CaptureConfig:
+    """The capture configuration of a simulated array: every wired input, in board order."""
+    wired: dict[int, list[tuple[int, str, int | None]]] = {}
+    for m, ref in enumerate(layout.mic_inputs):
+        wired.setdefault(ref.board, []).append((ref.channel, "mic", m))
+    ref = layout.reference_input
+    wired.setdefault(ref.board, []).append((ref.channel, "reference", None))
+    outputs: dict[int, list[int]] = {}
+    for out in layout.speaker_outputs:
+        outputs.setdefault(out.board, []).append(out.channel)
+    boards, columns = [], []
+    for b, spec in enumerate(layout.boards):
+        model = board_model(spec.model)
+        chans = sorted(wired.get(b, []))
+        boards.append(BoardEntry(
+            model=spec.model, serial=spec.serial,
+            inputs=tuple(InputChannel(channel=c, range_v=model.input_ranges_v[0])
+                         for c, _, _ in chans),
+            outputs=tuple(OutputChannel(channel=c, range_v=model.output_range_v or 10.0)
+                          for c in sorted(outputs.get(b, []))),
+        ))
+        columns += [ColumnEntry(board=spec.serial, channel=c, range_v=model.input_ranges_v[0],
+                                role=role, mic_id=mic) for c, role, mic in chans]
+    speakers = tuple(
+        SpeakerEntry(index=k, board=layout.boards[o.board].serial, output_channel=o.channel,
+                     rig_position_m=tuple(rig.speakers_m[k]))
+        for k, o in enumerate(layout.speaker_outputs)
+    )
+    return CaptureConfig(
+        sample_rate_hz=sample_rate_hz,
+        boards=tuple(boards),
+        columns=tuple(columns),
+        speakers=speakers,
+        reference=ReferenceMicEntry(board=layout.boards[ref.board].serial, channel=ref.channel),
+        burst=burst,
+        rig=RigEntry(corners_x=rig.corners_x, corners_y=rig.corners_y, square_m=rig.square_m,
+                     speakers_m=tuple(tuple(p) for p in rig.speakers_m),
+                     reference_mark_m=tuple(rig.reference_mark_m)),
+        cameras=tuple(CameraEntry(name=c.name, device_id=c.device_id) for c in cameras),
+        n_poses=n_poses,
+    )
+
+
+def build_simulated_capture(options: SimulationOptions,
+                            boards: list[Board] | None = None) -> SimulatedCapture:
+    """Build the simulated world for `options` and the hardware to capture it.
+
+    `boards` replaces the plain simulated boards (for example by emulated USB boards wired to
+    the same bench); by default every board of the layout is a `SimulatedBoard`.
+    """
+    layout = array_layout(options.array)
+    rig = Rig()
+    world = World(layout=layout, rig=rig, temperature_c=options.temperature_c,
+                  noise=NoiseModel(scale=options.noise), seed=options.seed,
+                  body_diffraction=options.body_diffraction)
+    bench = AcousticBench(world)
+    hardware: list[Board] = boards if boards is not None else [
+        SimulatedBoard(spec, bench) for spec in layout.boards
+    ]
+    cameras: list[Camera] = [SimulatedCamera(m, world, i) for i, m in enumerate(layout.cameras)]
+    poses = sample_poses(layout.cameras[0], rig, options.poses, options.distance_m,
+                         np.random.default_rng([options.seed, 4]))
+    operator = SimulatedOperator(world, poses, reference_stand_position(layout.cameras[0]))
+    config = capture_config_for(layout, rig, options.poses, world.sample_rate_hz,
+                                BurstConfig(mls_order=options.mls_order), cameras)
+    return SimulatedCapture(options, world, bench, SyncGroup(hardware), cameras, operator,
+                            config, poses)
+
+
+def truth_document(sim: SimulatedCapture) -> dict:
+    """The ground truth of a simulated capture, in the shape of a calibration result.
+
+    Positions are in the camera-0 frame (OpenCV convention), metres.
+    """
+    w = sim.world
+    layout = w.layout
+    return {
+        "microphones": [
+            {"id": m, "position_m": layout.mic_positions_m[m].tolist(),
+             "board": layout.boards[layout.mic_inputs[m].board].serial,
+             "channel": layout.mic_inputs[m].channel}
+            for m in range(layout.n_mics)
+        ],
+        "speed_of_sound_m_s": w.speed_of_sound_m_s,
+        "temperature_c": w.temperature_c,
+        "cameras": [c.to_json() for c in layout.cameras],
+        "poses": [
+            {"index": i, "rig_to_cam0": p.to_json(),
+             "speakers_m": p.apply(w.rig.speakers_m).tolist()}
+            for i, p in enumerate(sim.poses)
+        ],
+        "reference_microphone": {
+            "stand_position_m": sim.operator.stand_position_m.tolist(),
+            "distance_from_speaker_m": w.reference_distance_m,
+            "refmic_rig_to_cam0": sim.operator.rig_pose_on_stand().to_json(),
+        },
+        "board_latencies_s": {b.serial: float(lat)
+                              for b, lat in zip(layout.boards, w.board_latencies_s, strict=True)},
+        "mic_gains": w.mic_gains.tolist(),
+        "rig": w.rig.to_json(),
+        "noise": {"scale": w.noise.scale,
+                  "array_noise_v": w.noise.array_noise_v,
+                  "reference_noise_v": w.noise.reference_noise_v,
+                  "image_noise_grey": w.noise.image_noise_grey * w.noise.scale,
+                  "image_blur_px": w.noise.image_blur_px},
+        "simulation": sim.options.model_dump(mode="json"),
+    }

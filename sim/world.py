@@ -1,0 +1,131 @@
+"""The simulated world: an array, the rig, the air, and the hidden truth of all three.
+
+The world holds what the calibration must find (microphone positions, the speed of sound, the
+board latencies, the camera parameters) and the state an operator changes (where the rig is,
+where the reference microphone is). Levels and noise are those of a real lab by default; see
+`NoiseModel` and docs/simulation.md.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .arrays import ArrayLayout
+from .geometry import Rig, RigidTransform
+from .poses import FACING_CAMERA
+from .sound import SpeakerResponse, mls_burst, speed_of_sound
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """Levels and imperfections of the simulated lab.
+
+    Attributes:
+        scale: multiplies every random noise (acoustic and image); 0 gives a noiseless world
+            (codes are still 16-bit quantized).
+        array_rms_at_1m_v: RMS voltage at an array microphone 1 m from a speaker driven with a
+            +-1 V MLS.
+        array_snr_db_at_1m: broadband SNR of an array microphone at 1 m (the noise is white
+            over the whole 0 - fs/2 band).
+        reference_rms_v: RMS voltage of the reference microphone 2 mm from a speaker.
+        reference_snr_db: broadband SNR of the reference microphone there.
+        gain_spread_db: standard deviation of the microphones' sensitivity, in dB.
+        latency_range_s: each board's input latency is uniform in this range (seconds).
+        image_noise_grey: standard deviation of image sensor noise, in grey levels.
+        image_blur_px: Gaussian blur of the lens, standard deviation in pixels.
+    """
+
+    scale: float = 1.0
+    array_rms_at_1m_v: float = 0.1
+    array_snr_db_at_1m: float = 30.0
+    reference_rms_v: float = 1.0
+    reference_snr_db: float = 50.0
+    gain_spread_db: float = 1.0
+    latency_range_s: tuple[float, float] = (1e-6, 5e-6)
+    image_noise_grey: float = 2.0
+    image_blur_px: float = 0.6
+
+    def __post_init__(self) -> None:
+        if self.scale < 0:
+            raise ValueError(f"noise scale {self.scale} must be >= 0")
+
+    @property
+    def array_noise_v(self) -> float:
+        return self.scale * self.array_rms_at_1m_v / 10 ** (self.array_snr_db_at_1m / 20)
+
+    @property
+    def reference_noise_v(self) -> float:
+        return self.scale * self.reference_rms_v / 10 ** (self.reference_snr_db / 20)
+
+
+@dataclass
+class World:
+    """The simulated lab.
+
+    Attributes:
+        layout: the array, its cameras and wiring.
+        rig: the calibration rig.
+        temperature_c: air temperature; sets the speed of sound.
+        sample_rate_hz: the shared sample clock of all boards.
+        noise: levels and noise.
+        seed: seeds every random draw of this world (hidden parameters and noise).
+        reference_distance_m: distance of the reference microphone from a speaker's acoustic
+            centre during the reference recordings (paper IV-C: about 2 mm).
+        body_diffraction: let sound reach microphones in the shadow of a sphere array around
+            its surface (the creeping-wave path) instead of straight through it.
+        speaker: the speakers' response.
+    """
+
+    layout: ArrayLayout
+    rig: Rig = field(default_factory=Rig)
+    temperature_c: float = 20.0
+    sample_rate_hz: float = 96_000.0
+    noise: NoiseModel = field(default_factory=NoiseModel)
+    seed: int = 0
+    reference_distance_m: float = 0.002
+    body_diffraction: bool = False
+    speaker: SpeakerResponse = field(default_factory=SpeakerResponse)
+
+    def __post_init__(self) -> None:
+        rng = np.random.default_rng([self.seed, 1])
+        self.speed_of_sound_m_s = speed_of_sound(self.temperature_c)
+        self.mic_gains = 10 ** (rng.normal(0, self.noise.gain_spread_db, self.layout.n_mics) / 20)
+        lo, hi = self.noise.latency_range_s
+        self.board_latencies_s = rng.uniform(lo, hi, len(self.layout.boards))
+        self.speaker_pressure_gain = self.noise.array_rms_at_1m_v / self._unit_drive_rms()
+        self.reference_gain = self.noise.reference_rms_v * self.reference_distance_m / (
+            self.speaker_pressure_gain * self._unit_drive_rms()
+        )
+        self.rig_pose = RigidTransform(FACING_CAMERA, np.array([-0.075, 0.12, 0.8]))
+        self.reference_mic_m: np.ndarray | None = None
+        self.rig_in_view = True
+
+    def _unit_drive_rms(self) -> float:
+        """RMS of the speaker's acoustic output for a +-1 V MLS drive (order 14)."""
+        x = mls_burst(14)
+        n = len(x)
+        h = self.speaker.frequency_response(np.fft.rfftfreq(n, 1 / self.sample_rate_hz),
+                                            self.sample_rate_hz)
+        y = np.fft.irfft(np.fft.rfft(x) * h, n)
+        return float(np.sqrt(np.mean(y**2)))
+
+    def speaker_positions(self) -> np.ndarray:
+        """(n_speakers, 3) speaker acoustic centres in the camera-0 frame, at the current pose."""
+        return self.rig_pose.apply(self.rig.speakers_m)
+
+    def rig_normal(self) -> np.ndarray:
+        """Unit vector out of the rig's printed face, in the camera-0 frame."""
+        return self.rig_pose.R[:, 2]
+
+    def place_rig(self, pose: RigidTransform, in_view: bool = True) -> None:
+        self.rig_pose = pose
+        self.rig_in_view = in_view
+
+    def place_reference_mic(self, position_m: np.ndarray | None) -> None:
+        self.reference_mic_m = None if position_m is None else np.asarray(position_m, float)
+
+    def reference_position_at_speaker(self, speaker: int) -> np.ndarray:
+        """Where the reference microphone sits for speaker `speaker`'s reference recording."""
+        return self.speaker_positions()[speaker] + self.reference_distance_m * self.rig_normal()
