@@ -1,0 +1,150 @@
+"""Speed of sound: the paper's camera-scaled fit (section IV-G) and the Cramer (1993) formula.
+
+Why fit c instead of measuring temperature: the microphone solver only sees ranges c * TOF
+against source positions measured by the camera. An error in the camera's metric scale
+(checkerboard print, focal length) is then almost exactly absorbed by c (positions x k and
+c x k leave every TOF unchanged), so the "scaled" c fitted against camera distances gives
+better microphone positions than the physically true c. The paper fits it from a reference
+microphone on a stand whose position the camera also measures.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class SpeedOfSoundFit:
+    """Result of `fit_speed_of_sound`.
+
+    Attributes:
+        speed_of_sound_m_s: fitted c.
+        speed_of_sound_std_m_s: its standard error.
+        latency_s: the fitted common latency delta (TOF = d / c + delta); 0 without intercept.
+        latency_std_s: its standard error (0 without intercept).
+        residual_rms_m: RMS of the distance residuals d - c (t - delta), metres.
+        n: number of (distance, TOF) pairs used.
+    """
+
+    speed_of_sound_m_s: float
+    speed_of_sound_std_m_s: float
+    latency_s: float
+    latency_std_s: float
+    residual_rms_m: float
+    n: int
+
+
+def fit_speed_of_sound(
+    distances_m: np.ndarray,
+    tofs_s: np.ndarray,
+    intercept: bool = False,
+    distance_std_m: float | np.ndarray | None = None,
+    tof_std_s: float | np.ndarray | None = None,
+    absolute_sigma: bool = False,
+) -> SpeedOfSoundFit:
+    """Least-squares c from camera distances (speaker -> reference microphone) and their TOFs.
+
+    Model: d_i = c (t_i - delta) + e_i, fitted as the straight line d = c t + b (b = -c delta)
+    by weighted least squares of d on t, because the camera's distance errors (~0.5 mm, i.e.
+    ~1.5 us) dominate the TOF errors (~10 ns). Each point weighs 1 / (sigma_d^2 + c^2 sigma_t^2)
+    with c from an unweighted first pass; with neither sigma given all weights are equal.
+
+    Args:
+        distances_m: (n,) distances from the camera-measured speaker positions to the
+            camera-measured reference microphone.
+        tofs_s: (n,) measured times of flight (NaN entries are skipped).
+        intercept: also fit delta, a latency common to all TOFs (e.g. an uncorrected channel
+            latency). Needs a spread of distances; without it c absorbs the latency.
+        distance_std_m, tof_std_s: per-point or common standard deviations.
+        absolute_sigma: take the sigmas as exact (standard errors from them alone); otherwise
+            the standard errors are scaled by the residual scatter (chi^2 per dof), as the
+            paper's standard deviation is.
+    """
+    d = np.asarray(distances_m, dtype=float).ravel()
+    t = np.asarray(tofs_s, dtype=float).ravel()
+    ok = np.isfinite(d) & np.isfinite(t)
+    n_params = 2 if intercept else 1
+    if ok.sum() <= n_params:
+        raise ValueError(f"need more than {n_params} finite (distance, TOF) pairs")
+    design = np.stack([t, np.ones_like(t)], axis=1)[:, :n_params]
+
+    def solve(weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        a = design[ok] * np.sqrt(weights)[:, None]
+        coef, *_ = np.linalg.lstsq(a, d[ok] * np.sqrt(weights), rcond=None)
+        return coef, np.linalg.inv(a.T @ a)
+
+    weights = np.ones(ok.sum())
+    coef, cov = solve(weights)
+    if distance_std_m is not None or tof_std_s is not None:
+        sd = np.broadcast_to(0.0 if distance_std_m is None else distance_std_m, d.shape)[ok]
+        st = np.broadcast_to(0.0 if tof_std_s is None else tof_std_s, d.shape)[ok]
+        weights = 1.0 / (sd**2 + (coef[0] * st) ** 2)
+        coef, cov = solve(weights)
+    residual = d[ok] - design[ok] @ coef
+    if not absolute_sigma:
+        cov = cov * np.sum(weights * residual**2) / (ok.sum() - n_params)
+
+    c = float(coef[0])
+    if intercept:
+        b = float(coef[1])
+        grad = np.array([b / c**2, -1.0 / c])  # d(delta)/d(c, b), delta = -b / c
+        latency, latency_std = -b / c, float(np.sqrt(grad @ cov @ grad))
+    else:
+        latency, latency_std = 0.0, 0.0
+    return SpeedOfSoundFit(
+        speed_of_sound_m_s=c,
+        speed_of_sound_std_m_s=float(np.sqrt(cov[0, 0])),
+        latency_s=latency,
+        latency_std_s=latency_std,
+        residual_rms_m=float(np.sqrt(np.mean(residual**2))),
+        n=int(ok.sum()),
+    )
+
+
+# Cramer (1993), J. Acoust. Soc. Am. 93(5) 2510-2516, Table III, coefficients a0..a15.
+_CRAMER = (
+    331.5024, 0.603055, -0.000528, 51.471935, 0.1495874, -0.000782, -1.82e-7, 3.73e-8,
+    -2.93e-10, -85.20931, -0.228525, 5.91e-5, -2.835149, -2.15e-13, 29.179762, 0.000486,
+)  # fmt: skip
+
+
+def speed_of_sound_from_temperature(
+    temperature_c: float | np.ndarray,
+    relative_humidity: float | np.ndarray = 0.5,
+    pressure_pa: float | np.ndarray = 101_325.0,
+    co2_mole_fraction: float = 0.0004,
+) -> float | np.ndarray:
+    """Speed of sound in air (m/s) from Cramer's (1993) formula.
+
+    Accuracy: Cramer states an uncertainty below 300 ppm (about 0.1 m/s) for 0-30 degC,
+    60-110 kPa, water-vapour mole fraction up to 0.06 and CO2 up to 1 %. In practice the
+    thermometer dominates: c changes by 0.6 m/s per kelvin and by ~0.6 m/s between dry and
+    saturated air at 20 degC, so the paper's +-0.1 m/s needs +-0.17 K. The water-vapour mole
+    fraction uses the enhancement factor and saturation vapour pressure of Davis (1992),
+    as in Cramer's appendix.
+
+    Args:
+        temperature_c: air temperature in degC.
+        relative_humidity: 0..1.
+        pressure_pa: static pressure in Pa.
+        co2_mole_fraction: 0.0004 (400 ppm) by default.
+    """
+    t = np.asarray(temperature_c, dtype=float)
+    p = np.asarray(pressure_pa, dtype=float)
+    kelvin = t + 273.15
+    enhancement = 1.00062 + 3.14e-8 * p + 5.6e-7 * t**2
+    saturation = np.exp(1.2811805e-5 * kelvin**2 - 1.9509874e-2 * kelvin + 34.04926034
+                        - 6.3536311e3 / kelvin)  # fmt: skip
+    xw = np.asarray(relative_humidity, dtype=float) * enhancement * saturation / p
+    xc = co2_mole_fraction
+    a = _CRAMER
+    c = (
+        a[0] + a[1] * t + a[2] * t**2
+        + (a[3] + a[4] * t + a[5] * t**2) * xw
+        + (a[6] + a[7] * t + a[8] * t**2) * p
+        + (a[9] + a[10] * t + a[11] * t**2) * xc
+        + a[12] * xw**2 + a[13] * p**2 + a[14] * xc**2 + a[15] * xw * p * xc
+    )  # fmt: skip
+    return float(c) if c.ndim == 0 else c
