@@ -12,8 +12,10 @@ Steps, in order (paper IV-C):
 3. `pose/<nnnn>` for every rig pose: one image from every camera, then every speaker's burst
    recorded on every channel (the reference microphone stays on its stand).
 
-A step is atomic: if anything fails inside it, its attempt stays open in the journal and the
-whole step is captured again on resume, into a new attempt directory.
+A step is atomic: if anything fails inside it, its attempt is journaled as abandoned (with the
+reason) and the error propagates; the session stays open (it reads as interrupted) and the whole
+step is captured again on resume, into a new attempt directory. A process killed inside a step
+leaves the attempt open, which resume turns into an abandoned one.
 """
 
 from __future__ import annotations
@@ -122,6 +124,14 @@ class CaptureSequencer:
     def _capture(self, step: Step) -> None:
         kind = step.instruction.kind
         self.writer.begin_step(step.id)
+        try:
+            self._capture_into_open_step(step, kind)
+        except Exception as exc:
+            self.writer.abandon_step(step.id, f"{type(exc).__name__}: {exc}")
+            raise
+        self.writer.end_step(step.id)
+
+    def _capture_into_open_step(self, step: Step, kind: InstructionKind) -> None:
         if kind is InstructionKind.REFERENCE_AT_SPEAKER:
             self._record_speaker(step.id, step.instruction.speaker or 0)
         elif kind is InstructionKind.REFERENCE_ON_STAND:
@@ -130,7 +140,6 @@ class CaptureSequencer:
             self._take_images(step.id)
             for speaker in self.config.speakers:
                 self._record_speaker(step.id, speaker.index)
-        self.writer.end_step(step.id)
 
     def _take_images(self, step_id: str) -> None:
         for camera in self.cameras:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 from pathlib import Path
 
 from pydantic import ValidationError
@@ -67,7 +68,9 @@ def _write_json_atomic(path: Path, data: dict) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from acquisition.camera import CameraError
     from acquisition.sequencer import CaptureSequencer
+    from daq import DaqError
     from acquisition.session import SessionError, SessionWriter
     from sim.capture import SimulationOptions, build_simulated_capture, truth_document
 
@@ -91,9 +94,15 @@ def run(args: argparse.Namespace) -> int:
 
     sequencer = CaptureSequencer(sim.config, sim.group, sim.cameras, sim.operator, writer)
     remaining = len(sequencer.remaining_steps())
-    with tqdm(total=remaining, unit="step", disable=args.quiet, desc="capture") as bar:
-        sequencer.on_progress = lambda p: (bar.set_postfix_str(p.step), bar.update(1))
-        sequencer.run()
+    try:
+        with tqdm(total=remaining, unit="step", disable=args.quiet, desc="capture") as bar:
+            sequencer.on_progress = lambda p: (bar.set_postfix_str(p.step), bar.update(1))
+            sequencer.run()
+    except (DaqError, CameraError) as exc:
+        print(f"micam: capture interrupted: {exc}\n"
+              f"Every completed step in {out} is safe; fix the cause and continue with\n"
+              f"  micam simulate --resume --out {out}", file=sys.stderr)
+        return 3
     if not args.quiet:
         print(f"session written to {out} ({options.poses} poses, "
               f"{len(sim.config.speakers)} speakers, {len(sim.config.columns)} channels); "
