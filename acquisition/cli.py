@@ -10,10 +10,10 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from .commands import simulate
+from .commands import inspect, simulate
 from .errors import UserError
 
-SUBCOMMANDS = (simulate,)
+SUBCOMMANDS = (simulate, inspect)
 
 
 def build_parser() -> argparse.ArgumentParser:

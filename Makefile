@@ -1,0 +1,29 @@
+# Two commands for a newcomer: `make demo` (the main job) and `make test` (the test suite).
+# Both create the virtual environment in .venv on first use.
+
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+DEMO_DIR := out/demo-$(shell date +%Y%m%d-%H%M%S)
+
+.PHONY: demo test bench clean-venv
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e '.[test]'
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(BIN)/micam simulate --out $(DEMO_DIR) --poses 20
+	$(BIN)/micam inspect $(DEMO_DIR)
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q
+
+bench: $(STAMP)
+	$(BIN)/python benchmarks/bench_simulation.py
+
+clean-venv:
+	rm -rf $(VENV)

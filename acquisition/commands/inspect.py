@@ -1,0 +1,64 @@
+"""`micam inspect SESSION`: what a session holds, whether it is intact, and its ground truth."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from ..errors import UserError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("inspect", help="summarise a session and check its files",
+                       description="Print a session's status, steps and size, and re-check "
+                                   "every file against the journal's checksum.")
+    p.add_argument("session", type=Path, help="session directory")
+    p.set_defaults(run=run)
+
+
+def _megabytes(path: Path) -> float:
+    return sum(f.stat().st_size for f in path.rglob("*") if f.is_file()) / 1e6
+
+
+def _mean(points: list[list[float]]) -> list[float]:
+    return [sum(axis) / len(points) for axis in zip(*points, strict=True)]
+
+
+def _norm(v: list[float]) -> float:
+    return sum(x * x for x in v) ** 0.5
+
+
+def run(args: argparse.Namespace) -> int:
+    from acquisition.session import SessionError, SessionReader
+
+    try:
+        reader = SessionReader(args.session)
+    except SessionError as exc:
+        raise UserError(str(exc)) from None
+    steps = reader.steps()
+    capture = reader.capture
+    poses = [s for s in steps if s.startswith("pose/")]
+    refs = [s for s in steps if s.startswith("reference/")]
+    n_files = sum(len(r.files) for r in steps.values())
+    print(f"session   {reader.session_id} at {args.session}")
+    print(f"status    {reader.status}")
+    print(f"steps     {len(refs)} reference recordings, "
+          f"{'1' if 'refmic' in steps else 'no'} reference-microphone image set, "
+          f"{len(poses)} of {capture['n_poses']} poses")
+    print(f"channels  {len(capture['columns'])} at {capture['sample_rate_hz']:.0f} S/s on "
+          f"{len(capture['boards'])} boards; cameras "
+          f"{', '.join(c['name'] for c in capture['cameras'])}")
+    print(f"files     {n_files} ({_megabytes(args.session):.0f} MB)")
+    problems = reader.verify()
+    print("checksums " + ("all intact" if not problems else f"{len(problems)} problems:"))
+    for problem in problems:
+        print(f"  - {problem}")
+    truth_path = args.session / "truth.json"
+    if truth_path.is_file():
+        truth = json.loads(truth_path.read_text())
+        dist = [_norm(_mean(p["speakers_m"])) for p in truth["poses"]]
+        print(f"truth     {len(truth['microphones'])} microphones, c = "
+              f"{truth['speed_of_sound_m_s']:.2f} m/s ({truth['temperature_c']:.1f} degC), "
+              f"rig centre {min(dist):.2f}-{max(dist):.2f} m from camera 0")
+    return 0 if not problems else 1
