@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import struct
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from enum import IntEnum
 from typing import ClassVar, Protocol, Self
 
@@ -292,7 +292,7 @@ class _SubsystemCommand:
 
     subsystem: Subsystem
     ext_trig: int = 0
-    code: ClassVar[CommandCode] = field(init=False, default=CommandCode.START_SUBSYSTEM)
+    code: ClassVar[CommandCode]
 
     def __post_init__(self) -> None:
         _u16(self.ext_trig, "ExtTrig flags")
