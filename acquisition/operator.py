@@ -7,13 +7,13 @@ the CLI; the simulated operator moves the simulated world.
 
 from __future__ import annotations
 
-from enum import Enum
+from enum import StrEnum
 from typing import Protocol, runtime_checkable
 
 from pydantic import BaseModel, ConfigDict
 
 
-class InstructionKind(str, Enum):
+class InstructionKind(StrEnum):
     """The physical set-up a capture step needs."""
 
     REFERENCE_AT_SPEAKER = "reference_at_speaker"

@@ -159,6 +159,6 @@ class CaptureSequencer:
         recording = self.group.acquire({board: codes})
         self.writer.write_recording(
             step_id, f"speaker_{speaker_index}.wav", recording.codes,
-            int(round(self.config.sample_rate_hz)),
+            round(self.config.sample_rate_hz),
             meta={"speaker": speaker_index, "burst_start_sample": start},
         )

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from enum import Enum
+from enum import StrEnum
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
@@ -10,14 +10,14 @@ from ._errors import ConfigurationError
 from ._models import BoardModel
 
 
-class ClockSource(str, Enum):
+class ClockSource(StrEnum):
     """Where the sample clock comes from: the board's own time base, or the shared clock line."""
 
     INTERNAL = "internal"
     EXTERNAL = "external"
 
 
-class TriggerSource(str, Enum):
+class TriggerSource(StrEnum):
     """What starts the scan: a software start command, or an edge on the shared trigger line."""
 
     SOFTWARE = "software"

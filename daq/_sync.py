@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from itertools import pairwise
 
 import numpy as np
 
@@ -140,7 +141,7 @@ class SyncGroup:
         return GroupRecording(
             codes=np.concatenate(per_board, axis=1),
             boards=tuple(b.identity for b in self.boards),
-            columns=tuple(slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])),
+            columns=tuple(slice(int(a), int(b)) for a, b in pairwise(edges)),
         )
 
     def close(self) -> None:

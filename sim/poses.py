@@ -54,7 +54,8 @@ def sample_pose(
         v = rng.uniform(0.2, 0.8) * camera.height
         ray = K_inv @ np.array([u, v, 1.0])
         centre_cam = camera.from_cam0.inverse().apply(d * ray / np.linalg.norm(ray))
-        roll = rotation_from_rotvec([0.0, 0.0, np.radians(rng.uniform(-max_roll_deg, max_roll_deg))])
+        roll_angle = np.radians(rng.uniform(-max_roll_deg, max_roll_deg))
+        roll = rotation_from_rotvec([0.0, 0.0, roll_angle])
         axis_angle = rng.uniform(0, 2 * np.pi)
         tilt = np.radians(rng.uniform(0, max_tilt_deg))
         tilt_R = rotation_from_rotvec(tilt * np.array([np.cos(axis_angle), np.sin(axis_angle), 0]))

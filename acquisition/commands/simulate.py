@@ -70,8 +70,8 @@ def _write_json_atomic(path: Path, data: dict) -> None:
 def run(args: argparse.Namespace) -> int:
     from acquisition.camera import CameraError
     from acquisition.sequencer import CaptureSequencer
-    from daq import DaqError
     from acquisition.session import SessionError, SessionWriter
+    from daq import DaqError
     from sim.capture import SimulationOptions, build_simulated_capture, truth_document
 
     out: Path = args.out

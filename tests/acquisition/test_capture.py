@@ -52,7 +52,7 @@ def test_complete_session_round_trips(tmp_path: Path, small_options: SimulationO
 
 def test_recording_carries_the_reference_microphone(tmp_path: Path,
                                                    small_options: SimulationOptions) -> None:
-    sim, writer, seq = _capture(tmp_path / "s", small_options)
+    sim, _, seq = _capture(tmp_path / "s", small_options)
     seq.run()
     reader = SessionReader(tmp_path / "s")
     ref_col = [c.role for c in sim.config.columns].index("reference")
@@ -163,7 +163,7 @@ def test_camera_without_frame_interrupts_cleanly(tmp_path: Path,
 
 def test_same_seed_same_recordings(tmp_path: Path, small_options: SimulationOptions) -> None:
     for name in ("a", "b"):
-        _, writer, seq = _capture(tmp_path / name, small_options)
+        _, _, seq = _capture(tmp_path / name, small_options)
         seq.run()
     a, b = SessionReader(tmp_path / "a"), SessionReader(tmp_path / "b")
     ra, _ = a.read_recording("pose/0001", "speaker_3.wav")

@@ -15,7 +15,7 @@ from daq import (
 
 
 def _cfg(**kw) -> ScanConfig:
-    base = dict(inputs=(InputChannel(channel=0),), sample_rate_hz=96_000.0)
+    base = {"inputs": (InputChannel(channel=0),), "sample_rate_hz": 96_000.0}
     base.update(kw)
     return ScanConfig(**base)
 

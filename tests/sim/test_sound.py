@@ -71,7 +71,7 @@ def test_levels_match_the_documented_snr() -> None:
     world = World(layout=scatter48(), seed=4)
     world.rig_pose = world.rig_pose.__class__(world.rig_pose.R, np.array([0.0, 0.0, 1.0])
                                               - world.rig_pose.R @ world.rig.speakers_m[0])
-    source, rec = _record(world, 0, 0, 6000)
+    _, rec = _record(world, 0, 0, 6000)
     noise = rec[:90].std()
     signal = rec[400:4100].std()
     spk = world.speaker_positions()[0]
