@@ -1,0 +1,46 @@
+"""The crash-safe session store: a directory per session, an fsync'd journal, atomic files.
+
+`SessionWriter` records a capture step by step and resumes it after a crash; `SessionReader`
+gives calibration the completed steps. The format is documented in docs/session-format.md.
+"""
+
+from ._journal import JOURNAL_NAME, journal_records
+from ._models import (
+    SCHEMA_VERSION,
+    FileRecord,
+    FileWritten,
+    Record,
+    SessionError,
+    SessionManifest,
+    SessionResume,
+    SessionStart,
+    SessionStop,
+    StepAbandoned,
+    StepBegin,
+    StepEnd,
+    StepRecord,
+)
+from ._reader import SessionReader
+from ._writer import MANIFEST_NAME, SessionWriter, attempt_dir
+
+__all__ = [
+    "JOURNAL_NAME",
+    "MANIFEST_NAME",
+    "SCHEMA_VERSION",
+    "FileRecord",
+    "FileWritten",
+    "Record",
+    "SessionError",
+    "SessionManifest",
+    "SessionReader",
+    "SessionResume",
+    "SessionStart",
+    "SessionStop",
+    "SessionWriter",
+    "StepAbandoned",
+    "StepBegin",
+    "StepEnd",
+    "StepRecord",
+    "attempt_dir",
+    "journal_records",
+]
