@@ -222,7 +222,7 @@ def _run_script_crashing(path: Path, site: str, k: int) -> int:
 
             setattr(*_hooked(site, crash))
             _run_script(path)
-        except BaseException:  # noqa: BLE001 - the child must end in os._exit, whatever happens
+        except BaseException:  # the child must end in os._exit
             traceback.print_exc()
             code = 3
         finally:
@@ -255,11 +255,11 @@ def _resume_finish_and_check(path: Path) -> None:
     journal_before = (path / JOURNAL_NAME).read_bytes() if _started(path) else b""
     writer: SessionWriter | None = None
     if not _started(path):  # died inside create: the directory may be reused
-        with pytest.raises(SessionError, match="SessionWriter.create"):
+        with pytest.raises(SessionError, match=r"SessionWriter\.create"):
             SessionReader(path)
         writer = SessionWriter.create(path, CAPTURE, session_id="crash-test")
     elif SessionReader(path).status == "complete":  # the crash came after session_stop
-        with pytest.raises(SessionError, match="is closed.*start a new session"):
+        with pytest.raises(SessionError, match=r"is closed.*start a new session"):
             SessionWriter.resume(path)
     else:
         assert SessionReader(path).status == "interrupted"
@@ -373,7 +373,7 @@ def open_writer(tmp_path: Path) -> SessionWriter:
 
 def test_create_refuses_an_existing_session_or_a_non_empty_directory(tmp_path: Path) -> None:
     SessionWriter.create(tmp_path / "s", CAPTURE).stop()
-    with pytest.raises(SessionError, match="already holds a session; use SessionWriter.resume"):
+    with pytest.raises(SessionError, match=r"already holds a session; use SessionWriter\.resume"):
         SessionWriter.create(tmp_path / "s", CAPTURE)
     (tmp_path / "other").mkdir()
     (tmp_path / "other" / "notes.txt").write_text("x")
@@ -389,7 +389,7 @@ def test_a_directory_whose_create_was_cut_short_can_be_created_again(
     path = tmp_path / "s"
     path.mkdir()
     (path / JOURNAL_NAME).write_bytes(journal)
-    with pytest.raises(SessionError, match="creation was interrupted.*SessionWriter.create"):
+    with pytest.raises(SessionError, match=r"creation was interrupted.*SessionWriter\.create"):
         SessionReader(path)
     with pytest.raises(SessionError, match="creation was interrupted"):
         SessionWriter.resume(path)
@@ -459,11 +459,11 @@ def test_bad_calls_are_refused_with_a_clear_message(
 
 def test_a_name_is_written_once_per_attempt(open_writer: SessionWriter) -> None:
     open_writer.write_json("pose/0000", "pose.json", {"a": 1})
-    with pytest.raises(SessionError, match="pose.json was already written in this attempt"):
+    with pytest.raises(SessionError, match=r"pose\.json was already written in this attempt"):
         open_writer.write_json("pose/0000", "pose.json", {"a": 2})
     target = open_writer.path / "poses" / "0000-a1" / "cam0.png"
     target.write_bytes(b"not ours")
-    with pytest.raises(SessionError, match="cam0.png already exists"):
+    with pytest.raises(SessionError, match=r"cam0\.png already exists"):
         open_writer.write_image("pose/0000", "cam0.png", _image("x"))
     assert target.read_bytes() == b"not ours"
 
@@ -492,7 +492,7 @@ def test_stop_other_than_success_abandons_the_open_attempt(open_writer: SessionW
     assert journal_records(open_writer.path)[-2].kind == "step_abandoned"
     with pytest.raises(SessionError, match="is closed"):
         open_writer.begin_step("pose/0001")
-    with pytest.raises(SessionError, match="is closed.*start a new session"):
+    with pytest.raises(SessionError, match=r"is closed.*start a new session"):
         SessionWriter.resume(open_writer.path)
 
 
@@ -526,7 +526,7 @@ def test_a_resume_in_the_same_process_supersedes_the_earlier_writer(
 def test_reader_refuses_what_is_not_a_session(tmp_path: Path) -> None:
     with pytest.raises(SessionError, match="is not a directory"):
         SessionReader(tmp_path / "nowhere")
-    with pytest.raises(SessionError, match="is not a micam session: it has no journal.jsonl"):
+    with pytest.raises(SessionError, match=r"is not a micam session: it has no journal\.jsonl"):
         SessionReader(tmp_path)
     with pytest.raises(SessionError, match="is not a micam session"):
         SessionWriter.resume(tmp_path)
@@ -536,7 +536,7 @@ def test_reader_refuses_unknown_steps_and_files(open_writer: SessionWriter) -> N
     reader = SessionReader(open_writer.path)
     with pytest.raises(SessionError, match=r"no completed step 'pose/0000'.*\['refmic'\]"):
         reader.read_recording("pose/0000", "burst.wav")
-    with pytest.raises(SessionError, match="has no file 'nope.wav'"):
+    with pytest.raises(SessionError, match=r"has no file 'nope\.wav'"):
         reader.read_recording("refmic", "nope.wav")
     with pytest.raises(SessionError, match="holds role 'image', not 'recording'"):
         reader.read_recording("refmic", "cam0.png")
