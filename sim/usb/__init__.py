@@ -20,7 +20,7 @@ from daq.usb._families import FAMILIES, LOADER_IMAGE
 from sim.bench import AnalogBench
 
 from ._backend import EmulatedBackend
-from ._bus import EmulatedBoard, EmulatedBus
+from ._bus import EmulatedBoard, EmulatedBus, eeprom_serial
 from ._descriptors import device_descriptor_bytes
 from ._faults import Fault, FaultKind
 from .loopback import LoopbackBench
@@ -32,6 +32,7 @@ __all__ = [
     "Fault",
     "FaultKind",
     "LoopbackBench",
+    "eeprom_serial",
     "emulated_boards",
     "synthetic_firmware",
 ]
@@ -44,8 +45,10 @@ def emulated_boards(bench: AnalogBench, boards: Sequence[tuple[str, str]],
 
     Args:
         bench: the simulated world the boards are wired to.
-        boards: (model name, serial) per board, e.g. [("DT9836-12-2", "1001")]; serials are
-            decimal numbers (the board EEPROM holds a 32-bit serial).
+        boards: (model name, serial) per board, e.g. [("DT9836-12-2", "1001")]. The serial
+            names the board on the bench; the driver reads `eeprom_serial(serial)` from the
+            board (the number itself for a decimal serial, as real boards hold 32-bit serials;
+            a CRC-32 for a name such as "SIM3600"), which is the returned boards' serial.
         firmware_dir: None starts the boards with their firmware already running; a directory
             (see `synthetic_firmware`) starts them in FX2 loader state, and the driver
             downloads the images from it.
@@ -57,7 +60,7 @@ def emulated_boards(bench: AnalogBench, boards: Sequence[tuple[str, str]],
     """
     bus = EmulatedBus(bench, boards, faults, firmware_loaded=firmware_dir is None,
                       realtime=realtime)
-    return list(open_boards([serial for _, serial in boards], backend=bus.backend,
+    return list(open_boards([str(eeprom_serial(s)) for _, s in boards], backend=bus.backend,
                             firmware_dir=firmware_dir, trace=trace, reenumerate_timeout_s=2.0))
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import itertools
 import threading
+import zlib
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
@@ -35,10 +36,19 @@ if TYPE_CHECKING:
     from ._backend import EmulatedBackend
 
 
-class EmulatedBoard:
-    """One board plugged into the emulated bus."""
+def eeprom_serial(serial: str) -> int:
+    """The 32-bit number an emulated board's EEPROM holds for `serial`: the number itself for
+    a decimal serial (as on real boards), else the CRC-32 of the text, so that the simulated
+    layouts' names ("SIM3600") still give distinct boards."""
+    if serial.isdigit() and int(serial) < 2**32:
+        return int(serial)
+    return zlib.crc32(serial.encode())
 
-    def __init__(self, model: BoardModel, serial: int, port: int, bench: AnalogBench,
+
+class EmulatedBoard:
+    """One board plugged into the emulated bus; `serial` is its name on the bench."""
+
+    def __init__(self, model: BoardModel, serial: str, port: int, bench: AnalogBench,
                  clock: SharedClock, faults: Sequence[Fault], addresses: itertools.count,
                  firmware_loaded: bool) -> None:
         self.model = model
@@ -110,7 +120,8 @@ class EmulatedBoard:
 
     def _run(self, product_id: int) -> None:
         version = next(v for v, name in self.family.variants.items() if name == self.model.name)
-        self.firmware = RunningFirmware(self.model, self.serial, version, product_id,
+        self.firmware = RunningFirmware(self.model, self.serial, eeprom_serial(self.serial),
+                                        version, product_id,
                                         self.bench, self.clock, self.faults, self.unplug)
         self.descriptor = DeviceDescriptor(product_id, next(self._addresses), self.port)
 
@@ -120,8 +131,8 @@ class EmulatedBus:
 
     Args:
         bench: the simulated analog world the boards sample and play into.
-        boards: (model name, serial) per board; serials are the decimal numbers the board
-            EEPROM holds (32 bits), as on the real boards.
+        boards: (model name, serial) per board; the serial is the board's name on the bench,
+            and the driver reads `eeprom_serial(serial)` from the board.
         faults: faults to inject (see `Fault`).
         firmware_loaded: start with the firmware running (else in FX2 loader state, so the
             driver must download it).
@@ -134,16 +145,14 @@ class EmulatedBus:
         self.clock = SharedClock(bench, realtime)
         addresses = itertools.count(2)
         self.boards: list[EmulatedBoard] = []
+        numbers = [eeprom_serial(serial) for _, serial in boards]
+        if len(set(numbers)) != len(numbers):
+            raise ConfigurationError(f"two emulated boards share a serial number: {boards}")
         for port, (name, serial) in enumerate(boards, start=1):
-            if not serial.isdigit() or int(serial) >= 2**32:
-                raise ConfigurationError(
-                    f"emulated board {name}: serial {serial!r} must be a decimal number below "
-                    "2**32, as the board EEPROM holds it"
-                )
             mine = [f for f in faults if f.serial == serial]
-            self.boards.append(EmulatedBoard(board_model(name), int(serial), port, bench,
+            self.boards.append(EmulatedBoard(board_model(name), serial, port, bench,
                                              self.clock, mine, addresses, firmware_loaded))
-        unknown = {f.serial for f in faults} - {str(b.serial) for b in self.boards}
+        unknown = {f.serial for f in faults} - {b.serial for b in self.boards}
         if unknown:
             raise ConfigurationError(f"faults name serials not on the bus: {sorted(unknown)}")
 
@@ -156,4 +165,4 @@ class EmulatedBus:
 
     def board(self, serial: str) -> EmulatedBoard:
         """The emulated board with this serial number."""
-        return next(b for b in self.boards if str(b.serial) == serial)
+        return next(b for b in self.boards if b.serial == serial)

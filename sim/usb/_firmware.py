@@ -69,18 +69,19 @@ class _Scan:
 class RunningFirmware:
     """The firmware side of one emulated board (everything after re-enumeration)."""
 
-    def __init__(self, model: BoardModel, serial: int, version_id: int, product_id: int,
-                 bench: AnalogBench, clock: SharedClock, faults: Sequence[Fault],
-                 unplug: Callable[[], None]) -> None:
+    def __init__(self, model: BoardModel, serial: str, eeprom_serial: int, version_id: int,
+                 product_id: int, bench: AnalogBench, clock: SharedClock,
+                 faults: Sequence[Fault], unplug: Callable[[], None]) -> None:
+        """`serial` names the board on the bench; `eeprom_serial` is what the driver reads."""
         self.model = model
-        self.serial = str(serial)
+        self.serial = serial
         self.bench = bench
         self.clock = clock
         self._faults = list(faults)
         self._unplug = unplug
         self.registers: dict[int, int] = {Reg.VERSION_ID: version_id}
         self.eeprom = bytes([0xC0, VENDOR_ID & 0xFF, VENDOR_ID >> 8, product_id & 0xFF,
-                             product_id >> 8, 0, 0, 0]) + serial.to_bytes(4, "little") + bytes(4)
+                             product_id >> 8, 0, 0, 0]) + eeprom_serial.to_bytes(4, "little") + bytes(4)
         self._cond = threading.Condition()
         self._replies: deque[bytes] = deque()
         self.messages: queue.Queue[bytes] = queue.Queue()
