@@ -27,9 +27,9 @@ from daq import (
     TriggerSource,
 )
 
+from ._channel import COMMAND_TIMEOUT_S, CommandChannel
 from ._errors import ProtocolError, StalledEndpointError
 from ._families import Family
-from ._channel import COMMAND_TIMEOUT_S, CommandChannel
 from ._ids import EP_STREAM_IN, EP_STREAM_OUT
 from ._protocol import ReadI2cBytes
 from ._registers import BASE_CLOCK_HZ, EEPROM_I2C_ADDRESS, EEPROM_SERIAL, INIT_SEQUENCE, Reg
@@ -43,7 +43,6 @@ from ._unpublished import (
     software_trigger_commands,
     stop_commands,
 )
-
 
 
 class _State(Enum):

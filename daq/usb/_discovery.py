@@ -70,8 +70,9 @@ def list_boards(backend: Any = None) -> list[BoardInfo]:
     infos = []
     for dev, family, running in find_devices(backend):
         location = usb_location(dev).split(" at ", 1)[1]
-        info = dict(family=family.name, model=None, serial=None, firmware_loaded=running,
-                    usb_id=f"{dev.idVendor:04x}:{dev.idProduct:04x}", location=location)
+        info: dict[str, object] = {
+            "family": family.name, "model": None, "serial": None, "firmware_loaded": running,
+            "usb_id": f"{dev.idVendor:04x}:{dev.idProduct:04x}", "location": location}
         if running:
             transport: UsbTransport | None = None
             try:
@@ -83,7 +84,7 @@ def list_boards(backend: Any = None) -> list[BoardInfo]:
             finally:
                 if transport is not None:
                     transport.close()
-        infos.append(BoardInfo(**info))
+        infos.append(BoardInfo.model_validate(info))
     return infos
 
 

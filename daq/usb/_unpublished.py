@@ -139,7 +139,9 @@ def clock_period(rate_hz: float, where: str) -> int:
     flight: only rates that divide 36 MHz exactly (to 1 ppm) are accepted.
     """
     period = round(BASE_CLOCK_HZ / rate_hz)
-    if not 1 <= period <= MAX_CLOCK_PERIOD or abs(BASE_CLOCK_HZ / period - rate_hz) > rate_hz * 1e-6:
+    exact = (1 <= period <= MAX_CLOCK_PERIOD
+             and abs(BASE_CLOCK_HZ / period - rate_hz) <= rate_hz * 1e-6)
+    if not exact:
         lo, hi = BASE_CLOCK_HZ / (period + 1), BASE_CLOCK_HZ / max(period, 1)
         raise ConfigurationError(
             f"{where}: {rate_hz:.3f} S/s is not 36 MHz divided by a whole number; the nearest "

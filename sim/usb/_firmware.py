@@ -80,8 +80,9 @@ class RunningFirmware:
         self._faults = list(faults)
         self._unplug = unplug
         self.registers: dict[int, int] = {Reg.VERSION_ID: version_id}
-        self.eeprom = bytes([0xC0, VENDOR_ID & 0xFF, VENDOR_ID >> 8, product_id & 0xFF,
-                             product_id >> 8, 0, 0, 0]) + eeprom_serial.to_bytes(4, "little") + bytes(4)
+        header = bytes([0xC0, VENDOR_ID & 0xFF, VENDOR_ID >> 8, product_id & 0xFF,
+                        product_id >> 8, 0, 0, 0])
+        self.eeprom = header + eeprom_serial.to_bytes(4, "little") + bytes(4)
         self._cond = threading.Condition()
         self._replies: deque[bytes] = deque()
         self.messages: queue.Queue[bytes] = queue.Queue()

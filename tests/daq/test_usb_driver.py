@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 from pathlib import Path
 
@@ -82,7 +83,7 @@ def test_firmware_needs_a_directory_and_the_right_image(tmp_path: Path,
 
 def test_missing_serial_is_named() -> None:
     bus = EmulatedBus(LoopbackBench(), BOARDS)
-    with pytest.raises(ConfigurationError, match="serial.*4242 not found.*DT9816-A serial 1003"):
+    with pytest.raises(ConfigurationError, match=r"serial.*4242 not found.*DT9816-A serial 1003"):
         open_boards(["1001", "4242"], backend=bus.backend)
 
 
@@ -135,10 +136,10 @@ def test_configuration_errors_name_the_board() -> None:
     [board] = emulated_boards(LoopbackBench(), [("DT9836-12-2", "77")])
     mixed = ScanConfig(inputs=(InputChannel(channel=0, range_v=10.0),
                                InputChannel(channel=1, range_v=2.0)), sample_rate_hz=RATE)
-    with pytest.raises(ConfigurationError, match="DT9836-12-2 serial 77.*share one range"):
+    with pytest.raises(ConfigurationError, match=r"DT9836-12-2 serial 77.*share one range"):
         board.configure(mixed)
     odd_rate = ScanConfig(inputs=(InputChannel(channel=0),), sample_rate_hz=96_001.0)
-    with pytest.raises(ConfigurationError, match="DT9836-12-2 serial 77.*not 36 MHz"):
+    with pytest.raises(ConfigurationError, match=r"DT9836-12-2 serial 77.*not 36 MHz"):
         board.configure(odd_rate)
     external = odd_rate.model_copy(update={"clock": ClockSource.EXTERNAL,
                                            "trigger": TriggerSource.EXTERNAL})
@@ -183,7 +184,7 @@ def test_transfer_trace_records_every_transfer(tmp_path: Path, firmware: Path) -
     assert commands[-1]["dev"] == "DT9836-12-2 serial 3"
     streamed = sum(e["len"] for e in lines if e.get("ep") == 0x82 and e["status"] == "ok")
     assert streamed == 100 * 12 * 2
-    assert all(b["t"] >= a["t"] for a, b in zip(lines, lines[1:]))
+    assert all(b["t"] >= a["t"] for a, b in itertools.pairwise(lines))
 
 
 def test_selftest_reports_rate_and_levels() -> None:

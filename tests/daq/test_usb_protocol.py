@@ -88,11 +88,11 @@ def test_bad_packets_and_replies_are_protocol_errors() -> None:
         decode_command(b"\x14" * 10)
     with pytest.raises(ProtocolError, match="not implemented"):
         decode_command(bytes([CommandCode.W_DAC_THRESHOLD]) + bytes(63))
-    with pytest.raises(ProtocolError, match="R_MULTI_WORD_LB.*3 bytes where 4"):
+    with pytest.raises(ProtocolError, match=r"R_MULTI_WORD_LB.*3 bytes where 4"):
         ReadWords((1, 2)).decode_reply(b"\0\0\0")
     with pytest.raises(ProtocolError, match="unknown async message"):
         AsyncMessage.decode(b"\x63\0\0\0\0")
-    with pytest.raises(ValueError, match="1..14"):
+    with pytest.raises(ValueError, match=r"1\.\.14"):
         WriteWords(tuple((i, i) for i in range(15)))
 
 
