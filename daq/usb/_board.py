@@ -78,10 +78,6 @@ class UsbBoard:
     def identity(self) -> BoardIdentity:
         return self._identity
 
-    @property
-    def transport(self) -> UsbTransport:
-        return self._transport
-
     # -- the daq.Board protocol -------------------------------------------------------------
 
     def configure(self, config: ScanConfig) -> None:

@@ -162,7 +162,3 @@ class EmulatedBus:
         from ._backend import EmulatedBackend
 
         return EmulatedBackend(self)
-
-    def board(self, serial: str) -> EmulatedBoard:
-        """The emulated board with this serial number."""
-        return next(b for b in self.boards if b.serial == serial)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import time
 from pathlib import Path
 
 import numpy as np
@@ -161,6 +162,22 @@ def test_continuous_scan_streams_until_stopped() -> None:
     assert np.array_equal(np.concatenate([first.codes, second.codes])[:, 0],
                           LoopbackBench.ramp("9", 4, 1, 0, 51_234))
     board.close()
+
+
+def test_realtime_clock_paces_the_samples() -> None:
+    """With the emulated clock in wall time, 0.1 s of signal takes 0.1 s to arrive."""
+    bus = EmulatedBus(LoopbackBench(), [("DT9816-A", "4")], realtime=True)
+    [board] = open_boards(backend=bus.backend)
+    board.configure(ScanConfig(inputs=(InputChannel(channel=0),), sample_rate_hz=RATE,
+                               samples_per_channel=9600))
+    board.arm()
+    t0 = time.monotonic()
+    board.start()
+    block = board.read(9600, timeout_s=2.0)
+    elapsed = time.monotonic() - t0
+    board.close()
+    assert 0.095 < elapsed < 0.5
+    assert np.array_equal(block.codes[:, 0], LoopbackBench.ramp("4", 0, 1, 0, 9600))
 
 
 def test_transfer_trace_records_every_transfer(tmp_path: Path, firmware: Path) -> None:
