@@ -214,6 +214,7 @@ def right_jacobian(v: np.ndarray) -> np.ndarray:
 
 def rotated_point_jacobian(rotvec: np.ndarray, points: np.ndarray) -> np.ndarray:
     """(n, 3, 3) d(R(rotvec) p)/d(rotvec) for rotvec (n, 3) and points (n, 3)."""
+    rotvec = np.array(rotvec, dtype=float)  # scipy needs a writable, contiguous buffer
     R = Rotation.from_rotvec(rotvec).as_matrix()
     return -R @ skew(points) @ right_jacobian(rotvec)
 
