@@ -28,7 +28,7 @@ from typing import Literal
 import numpy as np
 from scipy import sparse
 
-from calibration.solver import RigSources, latency_columns, rotated_point_jacobian, SolverOptions
+from calibration.solver import RigSources, SolverOptions, latency_columns, rotated_point_jacobian
 
 
 def mic_position_crlb(
@@ -132,8 +132,8 @@ def joint_crlb(
     if nuisance is not None:
         group, block, prior = nuisance  # (n_rows,), (n_rows, k), (n_group, k, k)
         k = block.shape[1]
-        jn = _sparse([(np.repeat(rows, k), (k * group[:, None] + np.arange(k)).ravel(), block.ravel())],
-                     (rows.size, k * prior.shape[0]))  # fmt: skip
+        n_cols = (k * group[:, None] + np.arange(k)).ravel()
+        jn = _sparse([(np.repeat(rows, k), n_cols, block.ravel())], (rows.size, k * prior.shape[0]))
         cross = (jac.T @ jn).toarray()  # (n_global, k n_group)
         fnn = (jn.T @ jn).toarray().reshape(prior.shape[0], k, prior.shape[0], k)
         fnn = fnn[np.arange(prior.shape[0]), :, np.arange(prior.shape[0]), :] + prior
@@ -153,7 +153,7 @@ def joint_crlb(
 
 def _sparse(entries: list, shape: tuple[int, int]) -> sparse.csr_matrix:
     entries = [e for e in entries if e is not None]
-    rows, cols, vals = (np.concatenate(part) for part in zip(*entries))
+    rows, cols, vals = (np.concatenate(part) for part in zip(*entries, strict=False))
     return sparse.csr_matrix((vals, (rows, cols)), shape=shape)
 
 
@@ -170,7 +170,9 @@ def _nuisance(
         if not isinstance(sources, RigSources) or sources.pose_covariance is None:
             raise ValueError("pose_errors needs RigSources with pose_covariance")
         pose = sources.pose_of_source
-        d_rot = rotated_point_jacobian(sources.rotvec[pose], sources.rig_points_m[sources.speaker_of_source])
+        d_rot = rotated_point_jacobian(
+            sources.rotvec[pose], sources.rig_points_m[sources.speaker_of_source]
+        )
         d_src = np.concatenate([d_rot, np.broadcast_to(np.eye(3), d_rot.shape)], axis=2)
         block = -np.einsum("ri,riw->rw", grad, d_src[src])
         return pose[src], block, np.linalg.inv(sources.pose_covariance)
@@ -197,5 +199,7 @@ def expected_error_norm(covariance: np.ndarray) -> np.ndarray:
     v = np.linspace(-40.0, 40.0, 1601)
     s = np.exp(v) / scale  # (..., n_v)
     prod = np.prod((1.0 + 2.0 * s[..., None] * lam[..., None, :]) ** -0.5, axis=-1)
-    integrand = (1.0 - prod) * np.exp(-0.5 * v) * np.sqrt(scale)  # ds s^-3/2 = e^{-v/2} sqrt(scale) dv
+    integrand = (
+        (1.0 - prod) * np.exp(-0.5 * v) * np.sqrt(scale)
+    )  # ds s^-3/2 = e^{-v/2} sqrt(scale) dv
     return np.trapezoid(integrand, v, axis=-1) / np.sqrt(4.0 * np.pi)

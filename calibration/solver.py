@@ -32,7 +32,6 @@ from typing import Literal
 
 import numpy as np
 from scipy import sparse
-from scipy.linalg import solve_triangular
 from scipy.optimize import OptimizeResult, least_squares
 from scipy.spatial.transform import Rotation
 
@@ -189,7 +188,7 @@ class MicrophoneSolution:
 def skew(v: np.ndarray) -> np.ndarray:
     """(..., 3, 3) cross-product matrices [v]x, so that [v]x w = v x w."""
     v = np.asarray(v, dtype=float)
-    out = np.zeros(v.shape[:-1] + (3, 3))
+    out = np.zeros((*v.shape[:-1], 3, 3))
     out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
     out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
     out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
@@ -297,21 +296,31 @@ def _range_residuals(positions: np.ndarray, sources: np.ndarray, ranges: np.ndar
 
 
 def _consensus(
-    fit, sources: np.ndarray, ranges: np.ndarray, valid: np.ndarray, threshold: float, n_subsets: int
+    fit,
+    sources: np.ndarray,
+    ranges: np.ndarray,
+    valid: np.ndarray,
+    threshold: float,
+    n_subsets: int,
 ) -> np.ndarray:
     """(n_mic, n_src) 0/1 inlier weights of the best-supported candidate fit per microphone."""
     n_src = sources.shape[0]
     rng = np.random.default_rng(0)
     if n_src <= 8:
-        subsets = [list(c) for k in (n_src - 1, n_src - 2) if k >= 3 for c in combinations(range(n_src), k)]
+        subsets = [
+            list(c) for k in (n_src - 1, n_src - 2) if k >= 3 for c in combinations(range(n_src), k)
+        ]
     else:
         subsets = [rng.choice(n_src, 5, replace=False) for _ in range(n_subsets)]
     best_count = np.full(valid.shape[1], -1)
     best = valid.T.astype(float)
-    for subset in [np.arange(n_src)] + subsets:
+    for subset in [np.arange(n_src), *subsets]:
         mask = np.zeros(n_src, dtype=bool)
         mask[subset] = True
-        inlier = valid.T & (np.nan_to_num(_range_residuals(fit(valid.T * mask), sources, ranges), nan=np.inf) < threshold)
+        inlier = valid.T & (
+            np.nan_to_num(_range_residuals(fit(valid.T * mask), sources, ranges), nan=np.inf)
+            < threshold
+        )
         count = inlier.sum(axis=1)
         better = count > best_count
         best[better], best_count[better] = inlier[better], count[better]
@@ -333,12 +342,12 @@ def _multilaterate_weighted(
 
     rhs = ranges.T**2  # (n_mic, n_src)
     # Non-coplanar: rows [-2 s^T, 1] (x, q) = r^2 - |s|^2.
-    design3 = np.concatenate([-2.0 * local, np.ones(local.shape[:2] + (1,))], axis=-1)
+    design3 = np.concatenate([-2.0 * local, np.ones((*local.shape[:2], 1))], axis=-1)
     x3 = _weighted_lstsq(design3, rhs - np.sum(local**2, axis=-1), weights)[:, :3]
     # Coplanar: in-plane coordinates y = E^T s, then z from q - |a|^2 on the camera side.
     basis, normal = eigvec[:, :, 1:], eigvec[:, :, 0]
     y = np.einsum("msi,mik->msk", local, basis)
-    design2 = np.concatenate([-2.0 * y, np.ones(y.shape[:2] + (1,))], axis=-1)
+    design2 = np.concatenate([-2.0 * y, np.ones((*y.shape[:2], 1))], axis=-1)
     sol2 = _weighted_lstsq(design2, rhs - np.sum(y**2, axis=-1), weights)
     a, q = sol2[:, :2], sol2[:, 2]
     side = np.sign(np.einsum("mi,mi->m", normal, camera - centre))
@@ -399,7 +408,13 @@ class _Model:
         mic: np.ndarray, latency_col: np.ndarray,
     ) -> None:  # fmt: skip
         self.s = structure
-        self.tau, self.sigma, self.src, self.mic, self.latency_col = tau, sigma, src, mic, latency_col
+        self.tau, self.sigma, self.src, self.mic, self.latency_col = (
+            tau,
+            sigma,
+            src,
+            mic,
+            latency_col,
+        )
         st = structure
         n_pose = st.sources.rotvec.shape[0] if st.refine_poses else 0
         n_src_refined = st.source_std_m.size if st.source_std_m is not None else 0
@@ -412,7 +427,8 @@ class _Model:
             "pose": 6 * n_pose,
             "src": 3 * n_src_refined,
         }
-        self.offsets = dict(zip(_GROUPS, np.cumsum([0] + list(sizes.values()))[:-1].tolist()))
+        starts = np.cumsum([0, *sizes.values()])[:-1].tolist()
+        self.offsets = dict(zip(_GROUPS, starts, strict=True))
         self.n_params = int(sum(sizes.values()))
         self.sizes = sizes
         # Whitening matrices (n_group, k, k) and means of the groups with a prior.
@@ -423,7 +439,9 @@ class _Model:
         if st.n_latency and st.latency_prior_std is not None:
             self.whitening["lat"] = np.full((st.n_latency, 1, 1), 1.0 / st.latency_prior_std)
         if deviations:
-            self.whitening["dev"] = np.broadcast_to(np.eye(3) / st.prior.deviation_std_m, (st.n_mic, 3, 3))
+            self.whitening["dev"] = np.broadcast_to(
+                np.eye(3) / st.prior.deviation_std_m, (st.n_mic, 3, 3)
+            )
         if n_pose:
             self.whitening["pose"] = np.linalg.inv(np.linalg.cholesky(st.sources.pose_covariance))
         if n_src_refined:
@@ -443,7 +461,9 @@ class _Model:
     def pose_corrections(self, x: np.ndarray) -> np.ndarray | None:
         return self.part("pose", x).reshape(-1, 6) if self.sizes["pose"] else None
 
-    def mic_positions(self, x: np.ndarray) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray]]]:
+    def mic_positions(
+        self, x: np.ndarray
+    ) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray]]]:
         """(n_mic, 3) positions and their Jacobian blocks [(cols (n_mic, w), d (n_mic, 3, w))]."""
         n_mic = self.s.n_mic
         eye = np.broadcast_to(np.eye(3), (n_mic, 3, 3))
@@ -461,7 +481,9 @@ class _Model:
             blocks.append((self.offsets["dev"] + own, eye))
         return positions, blocks
 
-    def source_positions(self, x: np.ndarray) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray]]]:
+    def source_positions(
+        self, x: np.ndarray
+    ) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray]]]:
         """(n_src, 3) positions and their Jacobian blocks, as `mic_positions`."""
         sources = self.s.sources
         if not isinstance(sources, RigSources):
@@ -472,7 +494,9 @@ class _Model:
             if corr is not None:
                 pose = sources.pose_of_source
                 rotvec = (sources.rotvec + corr[:, :3])[pose]
-                d_rot = rotated_point_jacobian(rotvec, sources.rig_points_m[sources.speaker_of_source])
+                d_rot = rotated_point_jacobian(
+                    rotvec, sources.rig_points_m[sources.speaker_of_source]
+                )
                 d_src = np.concatenate([d_rot, np.broadcast_to(np.eye(3), d_rot.shape)], axis=2)
                 blocks.append((self.offsets["pose"] + 6 * pose[:, None] + np.arange(6), d_src))
         if self.sizes["src"]:
@@ -488,7 +512,9 @@ class _Model:
     def jacobian(self, x: np.ndarray) -> sparse.csr_matrix:
         return self._evaluate(x, jacobian=True)[1]
 
-    def _evaluate(self, x: np.ndarray, jacobian: bool) -> tuple[np.ndarray, sparse.csr_matrix | None]:
+    def _evaluate(
+        self, x: np.ndarray, jacobian: bool
+    ) -> tuple[np.ndarray, sparse.csr_matrix | None]:
         X, mic_blocks = self.mic_positions(x)
         S, src_blocks = self.source_positions(x)
         c = self.speed(x)
@@ -500,7 +526,7 @@ class _Model:
                       - self.prior_mean.get(name, 0.0)).ravel()
             for name, w in self.whitening.items()
         ]  # fmt: skip
-        residual = np.concatenate([measured] + priors)
+        residual = np.concatenate([measured, *priors])
         if not jacobian:
             return residual, None
 
@@ -605,7 +631,9 @@ def solve_microphones(
         c_fixed=options.speed_of_sound_m_s,
         prior=prior_geometry,
         refine_poses=options.refine_poses,
-        source_std_m=None if source_std is None else np.broadcast_to(source_std, (n_src,)).astype(float),
+        source_std_m=None
+        if source_std is None
+        else np.broadcast_to(source_std, (n_src,)).astype(float),
         c_prior_std=options.speed_of_sound_prior_std_m_s,
         latency_prior_std=options.latency_prior_std_s,
     )

@@ -110,7 +110,9 @@ def estimate_delays(
         raise ValueError("recordings must be (n_rec, n_ch, n), references (n_rec, n)")
     n_rec, n_ch, n_samples = recordings.shape
     if references.shape != (n_rec, n_samples):
-        raise ValueError(f"references {references.shape} do not match recordings {recordings.shape}")
+        raise ValueError(
+            f"references {references.shape} do not match recordings {recordings.shape}"
+        )
     n_fft = n_samples if n_fft is None else int(n_fft)
     if n_fft < n_samples:
         raise ValueError("n_fft must be >= the number of samples")
@@ -121,11 +123,18 @@ def estimate_delays(
     chunk = max(1, _CHUNK_ELEMENTS // (n_ch * n_fft))
     parts = [
         _estimate_chunk(
-            recordings[i : i + chunk], references[i : i + chunk], fs, bins, n_fft, phat, window, guard
+            recordings[i : i + chunk],
+            references[i : i + chunk],
+            fs,
+            bins,
+            n_fft,
+            phat,
+            window,
+            guard,
         )
         for i in range(0, n_rec, chunk)
     ]
-    return TofEstimate(*(np.concatenate(field) for field in zip(*parts)))
+    return TofEstimate(*(np.concatenate(field) for field in zip(*parts, strict=False)))
 
 
 def _lag_window(n_fft: int, fs: float, delay_window_s: tuple[float, float] | None) -> np.ndarray:
@@ -172,7 +181,7 @@ def _estimate_chunk(
 
 def _integer_lag_correlation(weighted: np.ndarray, bins: np.ndarray, n_fft: int) -> np.ndarray:
     """The band-limited correlation at integer lags (circular), shape (r, ch, n_fft)."""
-    full = np.zeros(weighted.shape[:-1] + (n_fft // 2 + 1,), dtype=complex)
+    full = np.zeros((*weighted.shape[:-1], n_fft // 2 + 1), dtype=complex)
     full[..., bins] = weighted
     return sfft.irfft(full, n_fft, axis=-1)
 

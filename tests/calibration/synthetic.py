@@ -43,8 +43,12 @@ def random_poses(n_pose: int, rng: np.random.Generator, distance=(0.6, 1.0)):
         centre = rng.uniform(*distance) * direction
         # Board normal (rig +Z) towards the camera, tilted up to 45 degrees, random roll.
         facing = Rotation.align_vectors([-direction], [[0.0, 0.0, 1.0]])[0]
-        tilt_axis = np.array([np.cos(rng.uniform(0, 2 * np.pi)), np.sin(rng.uniform(0, 2 * np.pi)), 0])
-        tilt = Rotation.from_rotvec(np.deg2rad(45.0) * np.sqrt(rng.uniform()) * tilt_axis / np.linalg.norm(tilt_axis))
+        tilt_axis = np.array(
+            [np.cos(rng.uniform(0, 2 * np.pi)), np.sin(rng.uniform(0, 2 * np.pi)), 0]
+        )
+        tilt = Rotation.from_rotvec(
+            np.deg2rad(45.0) * np.sqrt(rng.uniform()) * tilt_axis / np.linalg.norm(tilt_axis)
+        )
         roll = Rotation.from_rotvec([0.0, 0.0, rng.uniform(0, 2 * np.pi)])
         R = facing * tilt * roll
         rotvecs.append(R.as_rotvec())
@@ -81,8 +85,12 @@ def make_scene(
     rotvec, trans = random_poses(n_pose, rng, distance)
     pose_of_source = np.repeat(np.arange(n_pose), 6)
     speaker = np.tile(np.arange(6), n_pose)
-    cov = np.diag(np.r_[np.full(3, max(pose_std[0], 1e-9) ** 2), np.full(3, max(pose_std[1], 1e-9) ** 2)])
-    true = RigSources(PAPER_SPEAKERS_M, rotvec, trans, pose_of_source, speaker, np.repeat(cov[None], n_pose, 0))
+    cov = np.diag(
+        np.r_[np.full(3, max(pose_std[0], 1e-9) ** 2), np.full(3, max(pose_std[1], 1e-9) ** 2)]
+    )
+    true = RigSources(
+        PAPER_SPEAKERS_M, rotvec, trans, pose_of_source, speaker, np.repeat(cov[None], n_pose, 0)
+    )
     noisy_rot = rotvec + pose_std[0] * rng.standard_normal(rotvec.shape)
     noisy_trans = trans + pose_std[1] * rng.standard_normal(trans.shape)
     measured = RigSources(PAPER_SPEAKERS_M, noisy_rot, noisy_trans, pose_of_source, speaker,
@@ -91,7 +99,11 @@ def make_scene(
 
     board = np.arange(mics.shape[0]) % len(latency_of_board)
     dist = np.linalg.norm(mics[None] - true.positions()[:, None], axis=-1)
-    tof = dist / C_TRUE + np.asarray(latency_of_board)[board] + sigma_t * rng.standard_normal(dist.shape)
+    tof = (
+        dist / C_TRUE
+        + np.asarray(latency_of_board)[board]
+        + sigma_t * rng.standard_normal(dist.shape)
+    )
     outliers = rng.uniform(size=tof.shape) < outlier_fraction
     tof[outliers] += rng.uniform(0.3e-3, 3e-3, outliers.sum())
     return Scene(mics, true, measured, positions, tof, board)

@@ -36,8 +36,11 @@ def efficiency(n_pose: int, trials: int, sigma_p: float) -> tuple[float, float]:
     errors, bounds = [], []
     for seed in range(trials):
         scene = make_scene(n_pose, 100 + seed, sigma_t=1e-6, sigma_p=sigma_p)
-        options = SolverOptions(source_std_m=sigma_p if sigma_p else None,
-                                speed_of_sound_prior_std_m_s=None, latency_prior_std_s=None)  # fmt: skip
+        options = SolverOptions(
+            source_std_m=sigma_p if sigma_p else None,
+            speed_of_sound_prior_std_m_s=None,
+            latency_prior_std_s=None,
+        )
         sol = solve_microphones(scene.measured_positions, scene.tof, 1e-6, options=options)
         errors.append(mean_error(sol.positions_m, scene.mics))
         bound = joint_crlb(scene.mics, scene.true_sources.positions(), C_TRUE, 1e-6,
@@ -100,7 +103,9 @@ def test_reflection_outliers_do_not_change_accuracy():
     sol = solve_microphones(dirty.measured_positions, dirty.tof, 1e-6)
     assert np.array_equal(sol.outliers, injected)
     assert mean_error(sol.positions_m, dirty.mics) < 1.1 * mean_error(ref.positions_m, clean.mics)
-    paper = solve_paper_method(dirty.measured_positions, dirty.tof, 1e-6, SolverOptions(speed_of_sound_m_s=C_TRUE))
+    paper = solve_paper_method(
+        dirty.measured_positions, dirty.tof, 1e-6, SolverOptions(speed_of_sound_m_s=C_TRUE)
+    )
     assert mean_error(paper.positions_m, dirty.mics) > mean_error(sol.positions_m, dirty.mics)
 
 
@@ -122,7 +127,9 @@ def test_pose_refinement_removes_rigid_camera_errors():
     fixed = solve_microphones(scene.measured_positions, scene.tof, 1e-6)
     refined = solve_microphones(scene.measured_sources, scene.tof, 1e-6,
                                 options=SolverOptions(refine_poses=True))  # fmt: skip
-    assert mean_error(refined.positions_m, scene.mics) < 0.3 * mean_error(fixed.positions_m, scene.mics)
+    assert mean_error(refined.positions_m, scene.mics) < 0.3 * mean_error(
+        fixed.positions_m, scene.mics
+    )
     truth = scene.true_sources.rotvec - scene.measured_sources.rotvec
     assert np.sqrt(np.mean((refined.pose_corrections[:, :3] - truth) ** 2)) < 0.5 * 2e-3
 
@@ -135,7 +142,9 @@ def test_prior_geometry_regularises_a_single_pose():
     for prior in (PriorGeometry(cad), PriorGeometry(cad, deviation_std_m=1e-4)):
         sol = solve_microphones(scene.measured_positions, scene.tof, 1e-6, options=options,
                                 prior_geometry=prior)  # fmt: skip
-        assert mean_error(sol.positions_m, scene.mics) < 0.8 * mean_error(direct.positions_m, scene.mics)
+        assert mean_error(sol.positions_m, scene.mics) < 0.8 * mean_error(
+            direct.positions_m, scene.mics
+        )
 
 
 def test_paper_method_is_not_better():
@@ -144,7 +153,9 @@ def test_paper_method_is_not_better():
     ours = solve_microphones(scene.measured_positions, scene.tof, 1e-6, options=options)
     paper = solve_paper_method(scene.measured_positions, scene.tof, 1e-6, options)
     assert np.all(np.isfinite(paper.positions_m))
-    assert mean_error(paper.positions_m, scene.mics) >= 0.99 * mean_error(ours.positions_m, scene.mics)
+    assert mean_error(paper.positions_m, scene.mics) >= 0.99 * mean_error(
+        ours.positions_m, scene.mics
+    )
 
 
 def test_analytic_jacobian_matches_finite_differences():
