@@ -1,0 +1,90 @@
+"""Frequency-domain delay-and-sum beamforming over any set of scan points.
+
+For a CSM C (M x M) and steering vectors h(x) (see `steering`), the map is
+
+    B(x) = h(x)^H C h(x)                                   (diagonal kept)
+    B(x) = M/(M-1) * (h^H C h - sum_m |h_m|^2 C_mm)        (diagonal removed, the default)
+
+The second form drops the autospectra, which hold each microphone's own noise; the factor
+M/(M-1) keeps the level of a coherent source (Acoular's `r_diag=True` with its default
+normalisation). Without the diagonal the map can go negative away from sources: `beamform`
+clips it at 0 like Acoular's `BeamformerBase`, CLEAN-SC works on the unclipped map.
+
+Cost: h^H C h is evaluated for all G points at once as || L^H h ||^2 with C = L L^H (Cholesky),
+one triangular matrix product (BLAS ztrmm, G M^2 / 2 complex multiply-adds), or as a general
+product h C^T when C is not positive definite. The diagonal term is a real matrix-vector
+product with the frequency-independent |h_m|^2. All in float64 / complex128.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.linalg import blas
+
+from .csm import CrossSpectra
+from .steering import SteeringModel
+
+
+def diagonal_norm(n_mics: int, remove_diagonal: bool) -> float:
+    """M/(M-1) when the diagonal is removed, else 1."""
+    if remove_diagonal and n_mics < 2:
+        raise ValueError("diagonal removal needs at least 2 microphones")
+    return n_mics / (n_mics - 1) if remove_diagonal else 1.0
+
+
+def quadratic_form(h: np.ndarray, csm: np.ndarray) -> np.ndarray:
+    """h[g]^H C h[g] for every row g of h (G, M); C Hermitian (M, M). Real (G,).
+
+    `h` is not modified.
+    """
+    try:
+        chol = np.linalg.cholesky(csm)
+    except np.linalg.LinAlgError:
+        t = h @ csm.T  # t[g, m] = (C h[g])_m
+        return np.einsum("gk,gk->g", h.view(np.float64), t.view(np.float64))
+    # Column-major view of a copy of h is h^T: overwrite it with L^H h^T = (h conj(L))^T.
+    work = np.array(h, dtype=np.complex128, order="C", copy=True)
+    ztrmm = blas.get_blas_funcs("trmm", (chol, work))
+    t = ztrmm(1.0, chol, work.T, side=0, lower=1, trans_a=2, overwrite_b=1)
+    tv = t.T.view(np.float64)
+    return np.einsum("gk,gk->g", tv, tv)
+
+
+def beamform_csm(h: np.ndarray, csm: np.ndarray, remove_diagonal: bool = True,
+                 h_power: np.ndarray | None = None) -> np.ndarray:
+    """Delay-and-sum map (G,) of one CSM (M, M) with steering vectors h (G, M), unclipped.
+
+    Args:
+        h_power: |h|^2 (G, M) if already known (it does not depend on frequency); computed
+            from h otherwise.
+    """
+    csm = np.asarray(csm)
+    m = csm.shape[-1]
+    if csm.shape != (m, m) or h.ndim != 2 or h.shape[1] != m:
+        raise ValueError(f"steering vectors {h.shape} and CSM {csm.shape} do not match: "
+                         "expected (G, M) and (M, M)")
+    b = quadratic_form(h, csm)
+    if remove_diagonal:
+        power = h_power if h_power is not None else (h.real**2 + h.imag**2)
+        b -= power @ np.real(np.diagonal(csm))
+        b *= diagonal_norm(m, True)
+    return b
+
+
+def beamform(spectra: CrossSpectra, steering: SteeringModel, remove_diagonal: bool = True,
+             clip_negative: bool = True) -> np.ndarray:
+    """Delay-and-sum maps (F, G), one per frequency of `spectra`, on the steering's points.
+
+    Sum the rows for a band map over bins (Acoular's `synthetic`), or beamform a band-summed
+    CSM (`CrossSpectra.band_sum`, the paper's way) for one map per band.
+    """
+    if spectra.n_channels != steering.n_mics:
+        raise ValueError(f"the CSM has {spectra.n_channels} channels but the steering model "
+                         f"{steering.n_mics} microphones")
+    power = steering.amplitude**2
+    maps = np.empty((spectra.freqs_hz.size, steering.n_points))
+    for i, h in enumerate(steering.vectors_at(spectra.freqs_hz)):
+        maps[i] = beamform_csm(h, spectra.csm[i], remove_diagonal, power)
+    if clip_negative:
+        np.maximum(maps, 0.0, out=maps)
+    return maps

@@ -1,0 +1,135 @@
+"""What imaging needs to know about an array: microphones, speed of sound, cameras, rig poses.
+
+Read from a calibration result (result.json) or a simulation's ground truth (truth.json); both
+have the same keys:
+
+    {"microphones": [{"id": int, "position_m": [x, y, z]}, ...],
+     "speed_of_sound_m_s": float,
+     "cameras": [{"name", "width", "height", "K": 3x3, "dist": [k1, k2, p1, p2, k3],
+                  "from_cam0": {"rotvec": [3], "t_m": [3]}}, ...],
+     "poses": [{"index": int, "rig_to_cam0": {"rotvec", "t_m"}, "speakers_m": [[x, y, z]...]}]}
+
+Positions are metres in the camera-0 frame (OpenCV: x right, y down, z forward); "poses" is
+optional (needed for scanning the rig plane and for evaluation).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+
+def _rotation(rotvec: list[float]) -> np.ndarray:
+    R, _ = cv2.Rodrigues(np.asarray(rotvec, dtype=np.float64).reshape(3, 1))
+    return R
+
+
+@dataclass(frozen=True)
+class CameraView:
+    """A calibrated camera: x_cam = R x_cam0 + t, then OpenCV's pinhole and distortion."""
+
+    name: str
+    width: int
+    height: int
+    K: np.ndarray
+    dist: np.ndarray
+    R: np.ndarray
+    t: np.ndarray
+
+    def to_camera(self, points_cam0: np.ndarray) -> np.ndarray:
+        """Points (N, 3) of the camera-0 frame in this camera's frame."""
+        return np.asarray(points_cam0, dtype=np.float64).reshape(-1, 3) @ self.R.T + self.t
+
+    def project(self, points_cam0: np.ndarray) -> np.ndarray:
+        """Pixel coordinates (N, 2) of points (N, 3) of the camera-0 frame, with distortion."""
+        pts = self.to_camera(points_cam0)
+        px, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), self.K, self.dist)
+        return px.reshape(-1, 2)
+
+
+@dataclass(frozen=True)
+class BoardPose:
+    """A rig pose: x_cam0 = R x_rig + t, and the speakers' positions (n, 3) in camera 0."""
+
+    index: int
+    R: np.ndarray
+    t: np.ndarray
+    speakers_m: np.ndarray
+
+
+@dataclass(frozen=True)
+class ArrayGeometry:
+    """Microphone ids and positions (M, 3), c, cameras and (optionally) rig poses."""
+
+    mic_ids: tuple[int, ...]
+    mic_positions_m: np.ndarray
+    speed_of_sound_m_s: float
+    cameras: tuple[CameraView, ...]
+    poses: dict[int, BoardPose]
+
+    @property
+    def n_mics(self) -> int:
+        return len(self.mic_ids)
+
+    @property
+    def centre_m(self) -> np.ndarray:
+        """The centroid of the microphones (the array's centre of projection, paper VI-B)."""
+        return self.mic_positions_m.mean(axis=0)
+
+    def camera(self, name: str) -> CameraView:
+        for cam in self.cameras:
+            if cam.name == name:
+                return cam
+        raise ValueError(f"no camera {name!r} in the geometry; it has "
+                         f"{', '.join(c.name for c in self.cameras) or 'none'}")
+
+    def pose(self, index: int) -> BoardPose:
+        if index not in self.poses:
+            raise ValueError(f"the geometry has no rig pose {index}; it has "
+                             f"{sorted(self.poses) or 'none'} (a calibration result.json or a "
+                             "truth.json with \"poses\" is needed)")
+        return self.poses[index]
+
+
+def geometry_from_dict(doc: dict, source: str = "geometry") -> ArrayGeometry:
+    """Parse a result.json / truth.json document (see the module docstring)."""
+    try:
+        mics = sorted(doc["microphones"], key=lambda m: int(m["id"]))
+        ids = tuple(int(m["id"]) for m in mics)
+        positions = np.array([m["position_m"] for m in mics], dtype=np.float64)
+        c = float(doc["speed_of_sound_m_s"])
+        cameras = tuple(
+            CameraView(name=str(cam["name"]), width=int(cam["width"]), height=int(cam["height"]),
+                       K=np.array(cam["K"], dtype=np.float64),
+                       dist=np.array(cam["dist"], dtype=np.float64),
+                       R=_rotation(cam["from_cam0"]["rotvec"]),
+                       t=np.array(cam["from_cam0"]["t_m"], dtype=np.float64))
+            for cam in doc.get("cameras", []))
+        poses = {
+            int(p["index"]): BoardPose(int(p["index"]), _rotation(p["rig_to_cam0"]["rotvec"]),
+                                       np.array(p["rig_to_cam0"]["t_m"], dtype=np.float64),
+                                       np.array(p["speakers_m"], dtype=np.float64))
+            for p in doc.get("poses", [])}
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{source}: not a calibration result or truth document ({exc!r}); "
+                         "it needs microphones[].id/position_m, speed_of_sound_m_s and "
+                         "cameras[]") from None
+    if positions.ndim != 2 or positions.shape[1] != 3 or len(set(ids)) != len(ids):
+        raise ValueError(f"{source}: microphone positions must be (M, 3) with unique ids")
+    if not c > 0:
+        raise ValueError(f"{source}: speed of sound {c} m/s must be positive")
+    return ArrayGeometry(ids, positions, c, cameras, poses)
+
+
+def load_geometry(path: Path) -> ArrayGeometry:
+    """Read a calibration result.json or a simulation's truth.json."""
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ValueError(f"cannot read the geometry {path}: {exc}") from None
+    return geometry_from_dict(doc, str(path))

@@ -1,0 +1,150 @@
+"""Steering vectors: what a beamformer assumes a source at a scan point sounds like.
+
+Notation: scan point x, microphones m = 1..M at X_m, r_m = |x - X_m|, reference point X_0
+(default: the centroid of the microphones), r_0 = |x - X_0|, k = omega / c. With the CSM
+convention of `csm` (C_mn = E[p_m p_n*], a delay tau appearing as exp(-i omega tau)), a
+monopole of strength s gives p_m = s exp(-i k r_m) / r_m, i.e. the transfer vector relative to
+the reference point a_m = (r_0 / r_m) exp(-i k (r_m - r_0)). The beamformer output is
+
+    B(x) = h(x)^H C h(x)
+
+and every formulation here has the form h_m = A_m(x) exp(-i k (r_m - r_0)) with a real,
+frequency-independent amplitude A_m (the common phase exp(i k r_0) cancels in B):
+
+=================  ========================================  =====================================
+formulation        A_m                                       property (Sarradj 2012)
+=================  ========================================  =====================================
+classic (I)        1 / M                                     neither level nor location exact
+inverse (II)       r_m / (r_0 M)                             neither exact
+true level (III)   1 / (r_0 r_m sum_l r_l^-2)                B = S_ss / r_0^2 at the source
+true location (IV) 1 / (r_m sqrt(M sum_l r_l^-2))            peak exactly at the source
+paper eq. 19       r_m / M                                   = II with r_0 = 1 m (map r_0^2 x II)
+paper eq. 20       1 / sqrt(sum_l r_l^-2)                    literal: none of the four
+=================  ========================================  =====================================
+
+These are Acoular's four `steer_type`s (acoular 26.8, `SteeringVector`) with identical maps when
+the same reference point is used. The paper (Legg & Bradley 2013, eqs 19 and 20) writes
+w_m = ... exp(+i omega r_m / c) with b = w^H G w, i.e. its CSM has the transposed orientation
+G = E[p* p^T]; its w is our h. Eq. 20 as printed lacks the 1/r_m that would make it
+formulation IV (then its map is M times IV's); it is kept literally so that its effect (the
+peak is no longer guaranteed at the source) can be shown.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from enum import StrEnum
+
+import numpy as np
+
+
+class Formulation(StrEnum):
+    """The steering-vector formulations (see the module docstring for their formulas)."""
+
+    CLASSIC = "classic"
+    INVERSE = "inverse"
+    TRUE_LEVEL = "true level"
+    TRUE_LOCATION = "true location"
+    PAPER_EQ19 = "paper eq19"
+    PAPER_EQ20 = "paper eq20"
+
+
+RENORM_STEPS = 32
+"""Phase factors advanced by recurrence between equally spaced bins are recomputed exactly
+every this many steps (the recurrence's rounding error grows by about 1e-16 per step)."""
+
+
+def _as_points(points: np.ndarray, what: str) -> np.ndarray:
+    p = np.asarray(points, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 3 or p.shape[0] == 0:
+        raise ValueError(f"{what} must be a non-empty (n, 3) array of positions in metres, "
+                         f"got shape {p.shape}")
+    return p
+
+
+class SteeringModel:
+    """Steering vectors of a set of scan points for one array, at any frequency.
+
+    The distances and amplitudes are computed once; `vectors(f)` then costs one complex
+    exponential per (point, microphone), and `vectors_at(freqs)` advances equally spaced bins
+    by a complex multiplication instead.
+
+    Args:
+        points: (G, 3) scan points, metres, in the frame of the microphones.
+        mics: (M, 3) microphone positions, metres.
+        speed_of_sound_m_s: c.
+        formulation: one of `Formulation`.
+        reference: X_0, the point levels are referred to (II, III); default the centroid of
+            the microphones. Acoular's default is the origin of its frame.
+    """
+
+    def __init__(self, points: np.ndarray, mics: np.ndarray, speed_of_sound_m_s: float,
+                 formulation: Formulation | str = Formulation.TRUE_LOCATION,
+                 reference: np.ndarray | None = None) -> None:
+        self.points = _as_points(points, "scan points")
+        self.mics = _as_points(mics, "microphone positions")
+        if not speed_of_sound_m_s > 0:
+            raise ValueError(f"speed of sound {speed_of_sound_m_s} m/s must be positive")
+        self.c = float(speed_of_sound_m_s)
+        self.formulation = Formulation(formulation)
+        self.reference = (self.mics.mean(axis=0) if reference is None
+                          else np.asarray(reference, dtype=np.float64).reshape(3))
+        r = np.linalg.norm(self.points[:, None, :] - self.mics[None, :, :], axis=2)  # (G, M)
+        if np.any(r < 1e-9):
+            raise ValueError("a scan point coincides with a microphone")
+        r0 = np.linalg.norm(self.points - self.reference, axis=1)
+        self.distances = r
+        self.path_difference = r - r0[:, None]
+        self.amplitude = amplitudes(self.formulation, r, r0)
+
+    @property
+    def n_points(self) -> int:
+        return int(self.points.shape[0])
+
+    @property
+    def n_mics(self) -> int:
+        return int(self.mics.shape[0])
+
+    def wavenumber(self, freq_hz: float) -> float:
+        return 2.0 * np.pi * float(freq_hz) / self.c
+
+    def vectors(self, freq_hz: float) -> np.ndarray:
+        """(G, M) complex128 steering vectors h at freq_hz."""
+        return self.amplitude * np.exp(-1j * self.wavenumber(freq_hz) * self.path_difference)
+
+    def vectors_at(self, freqs_hz: np.ndarray) -> Iterator[np.ndarray]:
+        """Steering vectors for each frequency in turn (each a new (G, M) array)."""
+        freqs = np.asarray(freqs_hz, dtype=np.float64).ravel()
+        phase = step = None
+        since_exact = 0
+        for i, f in enumerate(freqs):
+            df = f - freqs[i - 1] if i else None
+            same_step = (step is not None and df is not None
+                         and abs(df - step[0]) <= 1e-9 * max(abs(f), 1.0))
+            if phase is not None and df is not None and since_exact < RENORM_STEPS:
+                if not same_step:
+                    step = (df, np.exp(-1j * self.wavenumber(df) * self.path_difference))
+                phase *= step[1]
+                since_exact += 1
+            else:
+                phase = np.exp(-1j * self.wavenumber(f) * self.path_difference)
+                since_exact = 0
+            yield self.amplitude * phase
+
+
+def amplitudes(formulation: Formulation, r: np.ndarray, r0: np.ndarray) -> np.ndarray:
+    """The real amplitudes A_m (G, M) of a formulation, from distances r (G, M) and r0 (G,)."""
+    m = r.shape[1]
+    inv_sq = np.sum(r**-2, axis=1, keepdims=True)
+    r0 = r0[:, None]
+    if formulation is Formulation.CLASSIC:
+        return np.full(r.shape, 1.0 / m)
+    if formulation is Formulation.INVERSE:
+        return r / (r0 * m)
+    if formulation is Formulation.TRUE_LEVEL:
+        return 1.0 / (r0 * r * inv_sq)
+    if formulation is Formulation.TRUE_LOCATION:
+        return 1.0 / (r * np.sqrt(m * inv_sq))
+    if formulation is Formulation.PAPER_EQ19:
+        return r / m
+    return np.broadcast_to(1.0 / np.sqrt(inv_sq), r.shape).copy()
