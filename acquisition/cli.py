@@ -10,10 +10,10 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from .commands import inspect, simulate
+from .commands import capture, daemon, inspect, session, sessions, simulate, watch
 from .errors import UserError
 
-SUBCOMMANDS = (simulate, inspect)
+SUBCOMMANDS = (simulate, inspect, daemon, session, capture, watch, sessions)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,47 @@
+"""`micam watch`: a live view of the daemon in the terminal (progress, levels, warnings)."""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+from acquisition.daemon.cli_args import add_client_arguments
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("watch", help="follow the daemon's progress, levels and warnings live",
+                       description="Print the daemon's status, then one line per event "
+                                   "until interrupted (Ctrl-C).")
+    p.add_argument("--count", type=int, metavar="N", help="stop after N events")
+    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    p.add_argument("--json", action="store_true", help="print events as JSON lines")
+    add_client_arguments(p)
+    p.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from acquisition.daemon.client import client_from_args
+    from acquisition.daemon.display import format_event, format_status
+
+    deadline = time.monotonic() + args.duration if args.duration is not None else None
+    with client_from_args(args) as client:
+        stream = client.subscribe()
+        try:
+            print(format_status(client.status()), flush=True)
+            seen = 0
+            last_seq = None
+            while args.count is None or seen < args.count:
+                wait = 1.0 if deadline is None else deadline - time.monotonic()
+                if wait <= 0:
+                    break
+                event = stream.next(min(wait, 1.0))
+                if event is None:
+                    continue
+                if last_seq is not None and event.seq != last_seq + 1:
+                    print(f"(missed {event.seq - last_seq - 1} events)")
+                last_seq = event.seq
+                seen += 1
+                print(event.model_dump_json() if args.json else format_event(event), flush=True)
+        finally:
+            stream.close()
+    return 0

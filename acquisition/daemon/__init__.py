@@ -1,0 +1,37 @@
+"""The acquisition daemon: capture sessions driven over ZeroMQ (see docs/protocol.md).
+
+`micam daemon` runs `run_daemon`; the operator's commands use `DaemonClient`. Modules:
+config (pydantic settings), protocol (messages and their JSON Schemas), states (the state
+machine), server (sockets), security and endpoints (CURVE, what is local), run (one open
+session and its quality gate), quality (checks), hardware (real or simulated), service (the
+loop), systemd, translog (transitions in the session), client, cli_args and display (for the
+commands). The names below are imported on first use, so the light modules (cli_args) stay
+light for `micam --help`.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+_EXPORTS = {
+    "PROTOCOL_VERSION": "protocol",
+    "json_schemas": "protocol",
+    "ConfigError": "config",
+    "DaemonConfig": "config",
+    "load_config": "config",
+    "DaemonClient": "client",
+    "DaemonError": "client",
+    "check_config": "main",
+    "run_daemon": "main",
+    "State": "states",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(f"{__name__}.{module}"), name)

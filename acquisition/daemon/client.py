@@ -1,0 +1,162 @@
+"""The client side of the protocol, for the `micam` commands and for tests.
+
+Each request uses a fresh REQ socket and one bounded wait (the zguide's "lazy pirate" without
+the retry: `capture` must not be sent twice). No reply within the timeout is an error that says
+what to check; the socket is then discarded, so a late reply can never be mistaken for the
+answer to a later request.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+import uuid
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import zmq
+from pydantic import ValidationError
+
+from ..errors import UserError
+from .endpoints import DEFAULT_CONTROL
+from .keys import secure_client
+from .protocol import EVENT_ADAPTER, PROTOCOL_VERSION, Event, Reply, StatusResult
+
+
+class DaemonError(UserError):
+    """The daemon refused a request (`code` from the protocol) or could not be reached."""
+
+    def __init__(self, message: str, code: str | None = None) -> None:
+        super().__init__(message)
+        self.code = code
+
+
+class EventStream:
+    """A subscription to the daemon's events (every type)."""
+
+    def __init__(self, socket: zmq.Socket) -> None:
+        self._socket = socket
+
+    def next(self, timeout_s: float) -> Event | None:
+        """The next event, or None if none arrives within `timeout_s`."""
+        if not self._socket.poll(round(timeout_s * 1000), zmq.POLLIN):
+            return None
+        _topic, payload = self._socket.recv_multipart()
+        return EVENT_ADAPTER.validate_json(payload)
+
+    def close(self) -> None:
+        self._socket.close(linger=0)
+
+
+class DaemonClient:
+    """Talks to one daemon: `request` for control, `subscribe` for events."""
+
+    def __init__(self, control: str = DEFAULT_CONTROL, events: str | None = None,
+                 timeout_s: float = 5.0, server_key: Path | None = None,
+                 client_key: Path | None = None) -> None:
+        if (server_key is None) != (client_key is None):
+            raise UserError("CURVE needs both --server-key (the daemon's public key) and "
+                            "--client-key (your secret key)")
+        self.control = control
+        self.events = events
+        self.timeout_s = timeout_s
+        self._keys = (server_key, client_key)
+        self._context = zmq.Context()
+
+    def __enter__(self) -> DaemonClient:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self._context.destroy(linger=0)
+
+    def _socket(self, kind: int, endpoint: str) -> zmq.Socket:
+        sock = self._context.socket(kind)
+        sock.linger = 0
+        server_key, client_key = self._keys
+        if server_key is not None and client_key is not None:
+            secure_client(sock, server_key, client_key)
+        sock.connect(endpoint)
+        return sock
+
+    def exchange(self, frames: list[bytes]) -> Reply:
+        """Send raw frames and return the reply (tests send malformed requests with this)."""
+        sock = self._socket(zmq.REQ, self.control)
+        try:
+            sock.send_multipart(frames)
+            if not sock.poll(round(self.timeout_s * 1000), zmq.POLLIN):
+                raise DaemonError(
+                    f"no reply from the daemon at {self.control} within {self.timeout_s:g} s; is "
+                    "`micam daemon` running there (and, with CURVE, is your key authorised)?")
+            raw = sock.recv()
+        finally:
+            sock.close(linger=0)
+        try:
+            return Reply.model_validate_json(raw)
+        except ValidationError as exc:
+            raise DaemonError(f"the daemon at {self.control} sent a reply this client cannot "
+                              f"read (another protocol version?): {exc}") from None
+
+    def request(self, command: str, **args: Any) -> dict[str, Any]:
+        """Send one command; its result, or DaemonError with the daemon's refusal."""
+        message = {"v": PROTOCOL_VERSION, "id": uuid.uuid4().hex[:12], "command": command,
+                   "args": {k: v for k, v in args.items() if v is not None}}
+        reply = self.exchange([json.dumps(message).encode()])
+        if not reply.ok:
+            assert reply.error is not None
+            raise DaemonError(reply.error.message, reply.error.code)
+        return reply.result or {}
+
+    def status(self) -> StatusResult:
+        return StatusResult.model_validate(self.request("status"))
+
+    def subscribe(self) -> EventStream:
+        """Subscribe to every event (the endpoint comes from `status` unless given)."""
+        endpoint = self.events or _reachable(self.status().events_endpoint, self.control)
+        sock = self._socket(zmq.SUB, endpoint)
+        sock.subscribe(b"")
+        return EventStream(sock)
+
+    def wait_until(self, done: Callable[[StatusResult], bool], timeout_s: float,
+                   on_event: Callable[[Event], None] | None = None,
+                   stream: EventStream | None = None, interval_s: float = 0.2) -> StatusResult:
+        """Poll `status` until `done(status)`, passing events to `on_event` meanwhile; raise
+        DaemonError after `timeout_s`. Events are only shown; `status` decides (a subscriber
+        may miss events, a status reply is never lost)."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            status = self.status()
+            if done(status):
+                return status
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise DaemonError(f"the daemon did not finish within {timeout_s:g} s (state "
+                                  f"{status.state}); see `micam session status`")
+            pause_until = time.monotonic() + min(interval_s, remaining)
+            while stream is not None and (left := pause_until - time.monotonic()) > 0:
+                event = stream.next(left)
+                if event is not None and on_event is not None:
+                    on_event(event)
+            if stream is None:
+                time.sleep(max(0.0, pause_until - time.monotonic()))
+
+
+def _reachable(endpoint: str, control: str) -> str:
+    """`endpoint` with a wildcard host replaced by the host of the control endpoint."""
+    transport, _, rest = endpoint.partition("://")
+    host, _, port = rest.rpartition(":")
+    if transport == "tcp" and host in ("0.0.0.0", "*", "[::]", "::"):
+        control_host = control.partition("://")[2].rpartition(":")[0]
+        return f"tcp://{control_host}:{port}"
+    return endpoint
+
+
+def client_from_args(args: argparse.Namespace) -> DaemonClient:
+    """A client for the options of `cli_args.add_client_arguments`."""
+    return DaemonClient(args.control, args.events, args.timeout,
+                        Path(args.server_key) if args.server_key else None,
+                        Path(args.client_key) if args.client_key else None)

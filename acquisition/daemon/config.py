@@ -1,0 +1,200 @@
+"""The daemon's configuration: a TOML file, overridden by MICAM_DAEMON_* environment variables.
+
+Priority, highest first: environment (`MICAM_DAEMON_SESSION_ROOT=...`, nested sections with a
+double underscore: `MICAM_DAEMON_SOCKETS__CONTROL=ipc:///run/micam/control`), then the TOML
+file, then the defaults below. Unknown keys are refused so a misspelt option is never ignored.
+With no `[hardware]` section the daemon runs on the simulated world of `[simulation]`.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+from typing import ClassVar, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic_settings import (
+    BaseSettings,
+    PydanticBaseSettingsSource,
+    SettingsConfigDict,
+    TomlConfigSettingsSource,
+)
+
+from sim.capture import SimulationOptions
+
+from ..capture_config import CaptureConfig
+from ..errors import UserError
+from .endpoints import DEFAULT_CONTROL, DEFAULT_EVENTS
+
+ENV_PREFIX = "MICAM_DAEMON_"
+
+Policy = Literal["retry", "warn", "ignore"]
+"""What a failed quality check does: abandon the attempt and capture again, keep it with a
+warning to the operator, or not check at all."""
+
+
+class ConfigError(UserError):
+    """The daemon's configuration is missing, unreadable or invalid; the message says where."""
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class CurveConfig(_Section):
+    """CURVE encryption and client authentication (needed to bind a non-loopback address).
+
+    Make the files with `micam daemon --make-keys DIR`.
+    """
+
+    server_secret_key: Path = Field(
+        description="ZeroMQ certificate file with the daemon's secret key (…/server.key_secret)")
+    authorized_clients: Path = Field(
+        description="directory of the public certificates (*.key) of the clients allowed in")
+
+
+class SocketsConfig(_Section):
+    """Where the daemon listens: ZeroMQ endpoints (tcp://127.0.0.1:PORT or ipc://PATH)."""
+
+    control: str = Field(default=DEFAULT_CONTROL, description="request/reply control socket")
+    events: str = Field(default=DEFAULT_EVENTS, description="publish socket for events")
+    curve: CurveConfig | None = None
+    max_message_bytes: int = Field(
+        default=65_536, ge=1024, le=16 * 2**20,
+        description="larger requests get a 'too_large' error reply")
+
+
+class QualityConfig(_Section):
+    """Quality checks of every recording and image set, and what a failure does."""
+
+    clip_fraction: float = Field(
+        default=0.999, gt=0.5, le=1.0,
+        description="a sample at or beyond this fraction of full scale counts as clipped")
+    min_level_dbfs: float = Field(
+        default=-60.0, le=0.0,
+        description="the channel(s) that should hear the speaker: RMS during the burst, dBFS")
+    min_snr_db: float = Field(
+        default=10.0, description="median SNR of those channels: burst power over pre-burst noise")
+    min_channel_snr_db: float = Field(
+        default=3.0, description="a microphone channel below this SNR is reported as dead")
+    checkerboard_in: Literal["any", "all"] = Field(
+        default="any", description="the checkerboard must be found in any / all cameras")
+    clipping: Policy = "retry"
+    level: Policy = "retry"
+    snr: Policy = "retry"
+    dead_channels: Policy = "warn"
+    checkerboard: Policy = "retry"
+    auto_retries: int = Field(
+        default=1, ge=0, le=5,
+        description="failed attempts re-captured without asking; then the operator captures again")
+
+
+class V4L2CameraConfig(_Section):
+    """One real camera (see acquisition.cameras_v4l2.V4L2Camera)."""
+
+    name: str
+    device: str = Field(description="/dev/v4l/by-id/... (stable) or /dev/videoN")
+    width: int = Field(gt=0)
+    height: int = Field(gt=0)
+    fourcc: str = Field(default="MJPG", min_length=4, max_length=4)
+    fps: float | None = Field(default=None, gt=0)
+    exposure: float | None = Field(
+        default=None, description="V4L2 exposure_absolute (driver units, usually 100 us); "
+                                  "None leaves the camera's setting")
+
+
+class HardwareConfig(_Section):
+    """Real boards and cameras: the capture configuration plus how to open the devices."""
+
+    capture: CaptureConfig = Field(
+        description="boards and serials, channel map, speakers, sample rate, burst, rig, cameras")
+    cameras: tuple[V4L2CameraConfig, ...]
+    firmware_dir: Path | None = None
+
+    @model_validator(mode="after")
+    def _cameras_match(self) -> HardwareConfig:
+        named = [c.name for c in self.capture.cameras]
+        given = [c.name for c in self.cameras]
+        if named != given:
+            raise ValueError(f"hardware.cameras {given} must match capture.cameras {named}, "
+                             "in the same order")
+        return self
+
+
+class HandsFreeConfig(_Section):
+    """Capture by itself once the checkerboard has been held still in view (poses only)."""
+
+    enabled: bool = False
+    still_s: float = Field(default=1.5, gt=0, le=30, description="how long the board must rest")
+    max_motion_px: float = Field(default=2.0, gt=0, description="corner motion counted as still")
+    check_interval_s: float = Field(default=0.25, gt=0, le=5)
+
+
+class SimulationConfig(SimulationOptions):
+    """The simulated world the daemon runs on without hardware (unknown keys refused)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class DaemonConfig(BaseSettings):
+    """Everything `micam daemon` needs; see docs/protocol.md and README for an example."""
+
+    model_config = SettingsConfigDict(
+        env_prefix=ENV_PREFIX, env_nested_delimiter="__", extra="forbid", frozen=True)
+
+    toml_path: ClassVar[Path | None] = None
+
+    session_root: Path = Field(default=Path("~/micam-sessions"),
+                               description="sessions are directories under it")
+    sockets: SocketsConfig = SocketsConfig()
+    hardware: HardwareConfig | None = None
+    simulation: SimulationConfig = SimulationConfig()
+    quality: QualityConfig = QualityConfig()
+    hands_free: HandsFreeConfig = HandsFreeConfig()
+    poll_interval_s: float = Field(default=0.1, gt=0, le=1.0,
+                                   description="longest wait of the service loop")
+    camera_timeout_s: float = Field(default=2.0, gt=0, le=30)
+
+    @classmethod
+    def settings_customise_sources(
+        cls,
+        settings_cls: type[BaseSettings],
+        init_settings: PydanticBaseSettingsSource,
+        env_settings: PydanticBaseSettingsSource,
+        dotenv_settings: PydanticBaseSettingsSource,
+        file_secret_settings: PydanticBaseSettingsSource,
+    ) -> tuple[PydanticBaseSettingsSource, ...]:
+        sources: tuple[PydanticBaseSettingsSource, ...] = (init_settings, env_settings)
+        if cls.toml_path is not None:
+            sources += (TomlConfigSettingsSource(settings_cls, toml_file=cls.toml_path),)
+        return sources
+
+    @property
+    def simulated(self) -> bool:
+        """True when no hardware is configured and the daemon runs on the simulated world."""
+        return self.hardware is None
+
+
+def load_config(path: Path | None = None) -> DaemonConfig:
+    """Read the configuration from `path` (None: defaults) and the environment.
+
+    Raises ConfigError naming the file and every invalid field.
+    """
+    if path is not None:
+        path = Path(path)
+        try:
+            with path.open("rb") as fh:
+                tomllib.load(fh)  # parse once here for a clear syntax error with its line
+        except FileNotFoundError:
+            raise ConfigError(f"config file {path} does not exist") from None
+        except (OSError, tomllib.TOMLDecodeError) as exc:
+            raise ConfigError(f"config file {path} is not valid TOML: {exc}") from None
+    settings_cls = type("DaemonConfig", (DaemonConfig,), {"toml_path": path})
+    try:
+        return settings_cls()
+    except ValidationError as exc:
+        where = f"config file {path}" if path else "the configuration"
+        problems = "; ".join(
+            f"{'.'.join(map(str, e['loc'])) or '(top level)'}: {e['msg']}" for e in exc.errors())
+        raise ConfigError(f"{where} (with {ENV_PREFIX}* overrides) is invalid: {problems}") \
+            from None

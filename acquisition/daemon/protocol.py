@@ -1,0 +1,306 @@
+"""The daemon's ZeroMQ messages: versioned JSON, validated by pydantic on both ends.
+
+Control (REQ/REP): a client sends one `Request` frame; the daemon always answers with one
+`Reply` frame, `ok` with a command-specific `result`, or not ok with an `ErrorInfo` whose `code`
+a program can switch on and whose `message` a person can act on.
+
+Events (PUB/SUB): two frames, the event type as topic (so a subscriber may filter) and the
+`Event` JSON. `seq` increases by one per event of a daemon run, so a gap tells a subscriber it
+missed something; the `status` reply carries the last `seq` as a snapshot point.
+
+docs/protocol.md documents every message; `json_schemas()` generates their JSON Schemas.
+"""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter
+
+PROTOCOL_VERSION = 1
+
+ErrorCode = Literal[
+    "bad_request",  # not JSON, not an object, a field missing or of the wrong type
+    "unsupported_version",  # `v` is not PROTOCOL_VERSION
+    "unknown_command",  # `command` names no command
+    "too_large",  # the request exceeds the daemon's max_message_bytes
+    "wrong_state",  # the command makes no sense in the daemon's current state
+    "session_error",  # the session cannot be created, resumed or found
+    "internal",  # a bug: the daemon logged a traceback and keeps running
+]
+
+
+class _Message(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+# -- requests --------------------------------------------------------------------------------
+
+
+class NoArgs(_Message):
+    """Arguments of a command that takes none."""
+
+
+class SessionStartArgs(_Message):
+    poses: int | None = Field(
+        default=None, ge=1, le=10_000,
+        description="rig poses to capture; default: the daemon's configuration")
+    resume: str | None = Field(
+        default=None, max_length=128, pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]*$",
+        description="id of an interrupted session to continue, or 'last' for the newest one")
+
+
+class _Request(_Message):
+    v: Literal[1] = PROTOCOL_VERSION
+    id: str = Field(default="", max_length=64, description="echoed in the reply")
+
+
+class PingRequest(_Request):
+    command: Literal["ping"] = "ping"
+    args: NoArgs = NoArgs()
+
+
+class StatusRequest(_Request):
+    command: Literal["status"] = "status"
+    args: NoArgs = NoArgs()
+
+
+class SessionsListRequest(_Request):
+    command: Literal["sessions.list"] = "sessions.list"
+    args: NoArgs = NoArgs()
+
+
+class SessionStartRequest(_Request):
+    command: Literal["session.start"] = "session.start"
+    args: SessionStartArgs = SessionStartArgs()
+
+
+class SessionStopRequest(_Request):
+    """End the session after the current step, as complete (needs every reference step)."""
+
+    command: Literal["session.stop"] = "session.stop"
+    args: NoArgs = NoArgs()
+
+
+class SessionPauseRequest(_Request):
+    command: Literal["session.pause"] = "session.pause"
+    args: NoArgs = NoArgs()
+
+
+class SessionResumeRequest(_Request):
+    """Continue a paused session (an interrupted one is continued by session.start resume)."""
+
+    command: Literal["session.resume"] = "session.resume"
+    args: NoArgs = NoArgs()
+
+
+class SessionAbortRequest(_Request):
+    """End the session after the current burst, as aborted; it can never be continued."""
+
+    command: Literal["session.abort"] = "session.abort"
+    args: NoArgs = NoArgs()
+
+
+class CaptureRequest(_Request):
+    """The set-up the daemon asked for is ready: capture the current step."""
+
+    command: Literal["capture"] = "capture"
+    args: NoArgs = NoArgs()
+
+
+class RedoRequest(_Request):
+    """Throw away the step being captured (after the current burst) and capture it again."""
+
+    command: Literal["redo"] = "redo"
+    args: NoArgs = NoArgs()
+
+
+Request = Annotated[
+    PingRequest | StatusRequest | SessionsListRequest | SessionStartRequest | SessionStopRequest
+    | SessionPauseRequest | SessionResumeRequest | SessionAbortRequest | CaptureRequest
+    | RedoRequest,
+    Field(discriminator="command"),
+]
+REQUEST_TYPES: dict[str, type[_Request]] = {
+    t.model_fields["command"].default: t
+    for t in (PingRequest, StatusRequest, SessionsListRequest, SessionStartRequest,
+              SessionStopRequest, SessionPauseRequest, SessionResumeRequest, SessionAbortRequest,
+              CaptureRequest, RedoRequest)
+}
+COMMANDS = tuple(REQUEST_TYPES)
+
+
+class Envelope(BaseModel):
+    """The fields every request must have, read before the command's own model is chosen."""
+
+    model_config = ConfigDict(extra="allow")
+
+    v: int
+    id: str = Field(default="", max_length=64)
+    command: str = Field(max_length=64)
+
+
+# -- replies ---------------------------------------------------------------------------------
+
+
+class ErrorInfo(_Message):
+    code: ErrorCode
+    message: str
+
+
+class Reply(_Message):
+    v: Literal[1] = PROTOCOL_VERSION
+    id: str = ""
+    ok: bool
+    result: dict[str, Any] | None = None
+    error: ErrorInfo | None = None
+
+
+class LastCapture(_Message):
+    """How the operator's most recent capture ended."""
+
+    number: int = Field(description="counts the operator's captures in this daemon run")
+    step: str
+    outcome: Literal["complete", "abandoned"]
+    reason: str = ""
+    warnings: list[str] = []
+
+
+class SessionSummary(_Message):
+    id: str
+    path: str
+    status: str
+    steps_done: int
+    steps_total: int
+    poses_done: int
+    n_poses: int
+    created_utc: datetime
+
+
+class StatusResult(_Message):
+    """The `status` reply: a snapshot of everything `watch` shows."""
+
+    state: str
+    simulated: bool
+    session: SessionSummary | None = None
+    step: str | None = Field(default=None, description="the step being waited for or captured")
+    instruction: str | None = None
+    captures_requested: int = 0
+    last_capture: LastCapture | None = None
+    paused: bool = False
+    hands_free: bool = False
+    events_endpoint: str
+    last_event_seq: int
+
+
+class SessionsResult(_Message):
+    root: str
+    sessions: list[SessionSummary]
+    problems: list[str] = Field(default=[], description="session directories that cannot be read")
+
+
+class CaptureResult(_Message):
+    number: int = Field(description="wait until status.last_capture.number reaches it")
+    step: str
+
+
+# -- events ----------------------------------------------------------------------------------
+
+
+class _Event(_Message):
+    v: Literal[1] = PROTOCOL_VERSION
+    seq: int = Field(ge=0)
+    time_utc: datetime
+    session_id: str | None = None
+
+
+class StateEvent(_Event):
+    type: Literal["state"] = "state"
+    state: str
+    previous: str
+    reason: str
+
+
+class InstructionEvent(_Event):
+    """What the operator must set up before capturing `step`."""
+
+    type: Literal["instruction"] = "instruction"
+    step: str
+    kind: str
+    text: str
+
+
+class ProgressEvent(_Event):
+    type: Literal["progress"] = "progress"
+    steps_done: int
+    steps_total: int
+    poses_done: int
+    n_poses: int
+    step: str
+
+
+class LevelsEvent(_Event):
+    """Per-channel levels of one recording (dBFS: 0 = full scale of the channel's range)."""
+
+    type: Literal["levels"] = "levels"
+    step: str
+    file: str
+    rms_dbfs: list[float]
+    peak_dbfs: list[float]
+    snr_db: list[float]
+    clipped_channels: list[int]
+
+
+class CheckerboardEvent(_Event):
+    type: Literal["checkerboard"] = "checkerboard"
+    step: str
+    camera: str
+    found: bool
+
+
+class WarningEvent(_Event):
+    type: Literal["warning"] = "warning"
+    step: str | None = None
+    check: str | None = None
+    message: str
+
+
+class ErrorEvent(_Event):
+    type: Literal["error"] = "error"
+    step: str | None = None
+    message: str
+
+
+class CaptureEvent(_Event):
+    """A capture of a step ended: its attempt completed or was abandoned (and why)."""
+
+    type: Literal["capture"] = "capture"
+    step: str
+    outcome: Literal["complete", "abandoned"]
+    reason: str = ""
+
+
+Event = Annotated[
+    StateEvent | InstructionEvent | ProgressEvent | LevelsEvent | CheckerboardEvent
+    | WarningEvent | ErrorEvent | CaptureEvent,
+    Field(discriminator="type"),
+]
+EVENT_ADAPTER: TypeAdapter[Event] = TypeAdapter(Event)
+REQUEST_ADAPTER: TypeAdapter[Request] = TypeAdapter(Request)
+
+
+def utc_now() -> datetime:
+    return datetime.now(UTC)
+
+
+def json_schemas() -> dict[str, dict]:
+    """JSON Schemas of every message, by file stem, for consumers in any language."""
+    return {
+        "request": REQUEST_ADAPTER.json_schema(),
+        "reply": Reply.model_json_schema(),
+        "event": EVENT_ADAPTER.json_schema(),
+        "status-result": StatusResult.model_json_schema(),
+        "sessions-result": SessionsResult.model_json_schema(),
+        "capture-result": CaptureResult.model_json_schema(),
+    }

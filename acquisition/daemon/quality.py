@@ -1,0 +1,118 @@
+"""Quality checks of each recording and image set: clipping, level, SNR, checkerboard in view.
+
+A recording is judged on the channels that should hear the speaker: the reference microphone
+during a reference step, the array's microphones during a pose. Levels are in dBFS (0 dBFS =
+the full scale of the channel's range); the SNR compares the power during the burst with the
+power of the silence before it (the first `pre_samples` of every recording, before any sound
+can arrive). Each failed check carries the policy configured for it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from daq import CODE_FULL_SCALE
+
+from .config import Policy, QualityConfig
+
+_FLOOR_DB = -200.0
+_MIN_NOISE_SAMPLES = 32
+
+
+@dataclass(frozen=True)
+class Levels:
+    """Per-channel figures of one recording (arrays of length n_channels)."""
+
+    rms_dbfs: np.ndarray
+    peak_dbfs: np.ndarray
+    snr_db: np.ndarray | None  # None when the recording has too little silence before the burst
+    clipped: list[int]
+
+
+@dataclass(frozen=True)
+class Failure:
+    """A failed check: which, what its policy says to do, and a message for the operator."""
+
+    check: str
+    policy: Policy
+    message: str
+
+
+def _db(power_ratio: np.ndarray) -> np.ndarray:
+    with np.errstate(divide="ignore"):
+        return np.maximum(10.0 * np.log10(power_ratio), _FLOOR_DB)
+
+
+def measure(codes: np.ndarray, pre_samples: int, burst_samples: int,
+            clip_fraction: float) -> Levels:
+    """Levels of raw int16 `codes` (n_samples, n_channels) whose burst starts at `pre_samples`."""
+    x = codes.astype(np.float64)
+    full = float(CODE_FULL_SCALE)
+    burst = x[pre_samples: pre_samples + burst_samples]
+    peak = np.abs(x).max(axis=0)
+    clipped = np.flatnonzero(peak >= clip_fraction * full).tolist()
+    if pre_samples >= _MIN_NOISE_SAMPLES:
+        noise = x[:pre_samples]
+        noise_power = noise.var(axis=0)
+        burst_power = ((burst - noise.mean(axis=0)) ** 2).mean(axis=0)
+        snr = _db(np.maximum(burst_power - noise_power, 0.0) / np.maximum(noise_power, 1e-12))
+    else:
+        burst_power = (burst**2).mean(axis=0)
+        snr = None
+    return Levels(rms_dbfs=_db(burst_power / full**2), peak_dbfs=_db(peak**2 / full**2),
+                  snr_db=snr, clipped=clipped)
+
+
+def judge_recording(levels: Levels, listening: Sequence[int], mics: Sequence[int],
+                    check_dead: bool, config: QualityConfig) -> list[Failure]:
+    """The checks a recording fails. `listening`: the columns that should hear the speaker;
+    `mics`: the microphone columns, checked for dead channels when `check_dead`."""
+    failures = []
+    if config.clipping != "ignore" and levels.clipped:
+        failures.append(Failure("clipping", config.clipping,
+                                f"clipped on channel(s) {levels.clipped}: move the rig away or "
+                                "lower the burst amplitude"))
+    level = float(np.median(levels.rms_dbfs[list(listening)]))
+    if config.level != "ignore" and level < config.min_level_dbfs:
+        failures.append(Failure("level", config.level,
+                                f"burst level {level:.1f} dBFS is below {config.min_level_dbfs} "
+                                "dBFS: check the speaker, its cable and the amplifier"))
+    if levels.snr_db is not None:
+        snr = float(np.median(levels.snr_db[list(listening)]))
+        if config.snr != "ignore" and snr < config.min_snr_db:
+            failures.append(Failure("snr", config.snr,
+                                    f"SNR {snr:.1f} dB is below {config.min_snr_db} dB: noise in "
+                                    "the room, or the speaker too far away"))
+        dead = [m for m in mics if levels.snr_db[m] < config.min_channel_snr_db]
+        if check_dead and config.dead_channels != "ignore" and dead:
+            failures.append(Failure("dead_channels", config.dead_channels,
+                                    f"channel(s) {dead} hear no burst (SNR below "
+                                    f"{config.min_channel_snr_db} dB): check those microphones"))
+    return failures
+
+
+def checkerboard_corners(image: np.ndarray, corners: tuple[int, int]) -> np.ndarray | None:
+    """The rig's checkerboard corners in `image` (pixels, shape (n, 2)), or None if OpenCV does
+    not find all of them; `corners` counts the inner corners, x by y. Coarse (no sub-pixel
+    refinement): calibration refines them from the stored image."""
+    grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
+    found, points = cv2.findChessboardCorners(grey, corners, flags=flags)
+    return points.reshape(-1, 2) if found else None
+
+
+def judge_images(found: Mapping[str, bool], config: QualityConfig) -> list[Failure]:
+    """The checkerboard check of a step's images, by camera name."""
+    if config.checkerboard == "ignore" or not found:
+        return []
+    missing = [name for name, ok in found.items() if not ok]
+    failed = len(missing) == len(found) if config.checkerboard_in == "any" else bool(missing)
+    if not failed:
+        return []
+    return [Failure("checkerboard", config.checkerboard,
+                    f"checkerboard not found in {', '.join(missing)}: hold the whole board in "
+                    "view, facing the camera, without glare")]
