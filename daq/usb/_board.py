@@ -28,7 +28,7 @@ from daq import (
 )
 
 from ._channel import COMMAND_TIMEOUT_S, CommandChannel
-from ._errors import ProtocolError, StalledEndpointError
+from ._errors import ProtocolError, StalledEndpointError, TransferTimeoutError
 from ._families import Family
 from ._ids import EP_STREAM_IN, EP_STREAM_OUT
 from ._protocol import ReadI2cBytes
@@ -43,6 +43,13 @@ from ._unpublished import (
     software_trigger_commands,
     stop_commands,
 )
+
+DRAIN_BYTES = 64 * 1024
+"""Size of one read that empties the input endpoint before a scan."""
+DRAIN_READS = 64
+"""More stale data than DRAIN_READS * DRAIN_BYTES means the board never stopped."""
+DRAIN_TIMEOUT_S = 0.01
+"""An idle endpoint answers a drain read with this timeout."""
 
 
 class _State(Enum):
@@ -148,14 +155,28 @@ class UsbBoard:
         else:
             self._armed = dataclasses.replace(settings, outputs=())  # outputs hold 0 V
         self._waveform = None
+        self._drain_stale_input()
+        for command in arm_commands(self._armed):
+            self.channel.send(command)
         self._stream = InputStream(self._transport, len(settings.inputs),
                                    config.samples_per_channel, config.sample_rate_hz)
         self._watcher.attach(self._stream)
         self._next_index = 0
         self._stream.start()
         self._state = _State.ARMED
-        for command in arm_commands(self._armed):
-            self.channel.send(command)
+
+    def _drain_stale_input(self) -> None:
+        """Discard what an earlier scan left in the input endpoint: a stale byte would shift
+        every frame of the new scan."""
+        for _ in range(DRAIN_READS):
+            try:
+                if not self._transport.bulk_read(EP_STREAM_IN, DRAIN_BYTES, DRAIN_TIMEOUT_S):
+                    return
+            except TransferTimeoutError:
+                return
+        raise ProtocolError(
+            f"{self._transport.name} still streams input data while stopped; replug the board"
+        )
 
     def start(self) -> None:
         self._require(_State.ARMED, doing="start")

@@ -237,8 +237,8 @@ class RunningFirmware:
                 self._wait(scan, deadline)
                 scan = self._scan
                 continue
-            if scan.stopped and not scan.pending:
-                return b""
+            if scan.stopped:
+                return b""  # a stopped scan's data is flushed
             total = scan.settings.samples or math.inf
             fault = self._next_stream_fault()
             cap = min(total, fault.at_sample if fault else math.inf)
