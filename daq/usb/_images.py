@@ -72,6 +72,8 @@ def write_ihex(path: Path, segments: list[tuple[int, bytes]], record_bytes: int 
     """Write segments as Intel HEX (used to make synthetic test images; 16-bit addresses)."""
     lines = []
     for address, data in segments:
+        if address < 0 or address + len(data) > 0x10000:
+            raise ValueError(f"segment at 0x{address:x} leaves the FX2's 64 KiB address space")
         for off in range(0, len(data), record_bytes):
             chunk = data[off: off + record_bytes]
             lines.append(_record(address + off, 0, chunk))

@@ -87,6 +87,8 @@ class InputStream:
 
         `first_index` is the sample index of the first frame, for the error messages.
         """
+        if n == 0:
+            return np.zeros((0, self.n_channels), np.int16)
         deadline = time.monotonic() + timeout_s
         have = sum(len(b) for b in self._pending)
         while have < n:
