@@ -1,0 +1,146 @@
+"""The calibration result: result.json (same keys as the simulator's truth.json) and exports.
+
+Comparing a result with the truth is one line because both use
+`{"microphones": [{"id", "position_m"}], "speed_of_sound_m_s", "cameras", "poses"}`.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from xml.sax.saxutils import quoteattr
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+Vector3 = tuple[float, float, float]
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+
+class MicrophoneResult(_Model):
+    id: int
+    position_m: Vector3
+    std_m: Vector3 = Field(description="standard deviation along x, y, z (camera-0 frame)")
+    board: str
+    residual_rms_s: float
+    n_measurements: int
+
+
+class TransformResult(_Model):
+    """x_to = R(rotvec) x_from + t_m."""
+
+    rotvec: Vector3
+    t_m: Vector3
+
+
+class CameraResult(_Model):
+    name: str
+    width: int
+    height: int
+    K: list[list[float]]
+    dist: list[float]
+    from_cam0: TransformResult
+    reprojection_rms_px: float
+    images_used: int
+    images_without_board: list[str]
+
+
+class PoseResult(_Model):
+    index: int
+    step: str
+    camera: str = Field(description="the camera whose image located the rig")
+    rig_to_cam0: TransformResult
+    speakers_m: list[Vector3]
+    speakers_std_m: list[Vector3]
+    reprojection_rms_px: float
+
+
+class SpeedOfSoundReference(_Model):
+    """The paper's IV-G fit: camera distances to the reference microphone against its TOFs."""
+
+    speed_of_sound_m_s: float
+    speed_of_sound_std_m_s: float
+    n: int
+    residual_rms_m: float
+    reference_microphone_m: Vector3
+
+
+class ResidualStats(_Model):
+    rms_s: float
+    median_abs_s: float
+    n_measurements: int
+    n_outliers: int
+
+
+class TofQuality(_Model):
+    median_snr_db: float
+    p05_snr_db: float
+    median_peak_to_sidelobe_db: float
+    median_predicted_std_s: float
+
+
+class CalibrationResult(_Model):
+    schema_version: int = 1
+    session_id: str
+    method: str
+    microphones: list[MicrophoneResult]
+    speed_of_sound_m_s: float
+    speed_of_sound_std_m_s: float
+    speed_of_sound_reference: SpeedOfSoundReference | None
+    latency_s: dict[str, float]
+    latency_std_s: dict[str, float]
+    cameras: list[CameraResult]
+    poses: list[PoseResult]
+    residuals: ResidualStats
+    tof_quality: TofQuality
+    timings_s: dict[str, float]
+    notes: list[str]
+
+    def positions(self) -> np.ndarray:
+        return np.array([m.position_m for m in self.microphones])
+
+    def write(self, path: Path) -> None:
+        """Write result.json atomically (temporary name, fsync, rename)."""
+        tmp = path.with_name(path.name + ".partial")
+        with open(tmp, "w") as f:
+            f.write(self.model_dump_json(indent=1))
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+
+
+def write_acoular_xml(result: CalibrationResult, path: Path, name: str = "micam") -> None:
+    """The microphone geometry as Acoular's MicGeom XML (`<MicArray><pos Name x y z/>`),
+    positions in metres in the camera-0 frame, in microphone-id order."""
+    lines = ['<?xml version="1.0" encoding="utf-8"?>', f"<MicArray name={quoteattr(name)}>"]
+    for mic in sorted(result.microphones, key=lambda m: m.id):
+        x, y, z = mic.position_m
+        lines.append(f'  <pos Name="Point {mic.id + 1}" x="{x:.6f}" y="{y:.6f}" z="{z:.6f}"/>')
+    lines.append("</MicArray>")
+    path.write_text("\n".join(lines) + "\n")
+
+
+def compare_with_truth(result: CalibrationResult, truth: dict) -> dict[str, float]:
+    """Errors of a result against a simulator's truth.json: microphone errors (metres) and the
+    speed-of-sound error (m/s)."""
+    true_pos = {m["id"]: np.array(m["position_m"]) for m in truth["microphones"]}
+    errors = np.array([np.linalg.norm(np.array(m.position_m) - true_pos[m.id])
+                       for m in result.microphones])
+    return {
+        "mean_mic_error_m": float(errors.mean()),
+        "median_mic_error_m": float(np.median(errors)),
+        "max_mic_error_m": float(errors.max()),
+        "speed_of_sound_error_m_s": result.speed_of_sound_m_s - truth["speed_of_sound_m_s"],
+    }
+
+
+def load_geometry(path: Path) -> tuple[np.ndarray, np.ndarray, float]:
+    """(ids, positions (M, 3), c) from a result.json or a truth.json."""
+    doc = json.loads(Path(path).read_text())
+    mics = sorted(doc["microphones"], key=lambda m: m["id"])
+    return (np.array([m["id"] for m in mics]), np.array([m["position_m"] for m in mics]),
+            float(doc["speed_of_sound_m_s"]))
