@@ -17,6 +17,10 @@ import numpy as np
 
 from .geometry import CameraModel, RigidTransform, pinhole
 
+REFERENCE_BOARD_SERIAL = "16099"
+"""Serial of the extra DT9816-A that records the reference microphone. Serials are decimal, as
+the boards' own 32-bit serial numbers are."""
+
 ArrayKind = Literal["sphere72", "planar64", "scatter48"]
 ARRAY_KINDS: tuple[str, ...] = ("sphere72", "planar64", "scatter48")
 
@@ -114,7 +118,7 @@ def _wire(n_mics: int, input_boards: list[BoardSpec], models_inputs: dict[str, i
                if s.model.startswith("DT9836") for ch in range(2)]
     if len(outputs) < n_speakers:
         raise ValueError(f"{n_speakers} speakers need more outputs than the boards offer")
-    boards = (*input_boards, BoardSpec("DT9816-A", "SIMREF0"))
+    boards = (*input_boards, BoardSpec("DT9816-A", REFERENCE_BOARD_SERIAL))
     return boards, tuple(mic_inputs), tuple(outputs[:n_speakers]), ChannelRef(len(boards) - 1, 0)
 
 
@@ -122,8 +126,8 @@ _INPUTS = {"DT9836-12-2": 12, "DT9816-A": 6}
 
 
 def _paper_boards(n_dt9836: int, n_dt9816: int) -> list[BoardSpec]:
-    return [BoardSpec("DT9836-12-2", f"SIM36{i:02d}") for i in range(n_dt9836)] + [
-        BoardSpec("DT9816-A", f"SIM16{i:02d}") for i in range(n_dt9816)
+    return [BoardSpec("DT9836-12-2", str(36001 + i)) for i in range(n_dt9836)] + [
+        BoardSpec("DT9816-A", str(16001 + i)) for i in range(n_dt9816)
     ]
 
 

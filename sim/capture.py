@@ -7,6 +7,7 @@ writes a session.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
@@ -47,6 +48,10 @@ class SimulationOptions(BaseModel):
     temperature_c: float = Field(default=20.0, ge=-40.0, le=60.0)
     mls_order: int = Field(default=14, ge=6, le=18)
     body_diffraction: bool = False
+    backend: Literal["sim", "usb-emulated"] = Field(
+        default="sim",
+        description="plain simulated boards, or the real USB driver on emulated USB boards",
+    )
 
     @field_validator("array")
     @classmethod
@@ -121,22 +126,27 @@ def capture_config_for(layout: ArrayLayout, rig: Rig, n_poses: int, sample_rate_
     )
 
 
-def build_simulated_capture(options: SimulationOptions,
-                            boards: list[Board] | None = None) -> SimulatedCapture:
-    """Build the simulated world for `options` and the hardware to capture it.
+def _boards_for(options: SimulationOptions, layout: ArrayLayout,
+                bench: AcousticBench) -> list[Board]:
+    """The boards of the chosen backend, wired to `bench`."""
+    if options.backend == "usb-emulated":
+        from .usb import emulated_boards
 
-    `boards` replaces the plain simulated boards (for example by emulated USB boards wired to
-    the same bench); by default every board of the layout is a `SimulatedBoard`.
-    """
+        return emulated_boards(bench, [(b.model, b.serial) for b in layout.boards])
+    return [SimulatedBoard(spec, bench) for spec in layout.boards]
+
+
+def build_simulated_capture(options: SimulationOptions) -> SimulatedCapture:
+    """Build the simulated world for `options` and the hardware to capture it: plain simulated
+    boards, or (backend "usb-emulated") the real USB driver talking to emulated boards, both
+    wired to the same bench, so that both record the same samples for the same seed."""
     layout = array_layout(options.array)
     rig = Rig()
     world = World(layout=layout, rig=rig, temperature_c=options.temperature_c,
                   noise=NoiseModel(scale=options.noise), seed=options.seed,
                   body_diffraction=options.body_diffraction)
     bench = AcousticBench(world)
-    hardware: list[Board] = boards if boards is not None else [
-        SimulatedBoard(spec, bench) for spec in layout.boards
-    ]
+    hardware = _boards_for(options, layout, bench)
     cameras: list[Camera] = [SimulatedCamera(m, world, i) for i, m in enumerate(layout.cameras)]
     poses = sample_poses(layout.cameras[0], rig, options.poses, options.distance_m,
                          np.random.default_rng([options.seed, 4]))

@@ -40,6 +40,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="MLS order of the bursts (14 = 171 ms at 96 kS/s)")
     p.add_argument("--body-diffraction", action="store_true",
                    help="sound reaches microphones behind a sphere array around its surface")
+    p.add_argument("--backend", choices=("sim", "usb-emulated"), default="sim",
+                   help="plain simulated boards (default) or the real USB driver on emulated "
+                        "USB boards")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(run=run)
 
@@ -51,7 +54,7 @@ def _options_from_args(args: argparse.Namespace):
         return SimulationOptions(
             array=args.array, poses=args.poses, distance_m=tuple(args.distance), seed=args.seed,
             noise=args.noise, temperature_c=args.temperature, mls_order=args.mls_order,
-            body_diffraction=args.body_diffraction,
+            body_diffraction=args.body_diffraction, backend=args.backend,
         )
     except ValidationError as exc:
         problems = "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())

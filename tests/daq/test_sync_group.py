@@ -71,21 +71,21 @@ def test_same_samples_whatever_the_block_size() -> None:
 def test_unplugged_board_is_named_with_its_sample_index() -> None:
     group, boards, _ = _group()
     boards[4].faults.unplug_at_sample = 3000
-    with pytest.raises(DeviceDisconnectedError, match=r"SIM1601.*sample 3000"):
+    with pytest.raises(DeviceDisconnectedError, match=r"16002.*sample 3000"):
         group.acquire(block_samples=1000)
 
 
 def test_overrun_is_an_error_not_shorter_data() -> None:
     group, boards, _ = _group()
     boards[1].faults.overrun_at_sample = 2500
-    with pytest.raises(OverrunError, match=r"SIM3601.*2500"):
+    with pytest.raises(OverrunError, match=r"36002.*2500"):
         group.acquire(block_samples=1000)
 
 
 def test_missing_trigger_times_out_naming_the_board() -> None:
     group, boards, _ = _group()
     boards[2].faults.miss_trigger = True
-    with pytest.raises(TriggerTimeoutError, match="SIM3602"):
+    with pytest.raises(TriggerTimeoutError, match="36003"):
         group.acquire(timeout_s=0.2)
     # the group recovers on the next acquisition
     assert group.acquire().codes.shape[0] == N
@@ -101,15 +101,15 @@ def test_misaligned_board_is_a_sync_error() -> None:
         return type(block)(block.codes, block.start_index + 1, block.board)
 
     board.read = skip_ahead  # type: ignore[method-assign]
-    with pytest.raises(SyncError, match=r"SIM1600.*expected 0\.\."):
+    with pytest.raises(SyncError, match=r"16001.*expected 0\.\."):
         group.acquire()
 
 
 def test_group_refuses_mixed_rates_and_duplicate_boards() -> None:
     world = World(layout=sphere72())
     bench = AcousticBench(world)
-    a = SimulatedBoard(BoardSpec("DT9836-12-2", "SIM3600"), bench)
-    b = SimulatedBoard(BoardSpec("DT9816-A", "SIM1600"), bench)
+    a = SimulatedBoard(BoardSpec("DT9836-12-2", "36001"), bench)
+    b = SimulatedBoard(BoardSpec("DT9816-A", "16001"), bench)
     with pytest.raises(ConfigurationError, match="listed twice"):
         SyncGroup([a, a])
     group = SyncGroup([a, b])
@@ -124,7 +124,7 @@ def test_group_refuses_mixed_rates_and_duplicate_boards() -> None:
 
 def test_calls_in_the_wrong_order_are_refused() -> None:
     world = World(layout=sphere72())
-    board = SimulatedBoard(BoardSpec("DT9836-12-2", "SIM3600"), AcousticBench(world))
+    board = SimulatedBoard(BoardSpec("DT9836-12-2", "36001"), AcousticBench(world))
     with pytest.raises(BoardStateError, match="needs configured"):
         board.arm()
     board.close()
