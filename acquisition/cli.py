@@ -10,10 +10,10 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from .commands import capture, daemon, inspect, session, sessions, simulate, watch
+from .commands import capture, daemon, daq, inspect, session, sessions, simulate, watch
 from .errors import UserError
 
-SUBCOMMANDS = (simulate, inspect, daemon, session, capture, watch, sessions)
+SUBCOMMANDS = (simulate, inspect, daq, daemon, session, capture, watch, sessions)
 
 
 def build_parser() -> argparse.ArgumentParser:
