@@ -19,6 +19,7 @@ from ..camera import CameraError
 from ..errors import UserError
 from .config import load_config
 from .hardware import open_hardware
+from .security import check_exposure
 from .service import Daemon
 from .systemd import configure_logging, sd_notify
 
@@ -27,8 +28,6 @@ log = logging.getLogger("micam.daemon")
 
 def check_config(path: Path | None) -> str:
     """Validate a configuration without opening anything; a one-line summary of it."""
-    from .security import check_exposure
-
     config = load_config(path)
     check_exposure(config.sockets)
     what = "simulated world" if config.simulated else "real hardware"
@@ -40,6 +39,7 @@ def run_daemon(config_path: Path | None) -> int:
     """Run the daemon in this process until it is told to stop; the process exit status."""
     configure_logging()
     config = load_config(config_path)
+    check_exposure(config.sockets)  # before opening any hardware
     try:
         hardware = open_hardware(config)
     except (DaqError, CameraError) as exc:

@@ -144,6 +144,14 @@ class SessionRun:
     def completed(self) -> dict[str, int]:
         return self.writer.completed_steps()
 
+    @property
+    def next_step(self) -> str:
+        """The step being waited for or captured, else the first one still to capture."""
+        if self.step is not None:
+            return self.step
+        remaining = self.sequencer.remaining_steps()
+        return remaining[0].id if remaining else ""
+
     def ready(self) -> bool:
         """Whether the daemon should call `advance` (False: wait for the operator first)."""
         return not self.held or self.ending is not None

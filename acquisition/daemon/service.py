@@ -292,7 +292,7 @@ class Daemon:
     def _capture(self) -> CaptureResult:
         run = self._open_run()
         number = run.request_capture("capture requested by the operator")
-        return CaptureResult(number=number, step=run.step or "")
+        return CaptureResult(number=number, step=run.next_step)
 
     def _redo(self) -> dict[str, Any]:
         run = self._open_run()

@@ -60,7 +60,7 @@ ALLOWED: dict[str, frozenset[State]] = {
     "session.abort": SESSION_STATES - {State.STOPPING},
     "session.pause": WAITING_STATES | {State.CAPTURING},
     "session.resume": frozenset({State.PAUSED}),
-    "capture": WAITING_STATES,
+    "capture": WAITING_STATES | {State.SESSION_OPEN},  # a go given while the session opens
     "redo": frozenset({State.CAPTURING}),
 }
 """The states in which each command is accepted (the daemon may still refuse for a reason
@@ -68,7 +68,7 @@ that is not the state, e.g. stop before the references are recorded)."""
 
 _WHY_NOT: dict[State, str] = {
     State.IDLE: "no session is open; start one with `micam session start`",
-    State.SESSION_OPEN: "the session is opening",
+    State.SESSION_OPEN: "the session is opening; try again in a moment",
     State.CAPTURING: "a step is being captured; wait for it to finish",
     State.PAUSED: "the session is paused; continue with `micam session resume`",
     State.STOPPING: "the session is closing",

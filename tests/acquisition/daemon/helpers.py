@@ -1,0 +1,148 @@
+"""Shared test helpers: a daemon in a thread or in a subprocess, and bounded drive loops.
+
+Readiness is a handshake, never a sleep: a subprocess daemon reports READY=1 on a notify socket
+exactly as it does to systemd; a thread daemon has bound its sockets before its thread starts.
+Every wait is bounded in time (and every loop in count).
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from acquisition.daemon.client import DaemonClient
+from acquisition.daemon.config import DaemonConfig, SimulationConfig, SocketsConfig
+from acquisition.daemon.hardware import Hardware, open_hardware
+from acquisition.daemon.protocol import StatusResult
+from acquisition.daemon.service import Daemon
+
+SMALL_WORLD = {"array": "scatter48", "poses": 3, "mls_order": 9, "seed": 3}
+WAIT_S = 60.0
+REPO = Path(__file__).resolve().parents[3]
+
+
+def small_config(root: Path, **overrides) -> DaemonConfig:
+    """A daemon configuration on the small simulated world, with ipc sockets under `root`."""
+    fields = {
+        "session_root": root / "sessions",
+        "sockets": SocketsConfig(control=f"ipc://{root}/control", events=f"ipc://{root}/events"),
+        "simulation": SimulationConfig(**SMALL_WORLD),
+        "poll_interval_s": 0.02,
+        **overrides,
+    }
+    return DaemonConfig(**fields)
+
+
+def write_toml(path: Path, root: Path, extra: str = "") -> Path:
+    """The TOML twin of `small_config`, for daemons started from the command line."""
+    world = "\n".join(f"{k} = {v!r}".replace("'", '"') for k, v in SMALL_WORLD.items())
+    path.write_text(
+        f'session_root = "{root}/sessions"\npoll_interval_s = 0.02\n{extra}\n'
+        f'[sockets]\ncontrol = "ipc://{root}/control"\nevents = "ipc://{root}/events"\n'
+        f"[simulation]\n{world}\n")
+    return path
+
+
+class ThreadDaemon:
+    """A daemon serving in a background thread of the test process (fast; no signals)."""
+
+    def __init__(self, config: DaemonConfig, hardware: Hardware | None = None) -> None:
+        self.config = config
+        self.hardware = hardware or open_hardware(config)
+        self.daemon = Daemon(config, self.hardware)  # sockets are bound: ready
+        self.thread = threading.Thread(target=self.daemon.serve_forever, daemon=True)
+        self.thread.start()
+
+    def client(self, timeout_s: float = 10.0) -> DaemonClient:
+        return DaemonClient(self.config.sockets.control, timeout_s=timeout_s)
+
+    def stop(self) -> None:
+        self.daemon.terminate()
+        self.thread.join(WAIT_S)
+        assert not self.thread.is_alive(), "the daemon did not stop"
+
+
+@dataclass
+class DaemonProcess:
+    """`micam daemon --config FILE` in a subprocess, with a notify socket for its messages."""
+
+    config: Path
+    root: Path
+    env: dict[str, str] = field(default_factory=dict)
+    script: list[str] | None = None  # another entry point (the crash harness)
+
+    def __post_init__(self) -> None:
+        self.notify_path = self.root / f"notify-{time.monotonic_ns()}"
+        self.notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        self.notify.bind(str(self.notify_path))
+        env = {**os.environ, "NOTIFY_SOCKET": str(self.notify_path), **self.env}
+        env.pop("JOURNAL_STREAM", None)
+        command = self.script or [sys.executable, "-m", "acquisition.cli", "daemon", "--config"]
+        self.proc = subprocess.Popen([*command, str(self.config)], env=env, cwd=REPO,
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+    def wait_message(self, prefix: str, timeout_s: float = WAIT_S) -> str:
+        """The next notify message containing a line starting with `prefix` (others skipped)."""
+        deadline = time.monotonic() + timeout_s
+        for _ in range(10_000):
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                break
+            self.notify.settimeout(min(remaining, 0.5))
+            try:
+                message = self.notify.recv(4096).decode()
+            except TimeoutError:
+                if self.proc.poll() is not None:
+                    raise AssertionError(f"the daemon exited ({self.proc.returncode}) before "
+                                         f"{prefix}: {self.proc.stderr.read()}") from None
+                continue
+            if any(line.startswith(prefix) for line in message.splitlines()):
+                return message
+        raise AssertionError(f"no {prefix} from the daemon within {timeout_s} s")
+
+    def client(self, timeout_s: float = 10.0) -> DaemonClient:
+        return DaemonClient(f"ipc://{self.root}/control", timeout_s=timeout_s)
+
+    def kill(self) -> None:
+        self.proc.kill()
+        self.proc.wait(WAIT_S)
+        self.close()
+
+    def wait_exit(self) -> int:
+        code = self.proc.wait(WAIT_S)
+        self.close()
+        return code
+
+    def close(self) -> None:
+        self.notify.close()
+        self.notify_path.unlink(missing_ok=True)
+        for stream in (self.proc.stdout, self.proc.stderr):
+            if stream is not None:
+                stream.close()
+
+
+def capture(client: DaemonClient) -> StatusResult:
+    """Capture the current step and wait until it completed or was abandoned."""
+    number = client.request("capture")["number"]
+    return client.wait_until(
+        lambda s: s.session is None or (s.last_capture is not None
+                                        and s.last_capture.number >= number), WAIT_S)
+
+
+def capture_all(client: DaemonClient, limit: int = 50) -> StatusResult:
+    """Capture step after step until the session closes (at most `limit` captures)."""
+    for _ in range(limit):
+        status = capture(client)
+        if status.session is None:
+            return status
+    raise AssertionError(f"the session did not close after {limit} captures")
+
+
+def wait_state(client: DaemonClient, *states: str) -> StatusResult:
+    return client.wait_until(lambda s: s.state in states, WAIT_S)
