@@ -1,0 +1,264 @@
+"""Localization evaluation of a session (paper VI-A) and the per-recording imaging it needs.
+
+For every recording of a pose step (one speaker playing), the cross-spectral matrix is summed
+into 1/fraction-octave bands (the paper: 1/12 octave, 5-15 kHz), each band is beamformed at its
+centre frequency on the rig's surface through the speakers (`PlaneGrid.on_rig` at the rig's
+Z = speaker depth, from the board pose of the geometry file), deconvolved by CLEAN-SC, and the
+CLEAN-SC peak is compared with the speaker's position: eq. 21, eps = |X_s - xi_max|.
+
+The CLEAN-SC peak is the grid node with the most clean-map power; its position to a fraction
+of the grid spacing is the sub-grid peak (`peaks.subgrid_peak`) of the dirty map the strongest
+component at that node was taken from. Both the node error (the paper's measure, quantised
+by the grid) and the sub-grid error are reported.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from itertools import pairwise
+
+import numpy as np
+
+from acquisition.session import SessionReader
+
+from .cleansc import CleanScOptions, clean_sc
+from .csm import CrossSpectra, WelchOptions, band_bins, cross_spectra, octave_band_centres
+from .geometry import ArrayGeometry, BoardPose
+from .grid import PlaneGrid
+from .steering import Formulation, SteeringModel
+
+DISTANCE_BINS_M = (0.0, 0.6, 1.0, 1.5, 2.0, 3.0, np.inf)
+"""Edges of the distance classes of the summary (distance from the array centre)."""
+
+
+@dataclass(frozen=True)
+class ImagingSettings:
+    """How each recording is imaged.
+
+    Attributes:
+        welch: CSM block length, overlap and window (the paper: 4096, 50 %, Hann).
+        fraction: bands are 1/fraction octave wide (the paper: 12).
+        band_lo_hz, band_hi_hz: band centres within this range are evaluated.
+        spacing_m: grid spacing on the rig plane (the paper: 6 mm).
+        margin_m: how far the grid extends beyond the outermost speakers, on the rig.
+        formulation: steering vectors.
+        clean: CLEAN-SC options (default: stop 20 dB below the first peak, since only the
+            strongest source of each single-speaker recording is evaluated).
+        offset_seed: the grid of each pose is shifted by a random fraction of a cell along each
+            rig axis (seeded by this and the pose), so that the speakers fall anywhere within a
+            cell as on an arbitrary grid; None aligns the grid with the speakers' rig
+            coordinates (the paper's speakers then sit on nodes of a 6 mm grid).
+    """
+
+    welch: WelchOptions = field(default_factory=WelchOptions)
+    fraction: int = 12
+    band_lo_hz: float = 5000.0
+    band_hi_hz: float = 15000.0
+    spacing_m: float = 0.006
+    margin_m: float = 0.06
+    formulation: Formulation = Formulation.TRUE_LOCATION
+    clean: CleanScOptions = field(default_factory=lambda: CleanScOptions(min_peak_db=20.0))
+    offset_seed: int | None = 0
+
+    def grid_shift(self, pose: int) -> tuple[float, float]:
+        """The pose's grid shift in cells (see `offset_seed`)."""
+        if self.offset_seed is None:
+            return 0.0, 0.0
+        a, b = np.random.default_rng([self.offset_seed, pose]).uniform(0.0, 1.0, 2)
+        return float(a), float(b)
+
+    def band_centres(self) -> np.ndarray:
+        return octave_band_centres(self.band_lo_hz, self.band_hi_hz, self.fraction)
+
+
+def mic_signals(reader: SessionReader, step: str, name: str, geometry: ArrayGeometry
+                ) -> tuple[np.ndarray, float]:
+    """A recording's microphone columns in volts (n_samples, M), in the geometry's microphone
+    order, and the sample rate. Volts = code * range_v / 32768 per column."""
+    codes, fs = reader.read_recording(step, name)
+    columns = reader.capture["columns"]
+    by_id = {c["mic_id"]: j for j, c in enumerate(columns) if c["role"] == "mic"}
+    missing = [m for m in geometry.mic_ids if m not in by_id]
+    if missing:
+        raise ValueError(f"the geometry's microphones {missing[:5]} are not recorded in this "
+                         "session; use the geometry calibrated for this array")
+    cols = [by_id[m] for m in geometry.mic_ids]
+    scale = np.array([columns[j]["range_v"] / 32768.0 for j in cols])
+    return codes[:, cols].astype(np.float64) * scale, float(fs)
+
+
+def rig_grid(pose: BoardPose, rig_speakers_m: np.ndarray, spacing_m: float, margin_m: float,
+             shift_cells: tuple[float, float] = (0.0, 0.0)) -> PlaneGrid:
+    """The rig plane through the speakers (their rig Z), covering them with a margin; its
+    nodes are shifted by shift_cells grid cells along the rig's X and Y."""
+    rig = np.asarray(rig_speakers_m, dtype=np.float64)
+    shift = spacing_m * np.asarray(shift_cells, dtype=np.float64)
+    lo = rig[:, :2].min(axis=0) - margin_m - shift
+    hi = rig[:, :2].max(axis=0) + margin_m
+    return PlaneGrid.on_rig(pose.R, pose.t, (lo[0], hi[0]), (lo[1], hi[1]),
+                            float(rig[:, 2].mean()), spacing_m)
+
+
+@dataclass(frozen=True)
+class BandLocation:
+    """The CLEAN-SC peak of one band: its grid node and sub-grid position (camera-0 frame)."""
+
+    band_hz: float
+    node_m: np.ndarray
+    subgrid_m: np.ndarray
+    power: float
+
+
+def band_spectra(signals: np.ndarray, fs: float, settings: ImagingSettings
+                 ) -> list[CrossSpectra]:
+    """The band-summed CSMs of a recording, one per band centre of the settings."""
+    n = settings.welch.block_size
+    centres = settings.band_centres()
+    bins = np.unique(np.concatenate([band_bins(f, settings.fraction, n, fs) for f in centres]))
+    spectra = cross_spectra(signals, fs, bins, settings.welch)
+    return [spectra.band_sum(f, settings.fraction) for f in centres]
+
+
+def locate(spectra: Iterable[CrossSpectra], steering: SteeringModel, grid: PlaneGrid,
+           options: CleanScOptions) -> list[BandLocation]:
+    """The CLEAN-SC peak of each band-summed CSM on `grid`."""
+    power = steering.amplitude**2
+    out = []
+    for band in spectra:
+        h = steering.vectors(float(band.freqs_hz[0]))
+        result = clean_sc(band.csm[0], h, options, power, grid.shape)
+        if not result.components:
+            continue
+        node = int(np.argmax(result.clean_map))
+        strongest = max((c for c in result.components if c.index == node),
+                        key=lambda c: c.power)
+        out.append(BandLocation(float(band.freqs_hz[0]), grid.points[node],
+                                grid.at_index(*strongest.subgrid),
+                                float(result.clean_map[node])))
+    return out
+
+
+@dataclass(frozen=True)
+class Localization:
+    """One evaluated (recording, band): eq. 21 at the grid node and at the sub-grid peak."""
+
+    pose: int
+    speaker: int
+    distance_m: float
+    band_hz: float
+    error_node_m: float
+    error_m: float
+
+
+@dataclass(frozen=True)
+class Summary:
+    """Error statistics of a set of localizations, in metres."""
+
+    count: int
+    mean_m: float
+    median_m: float
+    p95_m: float
+    mean_node_m: float
+
+    @staticmethod
+    def of(rows: list[Localization]) -> Summary:
+        e = np.array([r.error_m for r in rows])
+        node = np.array([r.error_node_m for r in rows])
+        return Summary(len(rows), float(e.mean()), float(np.median(e)),
+                       float(np.percentile(e, 95)), float(node.mean()))
+
+    def to_json(self) -> dict:
+        return {"count": self.count, "mean_mm": 1e3 * self.mean_m,
+                "median_mm": 1e3 * self.median_m, "p95_mm": 1e3 * self.p95_m,
+                "mean_node_mm": 1e3 * self.mean_node_m}
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """All localizations of a session with their summaries."""
+
+    rows: list[Localization]
+    settings: ImagingSettings
+
+    def overall(self) -> Summary:
+        if not self.rows:
+            raise ValueError("no recording was evaluated")
+        return Summary.of(self.rows)
+
+    def by_band(self) -> dict[float, Summary]:
+        bands = sorted({r.band_hz for r in self.rows})
+        return {b: Summary.of([r for r in self.rows if r.band_hz == b]) for b in bands}
+
+    def by_distance(self) -> dict[tuple[float, float], Summary]:
+        out = {}
+        for lo, hi in pairwise(DISTANCE_BINS_M):
+            rows = [r for r in self.rows if lo <= r.distance_m < hi]
+            if rows:
+                out[(lo, hi)] = Summary.of(rows)
+        return out
+
+    def to_json(self) -> dict:
+        s = self.settings
+        return {
+            "settings": {"block_size": s.welch.block_size, "overlap": s.welch.overlap,
+                         "window": s.welch.window, "fraction": s.fraction,
+                         "band_lo_hz": s.band_lo_hz, "band_hi_hz": s.band_hi_hz,
+                         "spacing_mm": 1e3 * s.spacing_m, "formulation": str(s.formulation),
+                         "loop_gain": s.clean.loop_gain, "min_peak_db": s.clean.min_peak_db,
+                         "grid_offset_seed": s.offset_seed},
+            "overall": self.overall().to_json(),
+            "by_band": [{"band_hz": b, **v.to_json()} for b, v in self.by_band().items()],
+            "by_distance": [{"from_m": lo, "to_m": hi if np.isfinite(hi) else None,
+                             **v.to_json()} for (lo, hi), v in self.by_distance().items()],
+        }
+
+
+def pose_index(step: str) -> int | None:
+    """The pose number of a step id "pose/0007", or None for other steps."""
+    group, _, name = step.partition("/")
+    return int(name) if group == "pose" and name.isdigit() else None
+
+
+def evaluate_session(reader: SessionReader, geometry: ArrayGeometry,
+                     settings: ImagingSettings | None = None,
+                     progress: Callable[[int, int], None] | None = None) -> Evaluation:
+    """Localize every speaker recording of every completed pose step (paper VI-A).
+
+    Args:
+        progress: called with (done, total) recordings after each one.
+    """
+    settings = settings or ImagingSettings()
+    rig_speakers = np.asarray(reader.capture["rig"]["speakers_m"], dtype=np.float64)
+    work = []
+    for step, record in sorted(reader.steps().items()):
+        pose = pose_index(step)
+        if pose is None:
+            continue
+        for name, file in sorted(record.files.items()):
+            if file.role == "recording" and "speaker" in file.meta:
+                work.append((step, pose, name, int(file.meta["speaker"])))
+    if not work:
+        raise ValueError(f"{reader.path} has no completed pose recordings to evaluate")
+    rows: list[Localization] = []
+    steering_of: dict[int, tuple[PlaneGrid, SteeringModel]] = {}
+    for done, (step, pose, name, speaker) in enumerate(work, start=1):
+        board = geometry.pose(pose)
+        if pose not in steering_of:
+            steering_of.clear()  # one pose at a time: the steering model is large
+            grid = rig_grid(board, rig_speakers, settings.spacing_m, settings.margin_m,
+                            settings.grid_shift(pose))
+            steering_of[pose] = (grid, SteeringModel(grid.points, geometry.mic_positions_m,
+                                                     geometry.speed_of_sound_m_s,
+                                                     settings.formulation))
+        grid, steering = steering_of[pose]
+        signals, fs = mic_signals(reader, step, name, geometry)
+        truth = board.speakers_m[speaker]
+        distance = float(np.linalg.norm(truth - geometry.centre_m))
+        for loc in locate(band_spectra(signals, fs, settings), steering, grid, settings.clean):
+            rows.append(Localization(pose, speaker, distance, loc.band_hz,
+                                     float(np.linalg.norm(loc.node_m - truth)),
+                                     float(np.linalg.norm(loc.subgrid_m - truth))))
+        if progress is not None:
+            progress(done, len(work))
+    return Evaluation(rows, settings)
