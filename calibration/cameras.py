@@ -1,0 +1,595 @@
+"""Camera calibration from the session's checkerboard images (paper sections II and IV-D).
+
+Steps: find the checkerboard's inner corners in every image, put them in the rig frame's
+order, fit each camera's intrinsics and distortion (OpenCV's 5 coefficients, the paper's
+equation 4) with one board pose per image, give every pose a covariance, and find each
+camera's transform from the camera-0 frame from the views it shares with other cameras.
+
+Frames (see DESIGN.md, "Calibration"):
+- the *rig frame* is the paper's: origin at an extreme inner corner, X along the side with
+  `corners_x` (6) corners, Y along the side with `corners_y` (9), Z out of the printed face;
+- OpenCV returns the corners in an order of its own: rows of `corners_x` corners, starting at
+  whichever end it found first. Four orders keep that row structure (the identity, a flip of
+  X, of Y, or both). A flip of one axis is a mirror: it would put Z behind the printed face,
+  which `_to_rig_order` rejects by the handedness of the grid in the image (the camera sees the
+  printed face, so rig Z points towards it). The remaining two differ by a half-turn, the
+  checkerboard's 180-degree ambiguity; the paper's speaker layout is symmetric under it (a
+  wrong choice swaps speakers 1<->4, 2<->3, 5<->6), so it is resolved from the square colours:
+  the square on the +X +Y side of the rig origin is printed dark (sim.light), the one at the
+  opposite end white (a 6 x 9 grid has an odd number of squares along Y).
+- a board pose (rvec, tvec) maps rig coordinates into the camera's: x_cam = R(rvec) x_rig + t.
+
+Detection is fast where it can be: on a full-size image without a board, OpenCV's classic
+detector takes seconds (adaptive thresholding of sensor noise yields many candidate quads),
+so the fast check runs first on its own (about 10 ms), then the classic detector on a
+half-size image (1-2 ms when the board is there), and the robust sector-based detector
+(findChessboardCornersSB, 0.1-0.2 s) at full size only when that fails. The corners are then
+refined with cornerSubPix on the full-resolution image (about 0.05 px RMS on the
+simulated images, against 0.07 px with occasional 0.5 px outliers from findChessboardCornersSB
+alone).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from acquisition.session import SessionReader
+
+_DETECTION_TIERS = (("classic", 0.5), ("sb", 1.0))
+"""Detector and image scale of each attempt, cheapest first: the classic detector at half size
+finds the boards of the simulated sessions in 1-2 ms (at quarter size it misses some, and its
+fast check rejects boards); the sector-based detector at full size (0.1-0.2 s) is the robust
+fallback, for small and distant boards."""
+_CLASSIC_FLAGS = (
+    cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
+)
+_SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 100, 1e-4)
+_SUBPIX_WINDOW_FRACTION = 0.3
+"""cornerSubPix half-window as a fraction of the smallest corner spacing: the window must
+stay inside the four squares around a corner, and be as large as that allows to average the
+most edge pixels."""
+_SUBPIX_HALF_WINDOW_PX = (2, 10)
+_CALIB_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 200, 1e-12)
+MIN_VIEWS = 4
+"""Fewest board views per camera for calibrateCamera: 9 intrinsic and distortion unknowns from
+planar views need several orientations (one view fixes at most two intrinsics)."""
+MIN_SHARED_VIEWS = 2
+"""Fewest views two cameras must share to fit the transform between them."""
+
+
+class CameraCalibrationError(ValueError):
+    """The images cannot calibrate the cameras (too few views with a detectable board)."""
+
+
+@dataclass(frozen=True)
+class Checkerboard:
+    """The printed checkerboard of the rig (see the module docstring for its frame).
+
+    Attributes:
+        corners_x: inner corners along the rig's X axis (6).
+        corners_y: inner corners along the rig's Y axis (9).
+        square_m: side of a square, metres.
+    """
+
+    corners_x: int
+    corners_y: int
+    square_m: float
+
+    @classmethod
+    def from_capture(cls, capture: dict) -> Checkerboard:
+        """The board of a session's capture configuration (SessionReader.capture)."""
+        rig = capture["rig"]
+        return cls(int(rig["corners_x"]), int(rig["corners_y"]), float(rig["square_m"]))
+
+    @property
+    def pattern_size(self) -> tuple[int, int]:
+        """OpenCV's pattern size: corners per row (along X), rows (along Y)."""
+        return self.corners_x, self.corners_y
+
+    @property
+    def n_corners(self) -> int:
+        return self.corners_x * self.corners_y
+
+    def object_points(self) -> np.ndarray:
+        """(n_corners, 3) inner corners in the rig frame, metres, X varying fastest."""
+        ix, iy = np.meshgrid(np.arange(self.corners_x), np.arange(self.corners_y))
+        xy = np.stack([ix.ravel(), iy.ravel()], axis=1) * self.square_m
+        return np.hstack([xy, np.zeros((xy.shape[0], 1))])
+
+
+@dataclass(frozen=True)
+class Pose:
+    """A rigid transform x_to = R(rvec) x_from + tvec with the covariance of its parameters.
+
+    Attributes:
+        rvec: (3,) rotation vector, radians (OpenCV's Rodrigues convention).
+        tvec: (3,) translation, metres.
+        cov: (6, 6) covariance of (rvec, tvec) in rad^2, rad m, m^2.
+    """
+
+    rvec: np.ndarray
+    tvec: np.ndarray
+    cov: np.ndarray
+
+    @property
+    def R(self) -> np.ndarray:
+        return cv2.Rodrigues(self.rvec)[0]
+
+    def apply(self, points: np.ndarray) -> np.ndarray:
+        """Transform points of shape (..., 3)."""
+        return np.asarray(points) @ self.R.T + self.tvec
+
+
+@dataclass(frozen=True)
+class BoardView:
+    """One image in which the board was found.
+
+    Attributes:
+        camera: camera name ("cam0", ...).
+        step: session step of the image ("pose/0003", "refmic").
+        corners_px: (n_corners, 2) refined corner pixels in rig order (X fastest).
+        rig_to_cam: the board pose in this camera's frame; its covariance comes from the
+            Jacobian of the reprojection scaled by this image's residual variance, and includes
+            the uncertainty of the camera's intrinsics (see `_covariances`).
+        rms_px: RMS reprojection error of the image's corners, pixels.
+    """
+
+    camera: str
+    step: str
+    corners_px: np.ndarray
+    rig_to_cam: Pose
+    rms_px: float
+
+
+@dataclass(frozen=True)
+class CameraIntrinsics:
+    """One camera's intrinsics.
+
+    Attributes:
+        name: camera name.
+        width, height: image size, pixels.
+        K: (3, 3) intrinsic matrix, pixels.
+        dist: (5,) distortion (k1, k2, p1, p2, k3), OpenCV's order.
+        cov: (9, 9) covariance of (fx, fy, cx, cy, k1, k2, p1, p2, k3), pixels and unitless.
+        rms_px: RMS reprojection error over all the camera's views, pixels.
+        n_views: images used.
+    """
+
+    name: str
+    width: int
+    height: int
+    K: np.ndarray
+    dist: np.ndarray
+    cov: np.ndarray
+    rms_px: float
+    n_views: int
+
+    @property
+    def std(self) -> np.ndarray:
+        """(9,) standard deviations of (fx, fy, cx, cy, k1, k2, p1, p2, k3)."""
+        return np.sqrt(np.diag(self.cov))
+
+
+@dataclass(frozen=True)
+class Extrinsics:
+    """A camera's transform from the camera-0 frame: x_cam = R x_cam0 + t.
+
+    Attributes:
+        R: (3, 3) rotation.
+        t: (3,) translation, metres.
+        rms_px: RMS reprojection error of the shared views used to fit it (0 for camera 0).
+        n_shared_views: board views the fit used (0 for camera 0).
+        via: the camera it was fitted against (itself for camera 0).
+    """
+
+    R: np.ndarray
+    t: np.ndarray
+    rms_px: float
+    n_shared_views: int
+    via: str
+
+    def inverse_apply(self, points: np.ndarray) -> np.ndarray:
+        """Points (..., 3) from this camera's frame into the camera-0 frame."""
+        return (np.asarray(points) - self.t) @ self.R
+
+
+@dataclass(frozen=True)
+class MissedImage:
+    """An image that was skipped, and why."""
+
+    camera: str
+    step: str
+    reason: str
+
+
+@dataclass(frozen=True)
+class CameraCalibration:
+    """Every camera's intrinsics, every board view and the cameras' transforms from camera 0.
+
+    Attributes:
+        board: the checkerboard.
+        intrinsics: calibrated cameras by name, camera 0 first.
+        cam_from_cam0: transform from the camera-0 frame of every camera linked to camera 0
+            through shared views (camera 0 itself: the identity).
+        views: board views by (camera, step), calibrated cameras only.
+        missed: images without a detectable board, reported and skipped.
+        uncalibrated: cameras left out, with the reason.
+    """
+
+    board: Checkerboard
+    intrinsics: dict[str, CameraIntrinsics]
+    cam_from_cam0: dict[str, Extrinsics]
+    views: dict[tuple[str, str], BoardView]
+    missed: list[MissedImage]
+    uncalibrated: dict[str, str]
+
+    @property
+    def reference_camera(self) -> str:
+        """The camera whose frame is the calibration's frame (camera 0)."""
+        return next(iter(self.intrinsics))
+
+    def views_of_step(self, step: str) -> list[BoardView]:
+        """The step's views by calibrated cameras, in camera order."""
+        return [self.views[(c, step)] for c in self.intrinsics if (c, step) in self.views]
+
+
+# ---------------------------------------------------------------------------------------------
+# Detection
+
+
+def detect_corners(image: np.ndarray, board: Checkerboard) -> np.ndarray | None:
+    """The board's inner corners in rig order (X fastest), (n_corners, 2) pixels, or None.
+
+    Args:
+        image: uint8 grey (h, w) or BGR (h, w, 3) image.
+        board: the checkerboard to look for.
+    """
+    grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    corners = _find_corners(grey, board)
+    if corners is None:
+        return None
+    corners = _refine(grey, corners, board)
+    return _to_rig_order(grey, corners, board)
+
+
+def _find_corners(grey: np.ndarray, board: Checkerboard) -> np.ndarray | None:
+    """Approximate corners (n, 2) in OpenCV's order at full resolution, or None.
+
+    cv2.checkChessboard (the detector's own fast check, about 10 ms at full size) rejects
+    most images without a board; then `_DETECTION_TIERS` are tried in turn, cheapest first.
+    """
+    if not cv2.checkChessboard(grey, board.pattern_size):
+        return None
+    for detector, scale in _DETECTION_TIERS:
+        small = (
+            grey
+            if scale == 1.0
+            else cv2.resize(grey, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+        )
+        if detector == "classic":
+            found, corners = cv2.findChessboardCorners(
+                small, board.pattern_size, flags=_CLASSIC_FLAGS
+            )
+        else:
+            found, corners = cv2.findChessboardCornersSB(small, board.pattern_size)
+        if found:
+            # Pixel centres: full = (small + 1/2) / scale - 1/2 (INTER_AREA averages blocks).
+            return (corners.reshape(-1, 2) + 0.5) / scale - 0.5
+    return None
+
+
+def _refine(grey: np.ndarray, corners: np.ndarray, board: Checkerboard) -> np.ndarray:
+    """Corners refined by cornerSubPix with a window sized to the smallest corner spacing."""
+    grid = corners.reshape(board.corners_y, board.corners_x, 2)
+    spacing = min(
+        np.linalg.norm(np.diff(grid, axis=0), axis=2).min(),
+        np.linalg.norm(np.diff(grid, axis=1), axis=2).min(),
+    )
+    half = int(np.clip(round(_SUBPIX_WINDOW_FRACTION * spacing), *_SUBPIX_HALF_WINDOW_PX))
+    refined = cv2.cornerSubPix(
+        grey,
+        corners.astype(np.float32).reshape(-1, 1, 2),
+        (half, half),
+        (-1, -1),
+        _SUBPIX_CRITERIA,
+    )
+    return refined.reshape(-1, 2).astype(np.float64)
+
+
+def _to_rig_order(grey: np.ndarray, corners: np.ndarray, board: Checkerboard) -> np.ndarray:
+    """Reorder OpenCV's corners (rows of corners_x) into the rig frame's order.
+
+    Of the four orders that keep the rows (identity, X flip, Y flip, both), the one kept is
+    right-handed with Z towards the camera and has dark squares where the print has them.
+    """
+    grid = corners.reshape(board.corners_y, board.corners_x, 2)
+    for candidate in (grid, grid[:, ::-1], grid[::-1, :], grid[::-1, ::-1]):
+        if _faces_camera(candidate) and _colours_match(grey, candidate):
+            return candidate.reshape(-1, 2)
+    raise AssertionError("no corner order is right-handed with matching colours")  # unreachable
+
+
+def _faces_camera(grid: np.ndarray) -> bool:
+    """True if the grid's X and Y axes, seen in the image, make Z point at the camera.
+
+    With Z towards the camera (against the optical axis) X and Y turn clockwise in the
+    image's (u right, v down) coordinates: X to the right puts Y upwards. The sign of the 2D
+    cross product of the grid's mean X and Y steps tells.
+    """
+    step_x = (grid[:, -1] - grid[:, 0]).sum(axis=0)
+    step_y = (grid[-1, :] - grid[0, :]).sum(axis=0)
+    return float(step_x[0] * step_y[1] - step_x[1] * step_y[0]) < 0.0
+
+
+def _colours_match(grey: np.ndarray, grid: np.ndarray) -> bool:
+    """True if the squares between the corners are dark where the rig frame prints them.
+
+    Square (i, j) between corners (i, j) and (i + 1, j + 1) is dark when i + j is even
+    (sim.light); the grey level at every square centre is correlated with that pattern, so
+    one misread square cannot flip the decision.
+    """
+    centres = (grid[:-1, :-1] + grid[1:, :-1] + grid[:-1, 1:] + grid[1:, 1:]) / 4
+    h, w = grey.shape
+    u = np.clip(np.rint(centres[..., 0]).astype(int), 0, w - 1)
+    v = np.clip(np.rint(centres[..., 1]).astype(int), 0, h - 1)
+    level = grey[v, u].astype(np.float64)
+    j, i = np.indices(level.shape)
+    dark_sign = np.where((i + j) % 2 == 0, -1.0, 1.0)
+    return float(np.sum(dark_sign * (level - level.mean()))) > 0.0
+
+
+# ---------------------------------------------------------------------------------------------
+# Calibration
+
+
+def calibrate_session(
+    reader: SessionReader, min_views: int = MIN_VIEWS, min_shared_views: int = MIN_SHARED_VIEWS
+) -> CameraCalibration:
+    """Calibrate every camera of a session from all its checkerboard images.
+
+    Every completed step with camera images ("pose/<nnnn>" and "refmic") is used: each is a
+    board view that constrains the intrinsics.
+
+    Raises:
+        CameraCalibrationError: camera 0 has fewer than `min_views` views with a board.
+    """
+    capture = reader.capture
+    board = Checkerboard.from_capture(capture)
+    cameras = [c["name"] for c in capture["cameras"]]
+    images: dict[tuple[str, str], np.ndarray] = {}
+    for step, record in sorted(reader.steps().items()):
+        for camera in cameras:
+            if f"{camera}.png" in record.files:
+                images[(camera, step)] = reader.read_image(step, f"{camera}.png")
+    return calibrate_images(images, cameras, board, min_views, min_shared_views)
+
+
+def calibrate_images(
+    images: dict[tuple[str, str], np.ndarray],
+    cameras: list[str],
+    board: Checkerboard,
+    min_views: int = MIN_VIEWS,
+    min_shared_views: int = MIN_SHARED_VIEWS,
+) -> CameraCalibration:
+    """Calibrate cameras from images keyed by (camera, step).
+
+    Args:
+        images: the images; those without a detectable board are reported in `missed`.
+        cameras: camera names, camera 0 (the reference frame) first.
+        board: the checkerboard.
+        min_views: fewest views a camera needs; cameras other than camera 0 with fewer are
+            reported in `uncalibrated`.
+        min_shared_views: fewest views two cameras must share to link their frames.
+
+    Raises:
+        CameraCalibrationError: camera 0 has fewer than `min_views` views with a board.
+    """
+    corners: dict[tuple[str, str], np.ndarray] = {}
+    missed = []
+    for (camera, step), image in images.items():
+        found = detect_corners(image, board)
+        if found is None:
+            missed.append(MissedImage(camera, step, "no checkerboard found"))
+        else:
+            corners[(camera, step)] = found
+    intrinsics: dict[str, CameraIntrinsics] = {}
+    views: dict[tuple[str, str], BoardView] = {}
+    uncalibrated: dict[str, str] = {}
+    for camera in cameras:
+        own = {step: c for (cam, step), c in corners.items() if cam == camera}
+        if len(own) < min_views:
+            reason = (
+                f"the board was found in {len(own)} of its images, fewer than the {min_views} "
+                "needed to fit intrinsics and distortion"
+            )
+            if camera == cameras[0]:
+                raise CameraCalibrationError(
+                    f"cannot calibrate {camera}, the reference camera: {reason}; capture more "
+                    "rig poses with the whole checkerboard in view"
+                )
+            uncalibrated[camera] = reason
+            continue
+        size = _image_size(images, camera)
+        intrinsics[camera], camera_views = _calibrate_camera(camera, own, size, board)
+        views.update({(camera, v.step): v for v in camera_views})
+    extrinsics = _link_cameras(intrinsics, views, board, min_shared_views)
+    for camera in intrinsics:
+        if camera not in extrinsics:
+            uncalibrated[camera] = (
+                f"shares fewer than {min_shared_views} board views with the cameras linked to "
+                f"{cameras[0]}"
+            )
+    linked = {c: i for c, i in intrinsics.items() if c in extrinsics}
+    views = {k: v for k, v in views.items() if k[0] in extrinsics}
+    return CameraCalibration(board, linked, extrinsics, views, missed, uncalibrated)
+
+
+def _image_size(images: dict[tuple[str, str], np.ndarray], camera: str) -> tuple[int, int]:
+    """(width, height) of a camera's images, checked to be the same for all of them."""
+    sizes = {im.shape[1::-1] for (cam, _), im in images.items() if cam == camera}
+    if len(sizes) != 1:
+        raise CameraCalibrationError(f"{camera}'s images differ in size: {sorted(sizes)}")
+    return sizes.pop()
+
+
+def _calibrate_camera(
+    camera: str, corners: dict[str, np.ndarray], size: tuple[int, int], board: Checkerboard
+) -> tuple[CameraIntrinsics, list[BoardView]]:
+    """calibrateCamera on one camera's views, then the covariances and errors of the fit."""
+    steps = sorted(corners)
+    obj = board.object_points().astype(np.float32)
+    image_points = [corners[s].astype(np.float32).reshape(-1, 1, 2) for s in steps]
+    rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(
+        [obj] * len(steps), image_points, size, None, None, criteria=_CALIB_CRITERIA
+    )
+    dist = dist.ravel()[:5]
+    fits = [
+        _view_fit(corners[s], r.ravel(), t.ravel(), K, dist, board)
+        for s, r, t in zip(steps, rvecs, tvecs, strict=True)
+    ]
+    intrinsics_cov, pose_covs = _covariances(fits)
+    views = [
+        BoardView(camera, s, corners[s], Pose(f.rvec, f.tvec, cov), f.rms_px)
+        for s, f, cov in zip(steps, fits, pose_covs, strict=True)
+    ]
+    intr = CameraIntrinsics(
+        camera, size[0], size[1], K, dist, intrinsics_cov, float(rms), len(steps)
+    )
+    return intr, views
+
+
+@dataclass(frozen=True)
+class _ViewFit:
+    """One view's pose and the Jacobians of its reprojection at the fitted parameters.
+
+    Attributes:
+        rvec, tvec: the pose (rig to camera).
+        J_pose: (2 n, 6) derivatives of the pixel coordinates by (rvec, tvec).
+        J_intr: (2 n, 9) derivatives by (fx, fy, cx, cy, k1, k2, p1, p2, k3).
+        s2: residual variance per pixel coordinate, px^2 (sum of squares / (2 n - 6)).
+        rms_px: RMS reprojection error per corner, pixels.
+    """
+
+    rvec: np.ndarray
+    tvec: np.ndarray
+    J_pose: np.ndarray
+    J_intr: np.ndarray
+    s2: float
+    rms_px: float
+
+
+def _view_fit(
+    corners: np.ndarray,
+    rvec: np.ndarray,
+    tvec: np.ndarray,
+    K: np.ndarray,
+    dist: np.ndarray,
+    board: Checkerboard,
+) -> _ViewFit:
+    """Reprojection residuals and Jacobians of one view (cv2.projectPoints)."""
+    projected, jac = cv2.projectPoints(board.object_points(), rvec, tvec, K, dist)
+    residual = corners - projected.reshape(-1, 2)
+    sq = float(np.sum(residual**2))
+    return _ViewFit(
+        rvec=rvec,
+        tvec=tvec,
+        J_pose=jac[:, :6],
+        J_intr=jac[:, 6:15],
+        s2=sq / (residual.size - 6),
+        rms_px=float(np.sqrt(sq / len(residual))),
+    )
+
+
+def _covariances(fits: list[_ViewFit]) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Covariance (9, 9) of the intrinsics and (6, 6) of every pose, from the joint problem.
+
+    The information matrix of the joint fit, each view weighted by its own residual variance
+    s_i^2 (a blurred image counts less), is [[U, W], [W^T, V]] with V block-diagonal:
+    V_i = J_i^T J_i / s_i^2, W_i = C_i^T J_i / s_i^2, U = sum C_i^T C_i / s_i^2 (J: pose
+    Jacobian, C: intrinsics Jacobian). The intrinsics' covariance is the inverse of the
+    Schur complement S = U - sum W_i V_i^-1 W_i^T, and each pose's marginal covariance is
+    V_i^-1 + V_i^-1 W_i^T S^-1 W_i V_i^-1: its own noise plus the intrinsics' uncertainty.
+    Why the second term: a focal-length error scales every pose's depth; left out, the
+    covariance claims depths several times better than they are. (The intrinsics' errors also
+    correlate the poses with each other; those cross terms are not returned.)
+    """
+    V_inv = [np.linalg.inv(f.J_pose.T @ f.J_pose / f.s2) for f in fits]
+    W = [f.J_intr.T @ f.J_pose / f.s2 for f in fits]
+    S = sum(f.J_intr.T @ f.J_intr / f.s2 for f in fits)
+    S = S - sum(w @ vi @ w.T for w, vi in zip(W, V_inv, strict=True))
+    intrinsics_cov = np.linalg.inv(S)
+    pose_covs = [vi + vi @ w.T @ intrinsics_cov @ w @ vi for w, vi in zip(W, V_inv, strict=True)]
+    return intrinsics_cov, pose_covs
+
+
+# ---------------------------------------------------------------------------------------------
+# Camera-to-camera transforms
+
+
+def _link_cameras(
+    intrinsics: dict[str, CameraIntrinsics],
+    views: dict[tuple[str, str], BoardView],
+    board: Checkerboard,
+    min_shared_views: int,
+) -> dict[str, Extrinsics]:
+    """Each camera's transform from camera 0, breadth-first through shared views.
+
+    A camera that shares no views with camera 0 is still linked through a camera that does
+    (cameras around a sphere may each overlap only with their neighbours).
+    """
+    cameras = list(intrinsics)
+    reference = cameras[0]
+    linked = {reference: Extrinsics(np.eye(3), np.zeros(3), 0.0, 0, reference)}
+    queue = deque([reference])
+    while queue:
+        known = queue.popleft()
+        for camera in cameras:
+            if camera in linked:
+                continue
+            shared = _shared_steps(views, known, camera)
+            if len(shared) < min_shared_views:
+                continue
+            R, t, rms = _stereo(intrinsics[known], intrinsics[camera], views, shared, board)
+            base = linked[known]
+            linked[camera] = Extrinsics(R @ base.R, R @ base.t + t, rms, len(shared), known)
+            queue.append(camera)
+    return {c: linked[c] for c in cameras if c in linked}
+
+
+def _shared_steps(views: dict[tuple[str, str], BoardView], a: str, b: str) -> list[str]:
+    steps_a = {s for c, s in views if c == a}
+    return sorted(s for c, s in views if c == b and s in steps_a)
+
+
+def _stereo(
+    first: CameraIntrinsics,
+    second: CameraIntrinsics,
+    views: dict[tuple[str, str], BoardView],
+    steps: list[str],
+    board: Checkerboard,
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """R, t (x_second = R x_first + t) and RMS error from stereoCalibrate, intrinsics fixed.
+
+    Fitting the transform to the corners of both images of every shared view weighs each
+    view by how well it constrains the transform, unlike averaging per-view pose differences.
+    """
+    obj = board.object_points().astype(np.float32)
+    pts_a = [views[(first.name, s)].corners_px.astype(np.float32) for s in steps]
+    pts_b = [views[(second.name, s)].corners_px.astype(np.float32) for s in steps]
+    rms, *_, R, t, _, _ = cv2.stereoCalibrate(
+        [obj] * len(steps),
+        pts_a,
+        pts_b,
+        first.K,
+        first.dist,
+        second.K,
+        second.dist,
+        (first.width, first.height),
+        flags=cv2.CALIB_FIX_INTRINSIC,
+        criteria=_CALIB_CRITERIA,
+    )
+    return R, t.ravel(), float(rms)
