@@ -23,9 +23,10 @@ def sd_notify(*lines: str) -> bool:
         address = "\0" + address[1:]
     try:
         with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC) as sock:
+            sock.setblocking(False)  # never wait on a receiver that does not read
             sock.connect(address)
-            sock.sendall("\n".join(lines).encode())
-    except OSError:
+            sock.send("\n".join(lines).encode())
+    except OSError:  # gone, or its queue full (BlockingIOError): the message is dropped
         return False
     return True
 

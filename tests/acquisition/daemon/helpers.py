@@ -84,8 +84,10 @@ class DaemonProcess:
         env = {**os.environ, "NOTIFY_SOCKET": str(self.notify_path), **self.env}
         env.pop("JOURNAL_STREAM", None)
         command = self.script or [sys.executable, "-m", "acquisition.cli", "daemon", "--config"]
-        self.proc = subprocess.Popen([*command, str(self.config)], env=env, cwd=REPO,
-                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        self.log_path = self.notify_path.with_suffix(".log")  # a file: a pipe could fill up
+        with self.log_path.open("w") as log:
+            self.proc = subprocess.Popen([*command, str(self.config)], env=env, cwd=REPO,
+                                         stdout=log, stderr=subprocess.STDOUT)
 
     def wait_message(self, prefix: str, timeout_s: float = WAIT_S) -> str:
         """The next notify message containing a line starting with `prefix` (others skipped)."""
@@ -100,7 +102,7 @@ class DaemonProcess:
             except TimeoutError:
                 if self.proc.poll() is not None:
                     raise AssertionError(f"the daemon exited ({self.proc.returncode}) before "
-                                         f"{prefix}: {self.proc.stderr.read()}") from None
+                                         f"{prefix}: {self.log_path.read_text()}") from None
                 continue
             if any(line.startswith(prefix) for line in message.splitlines()):
                 return message
@@ -122,9 +124,6 @@ class DaemonProcess:
     def close(self) -> None:
         self.notify.close()
         self.notify_path.unlink(missing_ok=True)
-        for stream in (self.proc.stdout, self.proc.stderr):
-            if stream is not None:
-                stream.close()
 
 
 def capture(client: DaemonClient) -> StatusResult:
