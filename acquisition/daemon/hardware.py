@@ -73,8 +73,9 @@ def _real(hw: HardwareConfig) -> Hardware:
     boards = open_boards([b.serial for b in hw.capture.boards], firmware_dir=hw.firmware_dir)
     cameras: list[Camera] = []
     try:
-        cameras = [V4L2Camera(c.name, c.device, width=c.width, height=c.height, fourcc=c.fourcc,
-                              fps=c.fps, exposure=c.exposure) for c in hw.cameras]
+        for c in hw.cameras:
+            cameras.append(V4L2Camera(c.name, c.device, width=c.width, height=c.height,
+                                      fourcc=c.fourcc, fps=c.fps, exposure=c.exposure))
     except BaseException:
         for board in boards:
             board.close()
