@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from .cameras import CameraCalibration, Extrinsics, Pose
 
@@ -179,12 +180,16 @@ def _to_cam0(rig_to_cam: Pose, cam_from_cam0: Extrinsics) -> Pose:
     covariance.
 
     x_cam0 = A^-1 (R x_rig + t) with A = cam_from_cam0, so R0 = A_R^T R, t0 = A_R^T (t - A_t).
+    The rotation vector of R0 comes from scipy (quaternion-based): cv2.Rodrigues loses about
+    half the digits of the axis within 1e-5 rad of a half turn, where boards facing the
+    camera are.
     """
     params = np.concatenate([rig_to_cam.rvec, rig_to_cam.tvec])
 
     def compose(p: np.ndarray) -> np.ndarray:
         R = cam_from_cam0.R.T @ cv2.Rodrigues(p[:3])[0]
-        return np.concatenate([cv2.Rodrigues(R)[0].ravel(), cam_from_cam0.inverse_apply(p[3:])])
+        rvec = Rotation.from_matrix(R).as_rotvec()
+        return np.concatenate([rvec, cam_from_cam0.inverse_apply(p[3:])])
 
     composed = compose(params)
     # Keep every perturbed rotation vector on the branch of the composed one: near a half
