@@ -175,10 +175,12 @@ def clean_sc(csm: np.ndarray, h: np.ndarray, options: CleanScOptions | None = No
         if (options.stop_rule is StopRule.PEAK_RISE and j > options.stop_window
                 and peak > peaks[j - options.stop_window]):
             break
-        beam = np.abs(h @ g.conj()) ** 2
+        projection = (h @ g.conj()).view(np.float64).reshape(-1, 2)
+        beam = np.einsum("gk,gk->g", projection, projection)  # |h(x)^H g|^2
         if options.remove_diagonal:
-            beam -= power @ (np.abs(g) ** 2)
-        dirty -= (gain * peak * norm) * beam
+            beam -= power @ (g * g.conj()).real
+        beam *= gain * peak * norm
+        dirty -= beam
         degraded -= gain * source
     return CleanScResult(clean, dirty, components)
 

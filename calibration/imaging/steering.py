@@ -113,23 +113,26 @@ class SteeringModel:
         return self.amplitude * np.exp(-1j * self.wavenumber(freq_hz) * self.path_difference)
 
     def vectors_at(self, freqs_hz: np.ndarray) -> Iterator[np.ndarray]:
-        """Steering vectors for each frequency in turn (each a new (G, M) array)."""
+        """Steering vectors for each frequency in turn (each a new (G, M) array).
+
+        Between equally spaced frequencies h(f + df) = h(f) * exp(-i k(df) (r_m - r_0)): one
+        complex multiplication instead of an exponential, recomputed exactly every
+        `RENORM_STEPS` steps.
+        """
         freqs = np.asarray(freqs_hz, dtype=np.float64).ravel()
-        phase = step = None
+        h = step = None
         since_exact = 0
         for i, f in enumerate(freqs):
-            df = f - freqs[i - 1] if i else None
-            same_step = (step is not None and df is not None
-                         and abs(df - step[0]) <= 1e-9 * max(abs(f), 1.0))
-            if phase is not None and df is not None and since_exact < RENORM_STEPS:
-                if not same_step:
+            df = f - freqs[i - 1] if i else 0.0
+            if h is not None and since_exact < RENORM_STEPS:
+                if step is None or abs(df - step[0]) > 1e-9 * max(abs(f), 1.0):
                     step = (df, np.exp(-1j * self.wavenumber(df) * self.path_difference))
-                phase *= step[1]
+                h = h * step[1]
                 since_exact += 1
             else:
-                phase = np.exp(-1j * self.wavenumber(f) * self.path_difference)
+                h = self.vectors(f)
                 since_exact = 0
-            yield self.amplitude * phase
+            yield h
 
 
 def amplitudes(formulation: Formulation, r: np.ndarray, r0: np.ndarray) -> np.ndarray:
