@@ -10,10 +10,20 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from .commands import capture, daemon, daq, inspect, session, sessions, simulate, watch
+from .commands import (
+    calibrate,
+    capture,
+    daemon,
+    daq,
+    inspect,
+    session,
+    sessions,
+    simulate,
+    watch,
+)
 from .errors import UserError
 
-SUBCOMMANDS = (simulate, inspect, daq, daemon, session, capture, watch, sessions)
+SUBCOMMANDS = (simulate, inspect, calibrate, daq, daemon, session, capture, watch, sessions)
 
 
 def build_parser() -> argparse.ArgumentParser:

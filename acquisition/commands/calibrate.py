@@ -1,0 +1,80 @@
+"""`micam calibrate SESSION --out result.json`: microphone coordinates in the camera-0 frame."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from ..errors import UserError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "calibrate", help="calibrate cameras, speakers, c and microphones from a session",
+        description="Turn a capture session into camera intrinsics, speaker positions, times "
+                    "of flight, the speed of sound and every microphone's position in the "
+                    "frame of camera 0, with uncertainties and a report.")
+    p.add_argument("session", type=Path, help="session directory")
+    p.add_argument("--out", type=Path, required=True, help="result file (JSON)")
+    p.add_argument("--report", type=Path, default=None,
+                   help="directory for report.md and its pictures (default: beside --out)")
+    p.add_argument("--acoular-xml", type=Path, default=None,
+                   help="also write the geometry in Acoular's MicGeom XML format")
+    p.add_argument("--method", choices=("micam", "paper"), default="micam",
+                   help="micam (default) or the paper's coordinate search (baseline)")
+    p.add_argument("--latency", choices=("per_board", "common", "none"), default="per_board")
+    p.add_argument("--speed-of-sound", choices=("reference", "solve"), default="reference",
+                   help="fix c at the reference-microphone fit (default) or solve for it")
+    p.add_argument("--refine-poses", action="store_true",
+                   help="fit a rigid correction per rig pose, weighted by the camera")
+    p.add_argument("--phat", action="store_true", help="GCC-PHAT weighting of the correlations")
+    p.add_argument("--allow-interrupted", action="store_true",
+                   help="calibrate the completed poses of an interrupted session")
+    p.add_argument("--truth", type=Path, default=None,
+                   help="a truth.json to compare with (default: SESSION/truth.json if present)")
+    p.add_argument("--force", action="store_true", help="overwrite an existing result file")
+    p.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from calibration.pipeline import CalibrationOptions, calibrate
+    from calibration.report import summary_lines, write_report
+    from calibration.result import write_acoular_xml
+
+    out: Path = args.out
+    if out.exists() and not args.force:
+        raise UserError(f"{out} exists; choose another --out or pass --force to overwrite it")
+    if not out.parent.is_dir():
+        raise UserError(f"the directory of --out ({out.parent}) does not exist")
+    truth_path = args.truth or (args.session / "truth.json")
+    if args.truth is not None and not truth_path.is_file():
+        raise UserError(f"--truth {truth_path} is not a file")
+    options = CalibrationOptions(
+        method=args.method, latency=args.latency, speed_of_sound=args.speed_of_sound,
+        refine_poses=args.refine_poses, phat=args.phat,
+        allow_interrupted=args.allow_interrupted)
+    stages = ["load", "cameras", "speakers", "times of flight", "solver"]
+    with tqdm(total=len(stages), unit="stage", desc="calibrate") as bar:
+        def on_stage(name: str) -> None:
+            bar.set_postfix_str(name)
+            bar.n = stages.index(name)
+            bar.refresh()
+
+        try:
+            run_ = calibrate(args.session, options, on_stage)
+        except ValueError as exc:  # CalibrationInputError and the cameras' own errors
+            raise UserError(str(exc)) from None
+        bar.n = len(stages)
+        bar.refresh()
+    run_.result.write(out)
+    truth = json.loads(truth_path.read_text()) if truth_path.is_file() else None
+    report = write_report(run_, args.report or out.parent / (out.stem + "-report"), truth)
+    if args.acoular_xml is not None:
+        write_acoular_xml(run_.result, args.acoular_xml)
+    for line in summary_lines(run_, truth):
+        print(line)
+    print(f"result: {out}\nreport: {report}")
+    return 0

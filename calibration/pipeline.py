@@ -1,0 +1,344 @@
+"""The calibration pipeline: from a capture session to microphone coordinates in the
+camera-0 frame (paper sections IV-D to IV-I), one stage after another.
+
+Stages (each timed): cameras (intrinsics, board poses, stereo), speaker positions per pose
+(eq. 10) and the reference microphone's position, times of flight, the speed of sound from the
+reference microphone (IV-G), and the microphone solver (eq. 15; or the paper's own search as a
+baseline with `method="paper"`).
+
+Choices made here, and why (see docs/calibration.md for the figures behind them):
+- latencies: one per board, fitted. The reference microphone records on its own board, so every
+  array board's latency is relative to it; they are a few microseconds (0.36 mm of bias per
+  microsecond if ignored) and, per board, cheap to fit.
+- speed of sound: fixed at the reference-microphone fit when the session has one. That fit
+  sees the same camera scale as the speaker positions (so c absorbs a checkerboard or focal
+  length scale error, as the paper intends) and is far more precise than the same c fitted
+  inside the solver, where it trades off against every microphone's range. The solver's own c
+  is still computed and reported beside it.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from .cameras import CameraCalibration, calibrate_session
+from .result import (
+    CalibrationResult,
+    CameraResult,
+    MicrophoneResult,
+    PoseResult,
+    ResidualStats,
+    SpeedOfSoundReference,
+    TofQuality,
+    TransformResult,
+)
+from .session_data import CalibrationInputError, SessionData, load_session
+from .solver import (
+    MicrophoneSolution,
+    RigSources,
+    SolverOptions,
+    solve_microphones,
+    solve_paper_method,
+)
+from .speakers import (
+    ReferenceMicrophonePosition,
+    SpeakerLocationError,
+    SpeakerPositions,
+    reference_microphone_position,
+    speaker_positions,
+)
+from .speed_of_sound import SpeedOfSoundFit, fit_speed_of_sound
+from .times_of_flight import SessionTofs, measure_session_tofs
+
+NOMINAL_SPEED_OF_SOUND_M_S = 343.0
+"""Start value of c when nothing better is known (about 20 degC)."""
+
+CONFOUND_NOTE = (
+    "The speed of sound and the camera's metric scale are confounded: scaling every source "
+    "position and c by the same factor leaves every time of flight unchanged, so c is "
+    "'scaled' c (paper IV-G). An error in the checkerboard's printed size or in the focal "
+    "length moves c, not the microphones."
+)
+
+
+@dataclass(frozen=True)
+class CalibrationOptions:
+    """Options of `calibrate`.
+
+    Attributes:
+        method: "micam" (the sparse robust solver) or "paper" (section IV-I's coordinate search
+            from zeros, c fixed, no latency; the baseline).
+        latency: "per_board", "common" or "none".
+        speed_of_sound: "reference" (fixed at the reference-microphone fit; falls back to
+            "solve" without a refmic image) or "solve" (an unknown of the solver).
+        refine_poses: fit a rigid correction per rig pose, weighted by the camera's pose
+            covariance.
+        band_hz: the band the times of flight are estimated in (the speaker band).
+        phat: GCC-PHAT weighting of the correlations.
+        allow_interrupted: calibrate the completed poses of an interrupted session.
+    """
+
+    method: Literal["micam", "paper"] = "micam"
+    latency: Literal["per_board", "common", "none"] = "per_board"
+    speed_of_sound: Literal["reference", "solve"] = "reference"
+    refine_poses: bool = False
+    band_hz: tuple[float, float] = (300.0, 20_000.0)
+    phat: bool = False
+    allow_interrupted: bool = False
+
+
+@dataclass
+class Measurements:
+    """Everything the solver works from: the session, the cameras, the speaker positions,
+    the times of flight and the reference-microphone fit of c."""
+
+    data: SessionData
+    cameras: CameraCalibration
+    speakers: SpeakerPositions
+    located: list[int]
+    tofs: SessionTofs
+    reference: ReferenceMicrophonePosition | None
+    reference_fit: SpeedOfSoundFit | None
+    timings_s: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class CalibrationRun:
+    """A finished calibration: the result and what the report draws from."""
+
+    result: CalibrationResult
+    measurements: Measurements
+    solution: MicrophoneSolution
+
+    @property
+    def data(self) -> SessionData:
+        return self.measurements.data
+
+    @property
+    def speakers(self) -> SpeakerPositions:
+        return self.measurements.speakers
+
+    @property
+    def tofs(self) -> SessionTofs:
+        return self.measurements.tofs
+
+
+def _timed(timings: dict[str, float], name: str, on_stage: Callable[[str], None] | None):
+    """Context manager that tells `on_stage` and records the stage's duration in seconds."""
+
+    class _Stage:
+        def __enter__(self) -> None:
+            if on_stage is not None:
+                on_stage(name)
+            self.t0 = time.perf_counter()
+
+        def __exit__(self, *exc: object) -> None:
+            timings[name] = round(time.perf_counter() - self.t0, 3)
+
+    return _Stage()
+
+
+def measure(path: Path, options: CalibrationOptions | None = None,
+            on_stage: Callable[[str], None] | None = None) -> Measurements:
+    """Every measurement of a session: cameras, speaker positions, times of flight, and the
+    speed of sound from the reference microphone (when the session has its image)."""
+    options = options or CalibrationOptions()
+    timings: dict[str, float] = {}
+    with _timed(timings, "load", on_stage):
+        data = load_session(path, options.allow_interrupted)
+    with _timed(timings, "cameras", on_stage):
+        cams = calibrate_session(data.reader)
+    with _timed(timings, "speakers", on_stage):
+        speakers = speaker_positions(cams, data.speakers_rig_m, data.pose_steps)
+        reference = _reference_position(cams, data)
+    with _timed(timings, "times of flight", on_stage):
+        tofs = measure_session_tofs(data, NOMINAL_SPEED_OF_SOUND_M_S, options.band_hz,
+                                    options.phat)
+    located = [data.pose_steps.index(p.step) for p in speakers.poses]
+    reference_fit = None
+    if reference is not None:
+        distances = np.linalg.norm(speakers.positions_m - reference.position_m, axis=2)
+        reference_fit = fit_speed_of_sound(distances.ravel(),
+                                           tofs.reference_tof_s[located].ravel())
+    return Measurements(data, cams, speakers, located, tofs, reference, reference_fit, timings)
+
+
+def calibrate(path: Path, options: CalibrationOptions | None = None,
+              on_stage: Callable[[str], None] | None = None) -> CalibrationRun:
+    """Calibrate the session at `path`. `on_stage` is told the name of each stage as it starts.
+
+    Raises CalibrationInputError (or the cameras' and speakers' own errors, all ValueError)
+    with a message that says what is missing.
+    """
+    options = options or CalibrationOptions()
+    m = measure(path, options, on_stage)
+    timings = dict(m.timings_s)
+    with _timed(timings, "solver", on_stage):
+        solution = solve(m, options)
+    return CalibrationRun(_assemble(m, solution, options, timings), m, solution)
+
+
+def _reference_position(cams: CameraCalibration,
+                        data: SessionData) -> ReferenceMicrophonePosition | None:
+    if "refmic" not in data.reader.steps():
+        return None
+    try:
+        return reference_microphone_position(cams, np.array(data.config.rig.reference_mark_m))
+    except SpeakerLocationError:
+        return None
+
+
+def _rig_sources(data: SessionData, speakers: SpeakerPositions, pose_idx: np.ndarray,
+                 spk_idx: np.ndarray) -> RigSources:
+    """The sources of the chosen poses and speakers, pose after pose."""
+    poses = [speakers.poses[i] for i in pose_idx]
+    return RigSources(
+        rig_points_m=data.speakers_rig_m,
+        rotvec=np.array([p.rig_to_cam0.rvec for p in poses]),
+        translation_m=np.array([p.rig_to_cam0.tvec for p in poses]),
+        pose_of_source=np.repeat(np.arange(len(poses)), len(spk_idx)),
+        speaker_of_source=np.tile(spk_idx, len(poses)),
+        pose_covariance=np.array([p.rig_to_cam0.cov for p in poses]),
+    )
+
+
+def board_indices(data: SessionData) -> tuple[list[str], np.ndarray]:
+    """The array boards (sorted serials) and each microphone's index into them."""
+    boards = sorted(set(data.mic_boards))
+    return boards, np.array([boards.index(b) for b in data.mic_boards])
+
+
+def solve(m: Measurements, options: CalibrationOptions,
+          poses: np.ndarray | None = None,
+          speakers_used: np.ndarray | None = None) -> MicrophoneSolution:
+    """Solve for the microphones from the measurements, optionally from a subset of the
+    located poses (indices into `m.speakers.poses`) and of the speakers (indices)."""
+    data = m.data
+    n_mic = len(data.mic_ids)
+    pose_idx = np.arange(len(m.located)) if poses is None else np.asarray(poses)
+    spk_idx = np.arange(data.n_speakers) if speakers_used is None else np.asarray(speakers_used)
+    rows = np.asarray(m.located)[pose_idx]
+    tof = m.tofs.tof_s[rows][:, spk_idx].reshape(-1, n_mic)
+    std = m.tofs.std_s[rows][:, spk_idx].reshape(-1, n_mic)
+    sources = _rig_sources(data, m.speakers, pose_idx, spk_idx)
+    c_known = m.reference_fit is not None and options.speed_of_sound == "reference"
+    c0 = (m.reference_fit.speed_of_sound_m_s if m.reference_fit is not None
+          else NOMINAL_SPEED_OF_SOUND_M_S)
+    boards, board_of_mic = board_indices(data)
+    ref_board = data.config.reference.board
+    solver_options = SolverOptions(
+        speed_of_sound_m_s=c0,
+        fit_speed_of_sound=not c_known,
+        latency=options.latency,
+        reference_board=boards.index(ref_board) if ref_board in boards else None,
+        refine_poses=options.refine_poses,
+    )
+    if options.method == "paper":
+        return solve_paper_method(sources, tof, std, solver_options)
+    return solve_microphones(sources, tof, std, board_of_mic=board_of_mic,
+                             options=solver_options)
+
+
+def _per_board(boards: list[str], values: np.ndarray) -> dict[str, float]:
+    """Board serial -> value; a single value (no or one common latency) applies to all."""
+    values = np.broadcast_to(np.asarray(values, dtype=float), (len(boards),))
+    return {b: float(v) for b, v in zip(boards, values, strict=True)}
+
+
+def _vec(v: np.ndarray) -> tuple[float, float, float]:
+    return (float(v[0]), float(v[1]), float(v[2]))
+
+
+def _assemble(m: Measurements, sol: MicrophoneSolution, options: CalibrationOptions,
+              timings: dict[str, float]) -> CalibrationResult:
+    data, cams, speakers, tofs = m.data, m.cameras, m.speakers, m.tofs
+    located, reference_fit, reference = m.located, m.reference_fit, m.reference
+    boards, _ = board_indices(data)
+    residuals = sol.residuals_s
+    valid = np.isfinite(residuals) & ~sol.outliers
+    std = sol.std_m if np.all(np.isfinite(sol.covariance_m2)) else np.full((len(boards), 3),
+                                                                             np.nan)
+    mics = []
+    for m, mic_id in enumerate(data.mic_ids):
+        r = residuals[:, m][valid[:, m]]
+        mics.append(MicrophoneResult(
+            id=int(mic_id), position_m=_vec(sol.positions_m[m]),
+            std_m=_vec(std[m]) if std.shape[0] == len(data.mic_ids) else (np.nan,) * 3,
+            board=data.mic_boards[m],
+            residual_rms_s=float(np.sqrt(np.mean(r**2))) if r.size else float("nan"),
+            n_measurements=int(r.size)))
+    q_snr = tofs.snr_db[located]
+    notes = [CONFOUND_NOTE]
+    notes += [f"{m.camera} {m.step}: {m.reason}" for m in cams.missed]
+    notes += [f"camera {name} not calibrated: {why}" for name, why in cams.uncalibrated.items()]
+    notes += [f"{step}: the board was not found in any calibrated camera; pose skipped"
+              for step in speakers.unlocated]
+    ref_entry = None
+    if reference_fit is not None and reference is not None:
+        ref_entry = SpeedOfSoundReference(
+            speed_of_sound_m_s=reference_fit.speed_of_sound_m_s,
+            speed_of_sound_std_m_s=reference_fit.speed_of_sound_std_m_s, n=reference_fit.n,
+            residual_rms_m=reference_fit.residual_rms_m,
+            reference_microphone_m=_vec(reference.position_m))
+    return CalibrationResult(
+        session_id=data.reader.session_id,
+        method=options.method,
+        microphones=mics,
+        speed_of_sound_m_s=sol.speed_of_sound_m_s,
+        speed_of_sound_std_m_s=(sol.speed_of_sound_std_m_s if sol.speed_of_sound_std_m_s > 0
+                                or reference_fit is None
+                                else reference_fit.speed_of_sound_std_m_s),
+        speed_of_sound_reference=ref_entry,
+        latency_s=_per_board(boards, sol.latency_s),
+        latency_std_s=_per_board(boards, sol.latency_std_s),
+        cameras=[_camera_result(cams, name) for name in cams.intrinsics],
+        poses=[_pose_result(data, speakers, i) for i in range(len(speakers.poses))],
+        residuals=ResidualStats(
+            rms_s=float(np.sqrt(np.mean(residuals[valid] ** 2))),
+            median_abs_s=float(np.median(np.abs(residuals[valid]))),
+            n_measurements=int(valid.sum()), n_outliers=int(sol.outliers.sum())),
+        tof_quality=TofQuality(
+            median_snr_db=float(np.median(q_snr)), p05_snr_db=float(np.percentile(q_snr, 5)),
+            median_peak_to_sidelobe_db=float(np.median(tofs.peak_to_sidelobe_db[located])),
+            median_predicted_std_s=float(np.median(tofs.std_s[located]))),
+        timings_s=dict(timings),
+        notes=notes,
+    )
+
+
+def _camera_result(cams: CameraCalibration, name: str) -> CameraResult:
+    from scipy.spatial.transform import Rotation
+
+    intr = cams.intrinsics[name]
+    ext = cams.cam_from_cam0[name]
+    missed = [m.step for m in cams.missed if m.camera == name]
+    return CameraResult(
+        name=name, width=intr.width, height=intr.height, K=intr.K.tolist(),
+        dist=intr.dist.ravel().tolist(),
+        from_cam0=TransformResult(rotvec=_vec(Rotation.from_matrix(ext.R).as_rotvec()),
+                                  t_m=_vec(ext.t)),
+        reprojection_rms_px=float(intr.rms_px), images_used=int(intr.n_views),
+        images_without_board=missed)
+
+
+def _pose_result(data: SessionData, speakers: SpeakerPositions, i: int) -> PoseResult:
+    pose = speakers.poses[i]
+    return PoseResult(
+        index=int(pose.step.split("/")[1]), step=pose.step, camera=pose.camera,
+        rig_to_cam0=TransformResult(rotvec=_vec(pose.rig_to_cam0.rvec),
+                                    t_m=_vec(pose.rig_to_cam0.tvec)),
+        speakers_m=[_vec(p) for p in speakers.positions_m[i]],
+        speakers_std_m=[_vec(np.sqrt(np.diag(c))) for c in speakers.cov_m2[i]],
+        reprojection_rms_px=float(pose.rms_px))
+
+
+__all__ = [
+    "CalibrationInputError", "CalibrationOptions", "CalibrationRun", "Measurements", "calibrate",
+    "measure", "solve",
+]
