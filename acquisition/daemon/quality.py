@@ -21,6 +21,7 @@ from .config import Policy, QualityConfig
 
 _FLOOR_DB = -200.0
 _MIN_NOISE_SAMPLES = 32
+QUICK_LOOK_PX = 640
 
 
 @dataclass(frozen=True)
@@ -97,12 +98,20 @@ def judge_recording(levels: Levels, listening: Sequence[int], mics: Sequence[int
 
 def checkerboard_corners(image: np.ndarray, corners: tuple[int, int]) -> np.ndarray | None:
     """The rig's checkerboard corners in `image` (pixels, shape (n, 2)), or None if OpenCV does
-    not find all of them; `corners` counts the inner corners, x by y. Coarse (no sub-pixel
-    refinement): calibration refines them from the stored image."""
+    not find all of them; `corners` counts the inner corners, x by y.
+
+    A quick look, not a measurement: the search runs on the image shrunk to at most
+    QUICK_LOOK_PX on its longer side (a board partly out of view costs OpenCV seconds at full
+    size, a fraction of that shrunk), and the corners are not refined; calibration refines them
+    from the stored full image.
+    """
     grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    scale = min(1.0, QUICK_LOOK_PX / max(grey.shape))
+    if scale < 1.0:
+        grey = cv2.resize(grey, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
     flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
     found, points = cv2.findChessboardCorners(grey, corners, flags=flags)
-    return points.reshape(-1, 2) if found else None
+    return points.reshape(-1, 2) / scale if found else None
 
 
 def judge_images(found: Mapping[str, bool], config: QualityConfig) -> list[Failure]:
