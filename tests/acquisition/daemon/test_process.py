@@ -5,6 +5,7 @@ SIGTERM, refusing bad configurations. Readiness and crash points are notify-sock
 from __future__ import annotations
 
 import hashlib
+import json
 import signal
 import sys
 from pathlib import Path
@@ -163,3 +164,14 @@ def test_non_loopback_bind_without_keys_is_refused(tmp_path: Path,
     err = capsys.readouterr().err
     assert "refusing to bind tcp://0.0.0.0:5599" in err and "--make-keys" in err
     assert not list(tmp_path.glob("*/journal.jsonl"))
+
+
+def test_check_schemas_and_keys_commands(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    config = write_toml(tmp_path / "good.toml", tmp_path)
+    assert main(["daemon", "--check", "--config", str(config)]) == 0
+    assert "configuration OK: simulated world" in capsys.readouterr().out
+    assert main(["daemon", "--schemas", str(tmp_path / "schemas")]) == 0
+    written = {p.name: json.loads(p.read_text()) for p in (tmp_path / "schemas").iterdir()}
+    assert {"request.schema.json", "event.schema.json", "reply.schema.json"} <= set(written)
+    assert main(["daemon", "--make-keys", str(tmp_path / "keys")]) == 0
+    assert (tmp_path / "keys" / "authorized" / "client.key").is_file()
