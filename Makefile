@@ -16,8 +16,10 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/micam simulate --out $(DEMO_DIR) --poses 20
-	$(BIN)/micam inspect $(DEMO_DIR)
+	$(BIN)/micam simulate --out $(DEMO_DIR)/session --poses 20
+	$(BIN)/micam inspect $(DEMO_DIR)/session
+	$(BIN)/micam calibrate $(DEMO_DIR)/session --out $(DEMO_DIR)/result.json \
+		--acoular-xml $(DEMO_DIR)/microphones.xml
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q

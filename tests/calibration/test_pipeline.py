@@ -1,0 +1,99 @@
+"""`micam calibrate` on simulated sessions: accuracy against the truth, the result's shape,
+the baseline method, and clear errors for sessions that cannot be calibrated."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from acquisition.cli import main
+from calibration.pipeline import CalibrationOptions, calibrate
+from calibration.result import compare_with_truth
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Six poses (36 sources) of the 72-microphone sphere at 0.6-1.0 m, default noise."""
+    path = tmp_path_factory.mktemp("cal") / "s"
+    assert main(["simulate", "--out", str(path), "--poses", "6", "--mls-order", "12",
+                 "--seed", "11", "--quiet"]) == 0
+    return path
+
+
+@pytest.fixture(scope="module")
+def truth(session: Path) -> dict:
+    return json.loads((session / "truth.json").read_text())
+
+
+def test_calibration_is_accurate_against_the_truth(session: Path, truth: dict) -> None:
+    run = calibrate(session)
+    errors = compare_with_truth(run.result, truth)
+    # 36 sources: the issue's robust target is 2.0 mm at 24 sources and 1.0 mm at 96.
+    assert errors["mean_mic_error_m"] < 1.0e-3
+    assert abs(errors["speed_of_sound_error_m_s"]) < 0.1
+    # Board latencies relative to each other: their common part trades off against the
+    # camera's depth scale (a few microseconds here), their differences are well determined.
+    true_lat = truth["board_latencies_s"]
+    ref = true_lat[run.data.config.reference.board]
+    boards = sorted(run.result.latency_s)
+    diff = np.array([run.result.latency_s[b] - (true_lat[b] - ref) for b in boards])
+    std = np.array([run.result.latency_std_s[b] for b in boards])
+    assert np.all(np.abs(diff - np.median(diff)) < 4 * std + 0.1e-6)
+
+
+def test_result_has_the_keys_of_the_truth(session: Path, truth: dict, tmp_path: Path) -> None:
+    out = tmp_path / "result.json"
+    xml = tmp_path / "mics.xml"
+    assert main(["calibrate", str(session), "--out", str(out), "--acoular-xml", str(xml)]) == 0
+    result = json.loads(out.read_text())
+    assert {"microphones", "speed_of_sound_m_s", "cameras", "poses"} <= set(result)
+    ids = sorted(m["id"] for m in result["microphones"])
+    assert ids == sorted(m["id"] for m in truth["microphones"])
+    assert all(len(m["std_m"]) == 3 and m["std_m"][0] > 0 for m in result["microphones"])
+    assert (tmp_path / "result-report" / "report.md").is_file()
+    assert (tmp_path / "result-report" / "geometry.png").stat().st_size > 10_000
+    points = ET.parse(xml).getroot().findall("pos")
+    assert len(points) == 72
+    first = min(result["microphones"], key=lambda m: m["id"])["position_m"]
+    assert float(points[0].get("x")) == pytest.approx(first[0], abs=1e-6)
+
+
+def test_paper_method_runs_on_the_same_data(session: Path, truth: dict) -> None:
+    ours = compare_with_truth(calibrate(session).result, truth)
+    paper = compare_with_truth(calibrate(session, CalibrationOptions(method="paper")).result,
+                               truth)
+    assert paper["mean_mic_error_m"] < 5e-3  # converges, no mirror or runaway solution
+    assert ours["mean_mic_error_m"] <= paper["mean_mic_error_m"]
+
+
+def test_existing_result_is_not_overwritten(session: Path, tmp_path: Path,
+                                            capsys: pytest.CaptureFixture) -> None:
+    out = tmp_path / "r.json"
+    out.write_text("{}")
+    assert main(["calibrate", str(session), "--out", str(out)]) == 2
+    assert "--force" in capsys.readouterr().err
+    assert out.read_text() == "{}"
+
+
+def test_not_a_session_is_a_clear_error(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    assert main(["calibrate", str(tmp_path), "--out", str(tmp_path / "r.json")]) == 2
+    err = capsys.readouterr().err
+    assert "micam: error:" in err and "Traceback" not in err
+
+
+def test_interrupted_session_needs_permission(session: Path, tmp_path: Path,
+                                              capsys: pytest.CaptureFixture) -> None:
+    copy = tmp_path / "s"
+    shutil.copytree(session, copy)
+    journal = copy / "journal.jsonl"
+    lines = journal.read_text().splitlines(keepends=True)
+    journal.write_text("".join(lines[:-1]))  # drop the stop record: an interrupted session
+    assert main(["calibrate", str(copy), "--out", str(tmp_path / "r.json")]) == 2
+    assert "--allow-interrupted" in capsys.readouterr().err
+    run = calibrate(copy, CalibrationOptions(allow_interrupted=True))
+    assert np.all(np.isfinite(run.result.positions()))
