@@ -46,7 +46,6 @@ def run(args: argparse.Namespace) -> int:
     from acquisition.session import SessionError, SessionReader
     from calibration.imaging import (
         CleanScOptions,
-        SteeringModel,
         WelchOptions,
         band_bins,
         beamform_csm,
@@ -54,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
         cross_spectra,
         load_geometry,
     )
-    from calibration.imaging.evaluate import mic_signals, rig_grid
+    from calibration.imaging.evaluate import geometry_steering, mic_signals, rig_grid
     from calibration.imaging.overlay import (
         map_to_image,
         render_overlay,
@@ -75,8 +74,7 @@ def run(args: argparse.Namespace) -> int:
         band = cross_spectra(signals, fs, bins, welch).band_sum(args.band, args.fraction)
         rig_speakers = np.asarray(reader.capture["rig"]["speakers_m"], dtype=np.float64)
         grid = rig_grid(pose, rig_speakers, args.spacing, 0.06)
-        steering = SteeringModel(grid.points, geometry.mic_positions_m,
-                                 geometry.speed_of_sound_m_s, args.steering)
+        steering = geometry_steering(geometry, grid.points, args.steering)
     except (SessionError, ValueError) as exc:
         raise UserError(str(exc)) from None
     h = steering.vectors(args.band)

@@ -100,6 +100,13 @@ def rig_grid(pose: BoardPose, rig_speakers_m: np.ndarray, spacing_m: float, marg
                             float(rig[:, 2].mean()), spacing_m)
 
 
+def geometry_steering(geometry: ArrayGeometry, points: np.ndarray,
+                      formulation: Formulation | str) -> SteeringModel:
+    """The steering model of an array geometry (positions, c and channel latencies)."""
+    return SteeringModel(points, geometry.mic_positions_m, geometry.speed_of_sound_m_s,
+                         formulation, latencies_s=geometry.mic_latencies_s)
+
+
 @dataclass(frozen=True)
 class BandLocation:
     """The CLEAN-SC peak of one band: its grid node and sub-grid position (camera-0 frame)."""
@@ -248,9 +255,8 @@ def evaluate_session(reader: SessionReader, geometry: ArrayGeometry,
             steering_of.clear()  # one pose at a time: the steering model is large
             grid = rig_grid(board, rig_speakers, settings.spacing_m, settings.margin_m,
                             settings.grid_shift(pose))
-            steering_of[pose] = (grid, SteeringModel(grid.points, geometry.mic_positions_m,
-                                                     geometry.speed_of_sound_m_s,
-                                                     settings.formulation))
+            steering_of[pose] = (grid, geometry_steering(geometry, grid.points,
+                                                         settings.formulation))
         grid, steering = steering_of[pose]
         signals, fs = mic_signals(reader, step, name, geometry)
         truth = board.speakers_m[speaker]

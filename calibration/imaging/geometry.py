@@ -10,7 +10,9 @@ have the same keys:
      "poses": [{"index": int, "rig_to_cam0": {"rotvec", "t_m"}, "speakers_m": [[x, y, z]...]}]}
 
 Positions are metres in the camera-0 frame (OpenCV: x right, y down, z forward); "poses" is
-optional (needed for scanning the rig plane and for evaluation).
+optional (needed for scanning the rig plane and for evaluation). When the document also has
+"board_latencies_s" ({serial: seconds}) and each microphone its "board", the latencies are
+applied per microphone (`ArrayGeometry.mic_latencies_s`); otherwise they are taken as 0.
 """
 
 from __future__ import annotations
@@ -63,13 +65,14 @@ class BoardPose:
 
 @dataclass(frozen=True)
 class ArrayGeometry:
-    """Microphone ids and positions (M, 3), c, cameras and (optionally) rig poses."""
+    """Microphone ids, positions (M, 3) and channel latencies (M,), c, cameras, rig poses."""
 
     mic_ids: tuple[int, ...]
     mic_positions_m: np.ndarray
     speed_of_sound_m_s: float
     cameras: tuple[CameraView, ...]
     poses: dict[int, BoardPose]
+    mic_latencies_s: np.ndarray
 
     @property
     def n_mics(self) -> int:
@@ -114,6 +117,8 @@ def geometry_from_dict(doc: dict, source: str = "geometry") -> ArrayGeometry:
                                        np.array(p["rig_to_cam0"]["t_m"], dtype=np.float64),
                                        np.array(p["speakers_m"], dtype=np.float64))
             for p in doc.get("poses", [])}
+        board_latency = {str(k): float(v) for k, v in doc.get("board_latencies_s", {}).items()}
+        latencies = np.array([board_latency.get(str(m.get("board")), 0.0) for m in mics])
     except (KeyError, TypeError, ValueError) as exc:
         raise ValueError(f"{source}: not a calibration result or truth document ({exc!r}); "
                          "it needs microphones[].id/position_m, speed_of_sound_m_s and "
@@ -122,7 +127,7 @@ def geometry_from_dict(doc: dict, source: str = "geometry") -> ArrayGeometry:
         raise ValueError(f"{source}: microphone positions must be (M, 3) with unique ids")
     if not c > 0:
         raise ValueError(f"{source}: speed of sound {c} m/s must be positive")
-    return ArrayGeometry(ids, positions, c, cameras, poses)
+    return ArrayGeometry(ids, positions, c, cameras, poses, latencies)
 
 
 def load_geometry(path: Path) -> ArrayGeometry:

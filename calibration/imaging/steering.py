@@ -76,11 +76,15 @@ class SteeringModel:
         formulation: one of `Formulation`.
         reference: X_0, the point levels are referred to (II, III); default the centroid of
             the microphones. Acoular's default is the origin of its frame.
+        latencies_s: (M,) extra delay of each microphone's channel (e.g. the calibrated board
+            latencies), seconds: the phase becomes exp(-i k (r_m + c tau_m - r_0)). Only
+            differences between channels matter.
     """
 
     def __init__(self, points: np.ndarray, mics: np.ndarray, speed_of_sound_m_s: float,
                  formulation: Formulation | str = Formulation.TRUE_LOCATION,
-                 reference: np.ndarray | None = None) -> None:
+                 reference: np.ndarray | None = None,
+                 latencies_s: np.ndarray | None = None) -> None:
         self.points = _as_points(points, "scan points")
         self.mics = _as_points(mics, "microphone positions")
         if not speed_of_sound_m_s > 0:
@@ -95,6 +99,12 @@ class SteeringModel:
         r0 = np.linalg.norm(self.points - self.reference, axis=1)
         self.distances = r
         self.path_difference = r - r0[:, None]
+        if latencies_s is not None:
+            tau = np.asarray(latencies_s, dtype=np.float64)
+            if tau.shape != (self.n_mics,):
+                raise ValueError(f"latencies must be one per microphone ({self.n_mics}), got "
+                                 f"shape {tau.shape}")
+            self.path_difference += self.c * tau
         self.amplitude = amplitudes(self.formulation, r, r0)
 
     @property

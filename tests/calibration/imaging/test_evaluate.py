@@ -83,3 +83,10 @@ def test_commands_report_bad_input_plainly(session: Path, tmp_path: Path) -> Non
                                        "--band-lo", "5010", "--band-hi", "5020", "--quiet"])
     assert not list(tmp_path.glob("*.png"))
     np.testing.assert_equal(len(load_geometry(session / "truth.json").mic_ids), 72)
+
+
+def test_geometry_reads_board_latencies_per_microphone(session: Path) -> None:
+    truth = json.loads((session / "truth.json").read_text())
+    geometry = load_geometry(session / "truth.json")
+    for mic, latency in zip(truth["microphones"], geometry.mic_latencies_s, strict=True):
+        assert latency == truth["board_latencies_s"][mic["board"]]
