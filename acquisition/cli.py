@@ -19,11 +19,14 @@ from .commands import (
     session,
     sessions,
     simulate,
+    study,
     watch,
 )
 from .errors import UserError
 
-SUBCOMMANDS = (simulate, inspect, calibrate, daq, daemon, session, capture, watch, sessions)
+SUBCOMMANDS = (
+    simulate, inspect, calibrate, study, daq, daemon, session, capture, watch, sessions,
+)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import sys
 from pathlib import Path
 
@@ -12,8 +10,6 @@ from pydantic import ValidationError
 from tqdm import tqdm
 
 from ..errors import UserError
-
-TRUTH_FILE = "truth.json"
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -61,41 +57,18 @@ def _options_from_args(args: argparse.Namespace):
         raise UserError(f"invalid simulation options: {problems}") from None
 
 
-def _write_json_atomic(path: Path, data: dict) -> None:
-    tmp = path.with_name(path.name + ".partial")
-    with open(tmp, "w") as f:
-        json.dump(data, f, indent=1)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-
-
 def run(args: argparse.Namespace) -> int:
     from acquisition.camera import CameraError
-    from acquisition.sequencer import CaptureSequencer
-    from acquisition.session import SessionError, SessionWriter
+    from acquisition.session import SessionError
+    from acquisition.simulated import TRUTH_FILE, prepare_simulated_capture
     from daq import DaqError
-    from sim.capture import SimulationOptions, build_simulated_capture, truth_document
 
     out: Path = args.out
+    options = None if args.resume else _options_from_args(args)
     try:
-        if args.resume:
-            truth_path = out / TRUTH_FILE
-            if not truth_path.is_file():
-                raise UserError(f"{out} holds no simulated session ({TRUTH_FILE} is missing); "
-                                "only sessions made by `micam simulate` can be resumed this way")
-            options = SimulationOptions(**json.loads(truth_path.read_text())["simulation"])
-            sim = build_simulated_capture(options)
-            writer = SessionWriter.resume(out)
-        else:
-            options = _options_from_args(args)
-            sim = build_simulated_capture(options)
-            writer = SessionWriter.create(out, capture=sim.config.model_dump(mode="json"))
-            _write_json_atomic(out / TRUTH_FILE, truth_document(sim))
-    except SessionError as exc:
+        sim, sequencer = prepare_simulated_capture(out, options)
+    except (SessionError, FileNotFoundError) as exc:
         raise UserError(str(exc)) from None
-
-    sequencer = CaptureSequencer(sim.config, sim.group, sim.cameras, sim.operator, writer)
     remaining = len(sequencer.remaining_steps())
     try:
         with tqdm(total=remaining, unit="step", disable=args.quiet, desc="capture") as bar:
@@ -107,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
               f"  micam simulate --resume --out {out}", file=sys.stderr)
         return 3
     if not args.quiet:
-        print(f"session written to {out} ({options.poses} poses, "
+        print(f"session written to {out} ({sim.options.poses} poses, "
               f"{len(sim.config.speakers)} speakers, {len(sim.config.columns)} channels); "
               f"ground truth in {out / TRUTH_FILE}")
     return 0
