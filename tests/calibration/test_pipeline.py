@@ -97,3 +97,43 @@ def test_interrupted_session_needs_permission(session: Path, tmp_path: Path,
     assert "--allow-interrupted" in capsys.readouterr().err
     run = calibrate(copy, CalibrationOptions(allow_interrupted=True))
     assert np.all(np.isfinite(run.result.positions()))
+
+
+@pytest.fixture(scope="module")
+def measurements(session: Path):
+    from calibration.pipeline import measure
+
+    return measure(session)
+
+
+def _mean_error(solution, measurements, truth: dict) -> float:
+    true = {m["id"]: m["position_m"] for m in truth["microphones"]}
+    mics = np.array([true[int(i)] for i in measurements.data.mic_ids])
+    return float(np.mean(np.linalg.norm(solution.positions_m - mics, axis=1)))
+
+
+def test_single_pose_has_no_mirror_or_runaway_solution(measurements, truth: dict) -> None:
+    from calibration.pipeline import solve
+
+    for pose in range(len(measurements.located)):
+        sol = solve(measurements, CalibrationOptions(latency="none"), poses=np.array([pose]))
+        # on the camera's side of the rig, and close: a mirror would be ~1.5 m away
+        assert _mean_error(sol, measurements, truth) < 5e-3
+        assert np.all(sol.positions_m[:, 2] < 0.05)
+
+
+def test_reflection_outliers_leave_the_accuracy_unchanged(measurements, truth: dict) -> None:
+    import dataclasses
+
+    from calibration.pipeline import solve
+
+    clean = _mean_error(solve(measurements, CalibrationOptions()), measurements, truth)
+    rng = np.random.default_rng(5)
+    tof = measurements.tofs.tof_s.copy()
+    hit = rng.random(tof.shape) < 0.05
+    tof[hit] += rng.uniform(0.3e-3, 3e-3, hit.sum())  # late reflection paths
+    corrupted = dataclasses.replace(
+        measurements, tofs=dataclasses.replace(measurements.tofs, tof_s=tof))
+    sol = solve(corrupted, CalibrationOptions())
+    assert _mean_error(sol, corrupted, truth) < clean * 1.1 + 0.02e-3
+    assert sol.outliers.sum() >= hit.sum() * 0.95
