@@ -1,0 +1,675 @@
+"""The optical-acoustic bundle adjustment: cameras and array fitted together (DESIGN.md, "The
+final fit is an optical-acoustic bundle adjustment").
+
+Why: a camera calibrated first and then frozen carries its focal-length error (a few 0.01 %
+with 20-30 views) into the depth of every speaker, which c cannot absorb, and so into a common
+depth offset of the whole array. The times of flight are precise to a fraction of a
+microsecond; fitted together with the corner pixels they correct the camera.
+
+Model (frames of `calibration.cameras`; x_cam = R(rvec) x + t everywhere):
+
+- corner j of the board in view (camera i, pose k): pixel = project_i(R_i (R_k B_j + t_k) + t_i)
+  with camera i's intrinsics (fx, fy, cx, cy) and OpenCV's 5 distortion coefficients, the
+  board pose k (rig -> camera 0) and camera i's transform from camera 0 (identity for camera 0);
+- time of flight from speaker s of pose k to microphone m:
+  tau = |X_m - (R_k P_s + t_k)| / c + delta_b(m) (paper eq. 15, per-board latency);
+- time of flight from the same source to the reference microphone on its stand (position an
+  unknown; no latency: its board is the latency gauge).
+
+Gauges, fixed explicitly: the frame is camera 0's (it has no extrinsics unknowns); the
+latency of the board recording the reference microphone is 0 (the other boards' latencies
+are relative to it, as measured); the metric scale is the printed checkerboard's (its corners
+are fixed rig coordinates).
+
+Unknowns: every camera's 9 intrinsics, the other cameras' extrinsics (6 each), every board
+pose including the reference-microphone step (6 each), the microphones (3 each), the reference
+microphone (3), c, and the latencies. Residuals are whitened: corner pixels by a per-camera
+sigma, times of flight by their predicted std times a per-kind scale; both are estimated from
+the residual scatter (median absolute deviation) at the start and again after a first pass.
+
+Solver: Levenberg-Marquardt on the normal equations J^T W J, which are small (about 1,100
+unknowns for 140 poses) even when J has 10^5 rows; J is sparse and analytic (OpenCV's
+projectPoints derivatives for the pixels, the model's own for the times of flight). The loss
+is Huber's, by iteratively reweighted least squares; residuals beyond `outlier_threshold`
+sigmas after the first pass are outliers, left out of the second pass and reported. The
+covariance of every unknown is the inverse of the final J^T W J.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from scipy import sparse
+from scipy.linalg import cho_factor, cho_solve
+from scipy.spatial.transform import Rotation
+
+from .cameras import CameraCalibration, CameraIntrinsics, Extrinsics, Pose
+from .solver import rotated_point_jacobian
+
+_MAD_TO_SIGMA = 1.4826
+N_INTRINSICS = 9
+"""fx, fy, cx, cy, k1, k2, p1, p2, k3 (OpenCV's order, projectPoints' Jacobian columns 6-15)."""
+GROUP_TOF = "tof"
+GROUP_REFERENCE = "reference tof"
+
+
+@dataclass(frozen=True)
+class BundleOptions:
+    """Options of `fit_bundle`.
+
+    Attributes:
+        huber_k: Huber's threshold in sigmas: residuals beyond it are down-weighted as k/|r|
+            (95 % efficiency at Gaussian noise for k = 1.345; 3 keeps nearly all of it and
+            still bounds a gross outlier's pull).
+        outlier_threshold: residuals (corners: the 2D error) beyond this many sigmas after
+            the first pass are outliers, excluded from the second pass and reported.
+        max_iterations: Levenberg-Marquardt iterations per pass.
+        tolerance: relative decrease of the cost below which a pass has converged.
+    """
+
+    huber_k: float = 3.0
+    outlier_threshold: float = 5.0
+    max_iterations: int = 50
+    tolerance: float = 1e-10
+
+
+@dataclass(frozen=True)
+class BundleProblem:
+    """The observations of the joint fit, as plain arrays.
+
+    Attributes:
+        board_points_m: (n_corner, 3) checkerboard inner corners in the rig frame (the scale).
+        speakers_rig_m: (n_speaker, 3) speaker positions in the rig frame.
+        view_camera, view_pose: (n_view,) camera index and pose index of every board view.
+        corners_px: (n_view, n_corner, 2) detected corners in rig order.
+        pose_of_source, speaker_of_source: (n_src,) pose and speaker of every source.
+        tof_s, tof_std_s: (n_src, n_mic) array times of flight and their predicted std, NaN
+            where missing.
+        reference_tof_s, reference_std_s: (n_src,) times of flight to the reference
+            microphone and their predicted std (NaN where missing).
+        latency_column: (n_mic,) latency unknown of each microphone (-1: its board is the
+            gauge, latency 0).
+        n_latency: number of latency unknowns.
+        camera_names: camera names, camera 0 first (for the noise groups' names).
+    """
+
+    board_points_m: np.ndarray
+    speakers_rig_m: np.ndarray
+    view_camera: np.ndarray
+    view_pose: np.ndarray
+    corners_px: np.ndarray
+    pose_of_source: np.ndarray
+    speaker_of_source: np.ndarray
+    tof_s: np.ndarray
+    tof_std_s: np.ndarray
+    reference_tof_s: np.ndarray
+    reference_std_s: np.ndarray
+    latency_column: np.ndarray
+    n_latency: int
+    camera_names: tuple[str, ...]
+
+    @property
+    def n_camera(self) -> int:
+        return len(self.camera_names)
+
+
+@dataclass(frozen=True)
+class BundleState:
+    """Values of every unknown (the start or the solution).
+
+    Attributes:
+        intrinsics: (n_camera, 9) fx, fy, cx, cy (pixels), k1, k2, p1, p2, k3.
+        extrinsics: (n_camera - 1, 6) rvec (rad), t (m) of cameras 1.. from camera 0.
+        poses: (n_pose, 6) rvec (rad), t (m) of every board pose, rig -> camera 0.
+        microphones_m: (n_mic, 3) microphone positions, camera-0 frame.
+        reference_m: (3,) the reference microphone's position on its stand.
+        speed_of_sound_m_s: c.
+        latencies_s: (n_latency,) board latencies relative to the gauge board.
+    """
+
+    intrinsics: np.ndarray
+    extrinsics: np.ndarray
+    poses: np.ndarray
+    microphones_m: np.ndarray
+    reference_m: np.ndarray
+    speed_of_sound_m_s: float
+    latencies_s: np.ndarray
+
+
+@dataclass(frozen=True)
+class BundleSolution:
+    """The joint fit's estimates, their covariance and its diagnostics.
+
+    Attributes:
+        state: the estimates.
+        std: the same shapes as `state`'s arrays, standard deviations (from the covariance).
+        covariance: full covariance of the parameter vector (see `parameter_slices`).
+        parameter_slices: name -> slice of the parameter vector ("intrinsics", "extrinsics",
+            "poses", "microphones", "reference", "c", "latencies").
+        sigmas: noise group -> estimated sigma: pixels per coordinate for a camera's corners,
+            a factor on the predicted std for the times of flight.
+        corner_residuals_px: (n_view, n_corner, 2) detected minus modelled corners.
+        tof_residuals_s: (n_src, n_mic) measured minus modelled times of flight, NaN where
+            missing.
+        reference_residuals_s: (n_src,) the same for the reference microphone.
+        corner_outliers: (n_view, n_corner) corners left out as outliers.
+        corner_rms_px: (n_camera,) RMS reprojection error per kept corner of each camera.
+        tof_outliers: (n_src, n_mic) times of flight left out as outliers.
+        reference_outliers: (n_src,) reference times of flight left out.
+        chi2_per_dof: of the final pass (about 1 if the noise model fits).
+        iterations: Levenberg-Marquardt iterations of both passes.
+    """
+
+    state: BundleState
+    std: BundleState
+    covariance: np.ndarray
+    parameter_slices: dict[str, slice]
+    sigmas: dict[str, float]
+    corner_residuals_px: np.ndarray
+    tof_residuals_s: np.ndarray
+    reference_residuals_s: np.ndarray
+    corner_outliers: np.ndarray
+    corner_rms_px: np.ndarray
+    tof_outliers: np.ndarray
+    reference_outliers: np.ndarray
+    chi2_per_dof: float
+    iterations: int
+
+    def marginal(self, name: str, index: int, width: int) -> np.ndarray:
+        """(width, width) covariance of block `index` of the named unknowns (e.g. the 6 pose
+        parameters of pose 3: marginal("poses", 3, 6))."""
+        start = self.parameter_slices[name].start + index * width
+        return self.covariance[start:start + width, start:start + width]
+
+
+# ---------------------------------------------------------------------------------------------
+# The parameter vector
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """Where each kind of unknown sits in the parameter vector."""
+
+    slices: dict[str, slice]
+    shapes: dict[str, tuple[int, ...]]
+
+    @classmethod
+    def of(cls, state: BundleState) -> _Layout:
+        shapes = {
+            "intrinsics": state.intrinsics.shape, "extrinsics": state.extrinsics.shape,
+            "poses": state.poses.shape, "microphones": state.microphones_m.shape,
+            "reference": (3,), "c": (1,), "latencies": state.latencies_s.shape,
+        }  # fmt: skip
+        slices, start = {}, 0
+        for name, shape in shapes.items():
+            size = int(np.prod(shape))
+            slices[name] = slice(start, start + size)
+            start += size
+        return cls(slices, shapes)
+
+    @property
+    def size(self) -> int:
+        return self.slices["latencies"].stop
+
+    def pack(self, s: BundleState) -> np.ndarray:
+        return np.concatenate([s.intrinsics.ravel(), s.extrinsics.ravel(), s.poses.ravel(),
+                               s.microphones_m.ravel(), s.reference_m, [s.speed_of_sound_m_s],
+                               s.latencies_s])  # fmt: skip
+
+    def unpack(self, x: np.ndarray) -> BundleState:
+        part = {n: x[sl].reshape(self.shapes[n]) for n, sl in self.slices.items()}
+        return BundleState(part["intrinsics"], part["extrinsics"], part["poses"],
+                           part["microphones"], part["reference"], float(part["c"][0]),
+                           part["latencies"])  # fmt: skip
+
+    def columns(self, name: str, index: np.ndarray, width: int) -> np.ndarray:
+        """(n, width) parameter columns of blocks `index` of the named unknowns."""
+        return self.slices[name].start + width * np.asarray(index)[:, None] + np.arange(width)
+
+
+# ---------------------------------------------------------------------------------------------
+# Residuals and Jacobian
+
+
+@dataclass
+class _Triplets:
+    """COO entries of a sparse Jacobian, collected block by block."""
+
+    rows: list[np.ndarray] = field(default_factory=list)
+    cols: list[np.ndarray] = field(default_factory=list)
+    vals: list[np.ndarray] = field(default_factory=list)
+
+    def add(self, rows: np.ndarray, cols: np.ndarray, vals: np.ndarray) -> None:
+        """rows (n,), cols (n, w) and vals (n, w): row r gets vals[r] in columns cols[r]."""
+        self.rows.append(np.repeat(rows, cols.shape[1]))
+        self.cols.append(cols.ravel())
+        self.vals.append(vals.ravel())
+
+    def matrix(self, n_rows: int, n_cols: int) -> sparse.csr_matrix:
+        return sparse.csr_matrix(
+            (np.concatenate(self.vals), (np.concatenate(self.rows), np.concatenate(self.cols))),
+            shape=(n_rows, n_cols))
+
+
+@dataclass(frozen=True)
+class _Rows:
+    """The residual rows of one noise group: their indices and base sigma (the sigma before
+    the group's scale), and the size of a residual group (2 for a corner's pixel pair)."""
+
+    name: str
+    index: np.ndarray
+    base_sigma: np.ndarray
+    width: int
+
+
+class _Model:
+    """Unwhitened residuals (model - measurement) and their Jacobian at a state."""
+
+    def __init__(self, problem: BundleProblem, layout: _Layout) -> None:
+        self.p = problem
+        self.layout = layout
+        n_view, n_corner = problem.corners_px.shape[:2]
+        self.n_corner_rows = 2 * n_view * n_corner
+        self.tof_valid = np.isfinite(problem.tof_s) & (problem.tof_std_s > 0)
+        self.src, self.mic = np.nonzero(self.tof_valid)
+        self.ref_valid = np.flatnonzero(np.isfinite(problem.reference_tof_s)
+                                        & (problem.reference_std_s > 0))
+        self.n_rows = self.n_corner_rows + self.src.size + self.ref_valid.size
+        self.groups = self._groups()
+
+    def _groups(self) -> list[_Rows]:
+        """Rows of every noise group: each camera's corners, array TOFs, reference TOFs."""
+        p, groups = self.p, []
+        n_corner = p.corners_px.shape[1]
+        for i, name in enumerate(p.camera_names):
+            views = np.flatnonzero(p.view_camera == i)
+            rows = (2 * n_corner * views[:, None] + np.arange(2 * n_corner)).ravel()
+            groups.append(_Rows(name, rows, np.ones(rows.size), 2))
+        start = self.n_corner_rows
+        groups.append(_Rows(GROUP_TOF, start + np.arange(self.src.size),
+                            p.tof_std_s[self.tof_valid], 1))
+        start += self.src.size
+        groups.append(_Rows(GROUP_REFERENCE, start + np.arange(self.ref_valid.size),
+                            p.reference_std_s[self.ref_valid], 1))
+        return groups
+
+    def evaluate(self, x: np.ndarray, jacobian: bool) -> tuple[np.ndarray, sparse.csr_matrix]:
+        s = self.layout.unpack(x)
+        trip = _Triplets() if jacobian else None
+        corners = self._corners(s, trip)
+        sources, d_sources = self._sources(s)
+        tofs = self._tofs(s, sources, d_sources, trip)
+        residual = np.concatenate([corners, tofs])
+        jac = trip.matrix(self.n_rows, self.layout.size) if jacobian else None
+        return residual, jac
+
+    def _corners(self, s: BundleState, trip: _Triplets | None) -> np.ndarray:
+        """Modelled minus detected pixels of every corner, (2 n_view n_corner,), view by view;
+        each camera's points are projected in one call of cv2.projectPoints with rvec = tvec = 0,
+        whose translation derivatives are then d(pixel)/d(point in the camera frame)."""
+        p = self.p
+        n_view, n_corner = p.corners_px.shape[:2]
+        out = np.empty((n_view, n_corner, 2))
+        R_pose = Rotation.from_rotvec(s.poses[:, :3]).as_matrix()
+        for i in range(p.n_camera):
+            views = np.flatnonzero(p.view_camera == i)
+            if views.size == 0:
+                continue
+            k = p.view_pose[views]
+            Y = np.einsum("vab,cb->vca", R_pose[k], p.board_points_m) + s.poses[k, None, 3:]
+            if i > 0:
+                rvec_i, t_i = s.extrinsics[i - 1, :3], s.extrinsics[i - 1, 3:]
+                X = Y @ Rotation.from_rotvec(rvec_i).as_matrix().T + t_i
+            else:
+                X = Y
+            K = np.array([[s.intrinsics[i, 0], 0, s.intrinsics[i, 2]],
+                          [0, s.intrinsics[i, 1], s.intrinsics[i, 3]], [0, 0, 1.0]])
+            projected, jac = cv2.projectPoints(X.reshape(-1, 3), np.zeros(3), np.zeros(3), K,
+                                               s.intrinsics[i, 4:])
+            out[views] = projected.reshape(len(views), n_corner, 2) - p.corners_px[views]
+            if trip is not None:
+                self._corner_jacobian(trip, i, views, k, s, Y, jac)
+        return out.ravel()
+
+    def _corner_jacobian(self, trip: _Triplets, i: int, views: np.ndarray, k: np.ndarray,
+                         s: BundleState, Y: np.ndarray, jac: np.ndarray) -> None:
+        """Jacobian rows of camera i's corners: intrinsics, pose k, camera i's extrinsics."""
+        n_corner = self.p.corners_px.shape[1]
+        rows = (2 * n_corner * views[:, None] + np.arange(2 * n_corner)).ravel()
+        lay = self.layout
+        trip.add(rows, lay.columns("intrinsics", np.full(rows.size, i), N_INTRINSICS),
+                 jac[:, 6:15])
+        d_pix_d_X = jac[:, 3:6].reshape(-1, 2, 3)  # per point: d(u, v) / d(x, y, z)
+        R_i = (Rotation.from_rotvec(s.extrinsics[i - 1, :3]).as_matrix() if i > 0
+               else np.eye(3))
+        board = np.broadcast_to(self.p.board_points_m, Y.shape).reshape(-1, 3)
+        pose_of_point = np.repeat(k, n_corner)
+        d_Y_d_pose = np.concatenate(
+            [rotated_point_jacobian(s.poses[pose_of_point, :3], board),
+             np.broadcast_to(np.eye(3), (board.shape[0], 3, 3))], axis=2)
+        d_pose = np.einsum("npa,ab,nbw->npw", d_pix_d_X, R_i, d_Y_d_pose).reshape(-1, 6)
+        trip.add(rows, lay.columns("poses", np.repeat(pose_of_point, 2), 6), d_pose)
+        if i > 0:
+            rvec_i = np.broadcast_to(s.extrinsics[i - 1, :3], (board.shape[0], 3))
+            d_X_d_ext = np.concatenate(
+                [rotated_point_jacobian(rvec_i, Y.reshape(-1, 3)),
+                 np.broadcast_to(np.eye(3), (board.shape[0], 3, 3))], axis=2)
+            d_ext = np.einsum("npa,naw->npw", d_pix_d_X, d_X_d_ext).reshape(-1, 6)
+            trip.add(rows, lay.columns("extrinsics", np.full(rows.size, i - 1), 6), d_ext)
+
+    def _sources(self, s: BundleState) -> tuple[np.ndarray, np.ndarray]:
+        """(n_src, 3) source positions R_k P_s + t_k and (n_src, 3, 6) their derivatives by
+        pose k's (rvec, t)."""
+        p = self.p
+        k, spk = p.pose_of_source, p.speaker_of_source
+        points = p.speakers_rig_m[spk]
+        rvec = s.poses[k, :3]
+        positions = (np.einsum("sab,sb->sa", Rotation.from_rotvec(rvec).as_matrix(), points)
+                     + s.poses[k, 3:])
+        d_pose = np.concatenate([rotated_point_jacobian(rvec, points),
+                                 np.broadcast_to(np.eye(3), (k.size, 3, 3))], axis=2)
+        return positions, d_pose
+
+    def _tofs(self, s: BundleState, sources: np.ndarray, d_sources: np.ndarray,
+              trip: _Triplets | None) -> np.ndarray:
+        """Modelled minus measured times of flight: array microphones, then the reference."""
+        p, lay = self.p, self.layout
+        parts = []
+        start = self.n_corner_rows
+        for src, receiver, lat_col, measured, name in (
+            (self.src, s.microphones_m[self.mic], p.latency_column[self.mic],
+             p.tof_s[self.tof_valid], "microphones"),
+            (self.ref_valid, np.broadcast_to(s.reference_m, (self.ref_valid.size, 3)),
+             np.full(self.ref_valid.size, -1), p.reference_tof_s[self.ref_valid], "reference"),
+        ):
+            diff = receiver - sources[src]
+            dist = np.linalg.norm(diff, axis=1)
+            lat = np.append(s.latencies_s, 0.0)[lat_col]  # column -1: the gauge board, 0
+            parts.append(dist / s.speed_of_sound_m_s + lat - measured)
+            if trip is not None:
+                rows = start + np.arange(src.size)
+                grad = diff / (dist * s.speed_of_sound_m_s)[:, None]
+                index = self.mic if name == "microphones" else np.zeros(src.size, dtype=int)
+                trip.add(rows, lay.columns(name, index, 3), grad)
+                trip.add(rows, lay.columns("poses", p.pose_of_source[src], 6),
+                         -np.einsum("ra,raw->rw", grad, d_sources[src]))
+                trip.add(rows, np.full((src.size, 1), lay.slices["c"].start),
+                         (-dist / s.speed_of_sound_m_s**2)[:, None])
+                has = lat_col >= 0
+                trip.add(rows[has], lay.slices["latencies"].start + lat_col[has, None],
+                         np.ones((has.sum(), 1)))
+            start += src.size
+        return np.concatenate(parts)
+
+
+# ---------------------------------------------------------------------------------------------
+# Noise, robust weights, Levenberg-Marquardt
+
+
+def _group_norms(e: np.ndarray, width: int) -> np.ndarray:
+    """|e| of every residual group (a corner's pixel pair: width 2), repeated per row."""
+    return np.repeat(np.linalg.norm(e.reshape(-1, width), axis=1), width)
+
+
+def _estimate_sigmas(model: _Model, residual: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """(n_rows,) sigma of every residual: its base sigma times its group's scale, the robust
+    scatter (1.4826 x median absolute value) of the group's kept residuals in base units.
+    Why from the data: the corner noise depends on the blur and the board's size in the
+    image, the TOF noise on reflections and model errors that the predicted std leaves out."""
+    sigma = np.ones(model.n_rows)
+    for g in model.groups:
+        kept = keep[g.index]
+        e = residual[g.index][kept] / g.base_sigma[kept]
+        scale = max(_MAD_TO_SIGMA * float(np.median(np.abs(e))), 1e-12) if e.size else 1.0
+        sigma[g.index] = g.base_sigma * scale
+    return sigma
+
+
+def _huber(e: np.ndarray, widths: np.ndarray, k: float) -> tuple[np.ndarray, float]:
+    """IRLS weights (n_rows,) and the Huber cost of whitened residuals e, group by group."""
+    norm = np.abs(e)
+    pairs = widths == 2
+    norm[pairs] = _group_norms(e[pairs], 2)
+    weight = np.where(norm <= k, 1.0, k / np.maximum(norm, k))
+    rho = np.where(norm <= k, norm**2, 2 * k * norm - k**2)
+    return weight, float(np.sum(rho / np.where(widths == 2, 2.0, 1.0)))
+
+
+class _Pass:
+    """One robust Levenberg-Marquardt pass with fixed sigmas and a fixed set of kept rows."""
+
+    def __init__(self, model: _Model, sigma: np.ndarray, keep: np.ndarray,
+                 options: BundleOptions) -> None:
+        self.model, self.options = model, options
+        self.whiten = np.where(keep, 1.0 / sigma, 0.0)
+        self.widths = np.ones(model.n_rows, dtype=int)
+        for g in model.groups:
+            self.widths[g.index] = g.width
+
+    def cost(self, residual: np.ndarray) -> tuple[np.ndarray, float]:
+        return _huber(residual * self.whiten, self.widths, self.options.huber_k)
+
+    def normal_equations(self, residual: np.ndarray,
+                         jac: sparse.csr_matrix) -> tuple[np.ndarray, np.ndarray]:
+        """J^T W J (dense) and J^T W r, W the whitening squared times the Huber weights."""
+        weight, _ = self.cost(residual)
+        w = self.whiten**2 * weight
+        weighted = sparse.diags(w) @ jac
+        return (jac.T @ weighted).toarray(), jac.T @ (w * residual)
+
+    def run(self, x: np.ndarray) -> tuple[np.ndarray, int]:
+        """Iterate from x until the robust cost stops decreasing; return x and iterations."""
+        residual, jac = self.model.evaluate(x, jacobian=True)
+        cost = self.cost(residual)[1]
+        damping = 1e-4
+        for iteration in range(1, self.options.max_iterations + 1):
+            A, g = self.normal_equations(residual, jac)
+            scale = np.sqrt(np.maximum(np.diag(A), 1e-300))
+            A_s = A / scale / scale[:, None]
+            while True:
+                step = _solve_spd(A_s + damping * np.eye(A.shape[0]), -g / scale) / scale
+                trial = x + step
+                trial_residual, _ = self.model.evaluate(trial, jacobian=False)
+                trial_cost = self.cost(trial_residual)[1]
+                if trial_cost <= cost or damping > 1e12:
+                    break
+                damping *= 10.0
+            if trial_cost > cost:
+                return x, iteration
+            decrease = cost - trial_cost
+            x, cost = trial, trial_cost
+            damping = max(damping / 10.0, 1e-9)
+            residual, jac = self.model.evaluate(x, jacobian=True)
+            if decrease <= self.options.tolerance * cost:
+                return x, iteration
+        return x, self.options.max_iterations
+
+
+def _solve_spd(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Solve A y = b for symmetric positive (semi)definite A; least squares if singular."""
+    try:
+        return cho_solve(cho_factor(A), b)
+    except np.linalg.LinAlgError:
+        return np.linalg.lstsq(A, b, rcond=None)[0]
+
+
+def _inverse_spd(A: np.ndarray) -> np.ndarray:
+    """Inverse of a normal matrix, scaled to unit diagonal first (its columns span pixels,
+    metres and seconds); pseudo-inverse if singular."""
+    scale = np.sqrt(np.maximum(np.diag(A), 1e-300))
+    A_s = A / scale / scale[:, None]
+    try:
+        inv = cho_solve(cho_factor(A_s), np.eye(A.shape[0]))
+    except np.linalg.LinAlgError:
+        inv = np.linalg.pinv(A_s)
+    return inv / scale / scale[:, None]
+
+
+# ---------------------------------------------------------------------------------------------
+# The fit
+
+
+def fit_bundle(problem: BundleProblem, start: BundleState,
+               options: BundleOptions | None = None) -> BundleSolution:
+    """The joint fit of cameras, board poses, microphones, c and latencies.
+
+    Two passes: the first with sigmas estimated from the start's residuals (the camera-frozen
+    solution is a good start: its corner and TOF residuals are near their noise), the second
+    with sigmas re-estimated from the first pass's residuals and its outliers left out. The
+    covariance is the inverse of the final pass's J^T W J.
+
+    Raises:
+        ValueError: the problem's arrays disagree in shape with the start.
+    """
+    options = options or BundleOptions()
+    _check(problem, start)
+    layout = _Layout.of(start)
+    model = _Model(problem, layout)
+    x = layout.pack(start)
+    keep = np.ones(model.n_rows, dtype=bool)
+    sigma = _estimate_sigmas(model, model.evaluate(x, jacobian=False)[0], keep)
+    x, first = _Pass(model, sigma, keep, options).run(x)
+    residual = model.evaluate(x, jacobian=False)[0]
+    sigma = _estimate_sigmas(model, residual, keep)
+    keep = _inliers(model, residual / sigma, options.outlier_threshold)
+    sigma = _estimate_sigmas(model, residual, keep)
+    final = _Pass(model, sigma, keep, options)
+    x, second = final.run(x)
+    residual, jac = model.evaluate(x, jacobian=True)
+    A, _ = final.normal_equations(residual, jac)
+    covariance = _inverse_spd(A)
+    e = residual * final.whiten
+    dof = max(int(keep.sum()) - layout.size, 1)
+    return _solution(model, x, residual, keep, sigma, covariance, float(e @ e) / dof,
+                     first + second)
+
+
+def _check(problem: BundleProblem, start: BundleState) -> None:
+    n_src, n_mic = problem.tof_s.shape
+    expected = {
+        "intrinsics": ((problem.n_camera, N_INTRINSICS), start.intrinsics.shape),
+        "extrinsics": ((problem.n_camera - 1, 6), start.extrinsics.shape),
+        "microphones": ((n_mic, 3), start.microphones_m.shape),
+        "latencies": ((problem.n_latency,), start.latencies_s.shape),
+    }
+    for name, (want, got) in expected.items():
+        if want != got:
+            raise ValueError(f"bundle start: {name} has shape {got}, the problem needs {want}")
+    if max(problem.view_pose.max(), problem.pose_of_source.max()) >= len(start.poses):
+        raise ValueError(f"bundle start has {len(start.poses)} poses; the views or sources "
+                         "refer to more")
+
+
+def _inliers(model: _Model, e: np.ndarray, threshold: float) -> np.ndarray:
+    """Rows whose whitened residual group is within `threshold` sigmas."""
+    keep = np.ones(model.n_rows, dtype=bool)
+    for g in model.groups:
+        keep[g.index] = _group_norms(e[g.index], g.width) <= threshold
+    return keep
+
+
+def _solution(model: _Model, x: np.ndarray, residual: np.ndarray, keep: np.ndarray,
+              sigma: np.ndarray, covariance: np.ndarray, chi2: float,
+              iterations: int) -> BundleSolution:
+    p, lay = model.p, model.layout
+    n_view, n_corner = p.corners_px.shape[:2]
+    n_c = model.n_corner_rows
+    tof_res = np.full(p.tof_s.shape, np.nan)
+    tof_res[model.tof_valid] = -residual[n_c:n_c + model.src.size]
+    tof_out = np.zeros(p.tof_s.shape, dtype=bool)
+    tof_out[model.tof_valid] = ~keep[n_c:n_c + model.src.size]
+    ref_res = np.full(p.reference_tof_s.shape, np.nan)
+    ref_res[model.ref_valid] = -residual[n_c + model.src.size:]
+    ref_out = np.zeros(p.reference_tof_s.shape, dtype=bool)
+    ref_out[model.ref_valid] = ~keep[n_c + model.src.size:]
+    corner_res = -residual[:n_c].reshape(n_view, n_corner, 2)
+    corner_out = ~keep[:n_c].reshape(n_view, n_corner, 2).all(axis=2)
+    sq = np.where(corner_out, np.nan, np.sum(corner_res**2, axis=2))
+    corner_rms = np.array([np.sqrt(np.nanmean(sq[p.view_camera == i]))
+                           for i in range(p.n_camera)])
+    sigmas = {}
+    for g in model.groups:
+        if g.index.size:
+            sigmas[g.name] = float(sigma[g.index[0]] / g.base_sigma[0])
+    return BundleSolution(
+        state=lay.unpack(x),
+        std=lay.unpack(np.sqrt(np.maximum(np.diag(covariance), 0.0))),
+        covariance=covariance,
+        parameter_slices=dict(lay.slices),
+        sigmas=sigmas,
+        corner_residuals_px=corner_res,
+        tof_residuals_s=tof_res,
+        reference_residuals_s=ref_res,
+        corner_outliers=corner_out,
+        corner_rms_px=corner_rms,
+        tof_outliers=tof_out,
+        reference_outliers=ref_out,
+        chi2_per_dof=chi2,
+        iterations=iterations,
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# To and from the camera calibration
+
+
+def camera_start(cams: CameraCalibration) -> tuple[np.ndarray, np.ndarray]:
+    """(n_camera, 9) intrinsics and (n_camera - 1, 6) extrinsics of a camera calibration, in
+    its camera order (camera 0 first)."""
+    names = list(cams.intrinsics)
+    intrinsics = np.array([[*_focal_centre(cams.intrinsics[n].K), *cams.intrinsics[n].dist]
+                           for n in names])  # fmt: skip
+    extrinsics = np.array([[*Rotation.from_matrix(cams.cam_from_cam0[n].R).as_rotvec(),
+                            *cams.cam_from_cam0[n].t] for n in names[1:]]).reshape(-1, 6)
+    return intrinsics, extrinsics
+
+
+def _focal_centre(K: np.ndarray) -> tuple[float, float, float, float]:
+    return float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])
+
+
+def board_views(cams: CameraCalibration,
+                steps: list[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(view_camera, view_pose, corners_px) of every view of `steps` (pose index = position
+    in `steps`) by the calibrated cameras."""
+    names = list(cams.intrinsics)
+    keys = [(i, k) for k, step in enumerate(steps) for i, name in enumerate(names)
+            if (name, step) in cams.views]  # fmt: skip
+    if not keys:
+        raise ValueError("no board view of the given steps: nothing to fit the cameras to")
+    corners = np.array([cams.views[(names[i], steps[k])].corners_px for i, k in keys])
+    view_camera, view_pose = (np.array(v) for v in zip(*keys, strict=True))
+    return view_camera, view_pose, corners
+
+
+def refined_cameras(cams: CameraCalibration, solution: BundleSolution) -> CameraCalibration:
+    """The camera calibration with the joint fit's intrinsics (and their covariance) and
+    extrinsics; the per-view poses, missed images and the rest are the camera-only ones."""
+    names = list(cams.intrinsics)
+    state = solution.state
+    intrinsics, extrinsics = {}, {}
+    for i, name in enumerate(names):
+        old = cams.intrinsics[name]
+        fx, fy, cx, cy = state.intrinsics[i, :4]
+        K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+        rms = float(solution.corner_rms_px[i])
+        intrinsics[name] = CameraIntrinsics(
+            name, old.width, old.height, K, state.intrinsics[i, 4:].copy(),
+            solution.marginal("intrinsics", i, N_INTRINSICS).copy(), rms, old.n_views)
+        old_ext = cams.cam_from_cam0[name]
+        if i == 0:
+            extrinsics[name] = old_ext
+        else:
+            R = Rotation.from_rotvec(state.extrinsics[i - 1, :3]).as_matrix()
+            extrinsics[name] = Extrinsics(R, state.extrinsics[i - 1, 3:].copy(), rms,
+                                          old_ext.n_shared_views, old_ext.via)
+    return CameraCalibration(cams.board, intrinsics, extrinsics, cams.views, cams.missed,
+                             cams.uncalibrated)
+
+
+def pose_estimate(solution: BundleSolution, index: int) -> Pose:
+    """Board pose `index` (rig -> camera 0) of the joint fit with its 6x6 covariance."""
+    p = solution.state.poses[index]
+    return Pose(p[:3].copy(), p[3:].copy(), solution.marginal("poses", index, 6).copy())
