@@ -89,6 +89,12 @@ class Daemon:
         log.info("ready: control %s, events %s, sessions in %s", self.config.sockets.control,
                  self.server.events_endpoint, self.session_root)
         try:
+            left = self._find_interrupted().name
+            log.warning("session %s was interrupted; continue it with `micam session start "
+                        "--resume %s`", left, left)
+        except SessionError:
+            pass
+        try:
             while True:
                 run = self.run
                 if run is not None and run.ready():

@@ -24,6 +24,7 @@ from acquisition.daemon.service import Daemon
 
 SMALL_WORLD = {"array": "scatter48", "poses": 3, "mls_order": 9, "seed": 3}
 WAIT_S = 60.0
+POLL_S = 0.01  # status polling period of the drive loops (each poll is a bounded request)
 REPO = Path(__file__).resolve().parents[3]
 
 
@@ -131,7 +132,8 @@ def capture(client: DaemonClient) -> StatusResult:
     number = client.request("capture")["number"]
     return client.wait_until(
         lambda s: s.session is None or (s.last_capture is not None
-                                        and s.last_capture.number >= number), WAIT_S)
+                                        and s.last_capture.number >= number),
+        WAIT_S, interval_s=POLL_S)
 
 
 def capture_all(client: DaemonClient, limit: int = 50) -> StatusResult:
@@ -144,4 +146,4 @@ def capture_all(client: DaemonClient, limit: int = 50) -> StatusResult:
 
 
 def wait_state(client: DaemonClient, *states: str) -> StatusResult:
-    return client.wait_until(lambda s: s.state in states, WAIT_S)
+    return client.wait_until(lambda s: s.state in states, WAIT_S, interval_s=POLL_S)

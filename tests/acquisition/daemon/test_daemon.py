@@ -222,7 +222,7 @@ def test_curve_lets_in_only_authorised_clients(tmp_path: Path) -> None:
             assert good.request("ping")["pong"] is True
         for client_key in (stranger / "client.key_secret", None):
             server_key = keys / "server.key" if client_key else None
-            with DaemonClient(control, timeout_s=1.0, server_key=server_key,
+            with DaemonClient(control, timeout_s=0.5, server_key=server_key,
                               client_key=client_key) as bad, \
                     pytest.raises(DaemonError, match="no reply"):
                 bad.request("ping")
