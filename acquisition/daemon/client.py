@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import time
 import uuid
 from collections.abc import Callable
@@ -128,14 +129,13 @@ class DaemonClient:
         DaemonError after `timeout_s`. Events are only shown; `status` decides (a subscriber
         may miss events, a status reply is never lost)."""
         deadline = time.monotonic() + timeout_s
-        while True:
+        for _ in range(math.ceil(timeout_s / interval_s) + 1):  # bounded in count and time
             status = self.status()
             if done(status):
                 return status
             remaining = deadline - time.monotonic()
             if remaining <= 0:
-                raise DaemonError(f"the daemon did not finish within {timeout_s:g} s (state "
-                                  f"{status.state}); see `micam session status`")
+                break
             pause_until = time.monotonic() + min(interval_s, remaining)
             while stream is not None and (left := pause_until - time.monotonic()) > 0:
                 event = stream.next(left)
@@ -143,6 +143,8 @@ class DaemonClient:
                     on_event(event)
             if stream is None:
                 time.sleep(max(0.0, pause_until - time.monotonic()))
+        raise DaemonError(f"the daemon did not finish within {timeout_s:g} s (state "
+                          f"{status.state}); see `micam session status`")
 
 
 def _reachable(endpoint: str, control: str) -> str:

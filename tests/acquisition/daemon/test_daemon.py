@@ -59,6 +59,8 @@ def test_bad_input_gets_clear_errors_and_the_daemon_keeps_serving(client: Daemon
     assert "micam session start" in _refused(client, "capture", "wrong_state")
     assert "no session is open" in _refused(client, "session.abort", "wrong_state")
     assert client.request("ping")["pong"] is True
+    with pytest.raises(DaemonError, match=r"did not finish within 0\.05 s"):
+        client.wait_until(lambda s: s.state == "capturing", 0.05, interval_s=0.01)
 
 
 def test_session_with_pause_refusals_stop_and_journal(daemon: ThreadDaemon,
