@@ -1,8 +1,9 @@
 """A report a person can read: report.md with pictures, beside result.json.
 
 Pictures: the geometry in 3D (microphones, cameras, speaker positions), residuals per
-microphone and per pose, and the times of flight's quality. When the session is simulated, the
-errors against its truth are tabulated too.
+microphone and per pose, and the times of flight's quality. When the joint fit ran, the
+camera-frozen solution is tabulated beside it. When the session is simulated, the errors
+against its truth are tabulated too.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from .pipeline import CalibrationRun
-from .result import compare_with_truth
+from .result import CalibrationResult, compare_with_truth
 
 
 def write_report(run: CalibrationRun, directory: Path, truth: dict | None = None) -> Path:
@@ -46,6 +47,12 @@ def summary_lines(run: CalibrationRun, truth: dict | None = None) -> list[str]:
             f"against the simulated truth: mean microphone error "
             f"{1e3 * cmp['mean_mic_error_m']:.3f} mm (max {1e3 * cmp['max_mic_error_m']:.3f}), "
             f"c error {cmp['speed_of_sound_error_m_s']:+.3f} m/s")
+        if r.camera_frozen is not None:
+            frozen = compare_with_truth(r, truth, camera_frozen=True)
+            lines.append(
+                f"camera frozen (before the joint fit): mean microphone error "
+                f"{1e3 * frozen['mean_mic_error_m']:.3f} mm, c error "
+                f"{frozen['speed_of_sound_error_m_s']:+.3f} m/s")
     lines.append("time: " + ", ".join(f"{k} {v:.1f} s" for k, v in r.timings_s.items()))
     return lines
 
@@ -76,6 +83,7 @@ def _markdown(run: CalibrationRun, truth: dict | None) -> str:
             "| board | latency µs | std µs |", "|---|---|---|"]
     out += [f"| {b} | {1e6 * v:+.3f} | {1e6 * r.latency_std_s[b]:.3f} |"
             for b, v in r.latency_s.items()]
+    out += _frozen_vs_joint(r, truth)
     q = r.tof_quality
     out += ["", "## Times of flight", "",
             f"- median SNR {q.median_snr_db:.1f} dB (5th percentile {q.p05_snr_db:.1f} dB), "
@@ -88,6 +96,44 @@ def _markdown(run: CalibrationRun, truth: dict | None) -> str:
             "![TOF quality](tof_quality.png)", "", "## Notes", ""]
     out += [f"- {n}" for n in r.notes]
     return "\n".join(out) + "\n"
+
+
+def _frozen_vs_joint(r: CalibrationResult, truth: dict | None) -> list[str]:
+    """Markdown: the camera-frozen solution beside the joint fit, with the joint fit's noise
+    estimates and outliers (nothing when the joint fit did not run)."""
+    if r.camera_frozen is None or r.joint_fit is None:
+        return []
+    f, j = r.camera_frozen, r.joint_fit
+    out = ["", "## Camera frozen vs joint fit (optical-acoustic bundle adjustment)", "",
+           "| quantity | camera frozen | joint |", "|---|---|---|",
+           f"| c (m/s) | {f.speed_of_sound_m_s:.3f} ± {f.speed_of_sound_std_m_s:.3f} | "
+           f"{r.speed_of_sound_m_s:.3f} ± {r.speed_of_sound_std_m_s:.3f} |"]
+    for c in r.cameras:
+        fx, fy = f.focal_px[c.name]
+        sx, sy = f.focal_std_px[c.name]
+        std = c.intrinsics_std or [float("nan")] * 2
+        out.append(f"| {c.name} fx, fy (px) | {fx:.2f} ± {sx:.2f}, {fy:.2f} ± {sy:.2f} | "
+                   f"{c.K[0][0]:.2f} ± {std[0]:.2f}, {c.K[1][1]:.2f} ± {std[1]:.2f} |")
+    for b, v in r.latency_s.items():
+        out.append(f"| latency {b} (µs) | {1e6 * f.latency_s[b]:+.3f} | {1e6 * v:+.3f} ± "
+                   f"{1e6 * r.latency_std_s[b]:.3f} |")
+    if truth is not None:
+        errors = [compare_with_truth(r, truth, camera_frozen=True), compare_with_truth(r, truth)]
+        for key, unit, factor in (("mean_mic_error_m", "mm", 1e3), ("max_mic_error_m", "mm", 1e3),
+                                  ("speed_of_sound_error_m_s", "m/s", 1.0),
+                                  ("max_focal_error_rel", "%", 100.0),
+                                  ("max_latency_error_s", "µs", 1e6)):
+            if key in errors[0]:
+                out.append(f"| error vs truth: {key} ({unit}) | "
+                           + " | ".join(f"{factor * e[key]:.4f}" for e in errors) + " |")
+    sigmas = ", ".join(f"{k} {v:.3g}" for k, v in j.sigmas.items())
+    outliers = ", ".join(f"{k} {v}" for k, v in j.corner_outliers.items())
+    out += ["", f"- noise estimated from the residuals (px per coordinate for corners, factor "
+                f"on the predicted std for times of flight): {sigmas}",
+            f"- outliers left out: corners {outliers}; times of flight {j.tof_outliers}; "
+            f"reference times of flight {j.reference_tof_outliers}",
+            f"- chi² per degree of freedom {j.chi2_per_dof:.2f}, {j.iterations} iterations"]
+    return out
 
 
 def _plot_geometry(run: CalibrationRun, path: Path) -> None:

@@ -47,6 +47,8 @@ class CameraResult(_Model):
     reprojection_rms_px: float
     images_used: int
     images_without_board: list[str]
+    intrinsics_std: list[float] | None = Field(
+        default=None, description="std of fx, fy, cx, cy (px), k1, k2, p1, p2, k3")
 
 
 class PoseResult(_Model):
@@ -83,6 +85,34 @@ class TofQuality(_Model):
     median_predicted_std_s: float
 
 
+class CameraFrozenResult(_Model):
+    """The solution with the cameras calibrated first and then frozen (the joint fit's start),
+    kept beside the joint one: their difference is what the cameras' errors cost."""
+
+    microphones: list[MicrophoneResult]
+    speed_of_sound_m_s: float
+    speed_of_sound_std_m_s: float
+    latency_s: dict[str, float]
+    latency_std_s: dict[str, float]
+    focal_px: dict[str, tuple[float, float]] = Field(description="fx, fy per camera")
+    focal_std_px: dict[str, tuple[float, float]]
+
+
+class JointFitResult(_Model):
+    """Diagnostics of the optical-acoustic bundle adjustment (calibration.bundle)."""
+
+    sigmas: dict[str, float] = Field(
+        description="estimated noise: px per coordinate for a camera's corners, a factor on "
+                    "the predicted std for the times of flight")
+    corner_outliers: dict[str, int]
+    tof_outliers: int
+    reference_tof_outliers: int
+    chi2_per_dof: float
+    iterations: int
+    reference_microphone_m: Vector3
+    reference_microphone_std_m: Vector3
+
+
 class CalibrationResult(_Model):
     schema_version: int = 1
     session_id: str
@@ -99,6 +129,10 @@ class CalibrationResult(_Model):
     tof_quality: TofQuality
     timings_s: dict[str, float]
     notes: list[str]
+    latency_gauge_board: str | None = Field(
+        default=None, description="the board whose latency is 0 (records the reference mic)")
+    camera_frozen: CameraFrozenResult | None = None
+    joint_fit: JointFitResult | None = None
 
     def positions(self) -> np.ndarray:
         return np.array([m.position_m for m in self.microphones])
@@ -124,18 +158,36 @@ def write_acoular_xml(result: CalibrationResult, path: Path, name: str = "micam"
     path.write_text("\n".join(lines) + "\n")
 
 
-def compare_with_truth(result: CalibrationResult, truth: dict) -> dict[str, float]:
-    """Errors of a result against a simulator's truth.json: microphone errors (metres) and the
-    speed-of-sound error (m/s)."""
+def compare_with_truth(result: CalibrationResult, truth: dict,
+                       camera_frozen: bool = False) -> dict[str, float]:
+    """Errors of a result (or of its camera-frozen solution) against a simulator's
+    truth.json: microphone errors (metres), the speed-of-sound error (m/s), the largest
+    relative focal-length error and the largest board-latency error (seconds, relative to the
+    gauge board) when the result names its gauge board."""
+    if camera_frozen and result.camera_frozen is None:
+        raise ValueError("the result has no camera-frozen solution (joint fit switched off)")
+    part = result.camera_frozen if camera_frozen else result
+    focal = (part.focal_px if camera_frozen
+             else {c.name: (c.K[0][0], c.K[1][1]) for c in result.cameras})
     true_pos = {m["id"]: np.array(m["position_m"]) for m in truth["microphones"]}
     errors = np.array([np.linalg.norm(np.array(m.position_m) - true_pos[m.id])
-                       for m in result.microphones])
-    return {
+                       for m in part.microphones])
+    true_K = {c["name"]: c["K"] for c in truth["cameras"]}
+    out = {
         "mean_mic_error_m": float(errors.mean()),
         "median_mic_error_m": float(np.median(errors)),
         "max_mic_error_m": float(errors.max()),
-        "speed_of_sound_error_m_s": result.speed_of_sound_m_s - truth["speed_of_sound_m_s"],
+        "speed_of_sound_error_m_s": part.speed_of_sound_m_s - truth["speed_of_sound_m_s"],
+        "max_focal_error_rel": max(abs(f / true_K[name][axis][axis] - 1.0)
+                                   for name, fxy in focal.items()
+                                   for axis, f in enumerate(fxy)),
     }
+    true_lat = truth.get("board_latencies_s", {})
+    if result.latency_gauge_board in true_lat:
+        gauge = true_lat[result.latency_gauge_board]
+        out["max_latency_error_s"] = max(abs(v - (true_lat[b] - gauge))
+                                         for b, v in part.latency_s.items())
+    return out
 
 
 def load_geometry(path: Path) -> tuple[np.ndarray, np.ndarray, float]:

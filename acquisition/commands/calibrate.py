@@ -28,6 +28,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="fix c at the reference-microphone fit (default) or solve for it")
     p.add_argument("--refine-poses", action="store_true",
                    help="fit a rigid correction per rig pose, weighted by the camera")
+    p.add_argument("--no-joint", action="store_true",
+                   help="skip the final joint fit of cameras and array (optical-acoustic "
+                        "bundle adjustment) and report the camera-frozen solution")
     p.add_argument("--phat", action="store_true", help="GCC-PHAT weighting of the correlations")
     p.add_argument("--allow-interrupted", action="store_true",
                    help="calibrate the completed poses of an interrupted session")
@@ -55,8 +58,8 @@ def run(args: argparse.Namespace) -> int:
     options = CalibrationOptions(
         method=args.method, latency=args.latency, speed_of_sound=args.speed_of_sound,
         refine_poses=args.refine_poses, phat=args.phat,
-        allow_interrupted=args.allow_interrupted)
-    stages = ["load", "cameras", "speakers", "times of flight", "solver"]
+        allow_interrupted=args.allow_interrupted, joint=not args.no_joint)
+    stages = ["load", "cameras", "speakers", "times of flight", "solver", "joint fit"]
     with tqdm(total=len(stages), unit="stage", desc="calibrate") as bar:
         def on_stage(name: str) -> None:
             bar.set_postfix_str(name)
