@@ -31,8 +31,8 @@ Solver: Levenberg-Marquardt on the normal equations J^T W J, which are small (ab
 unknowns for 140 poses) even when J has 10^5 rows; J is sparse and analytic (OpenCV's
 projectPoints derivatives for the pixels, the model's own for the times of flight). The loss
 is Huber's, by iteratively reweighted least squares; residuals beyond `outlier_threshold`
-sigmas after the first pass are outliers, left out of the second pass and reported. The
-covariance of every unknown is the inverse of the final J^T W J.
+sigmas after a pass are outliers, left out of the next pass and reported. The covariance of
+every unknown is the inverse of the final J^T W J.
 """
 
 from __future__ import annotations
@@ -67,12 +67,17 @@ class BundleOptions:
             the first pass are outliers, excluded from the second pass and reported.
         max_iterations: Levenberg-Marquardt iterations per pass.
         tolerance: relative decrease of the cost below which a pass has converged.
+        max_passes: passes at most (see `fit_bundle`).
+        sigma_tolerance: relative change of every noise group's sigma below which the noise
+            estimate has settled.
     """
 
     huber_k: float = 3.0
     outlier_threshold: float = 5.0
     max_iterations: int = 50
     tolerance: float = 1e-10
+    max_passes: int = 10
+    sigma_tolerance: float = 0.03
 
 
 @dataclass(frozen=True)
@@ -159,7 +164,7 @@ class BundleSolution:
         tof_outliers: (n_src, n_mic) times of flight left out as outliers.
         reference_outliers: (n_src,) reference times of flight left out.
         chi2_per_dof: of the final pass (about 1 if the noise model fits).
-        iterations: Levenberg-Marquardt iterations of both passes.
+        iterations: Levenberg-Marquardt iterations of all passes.
     """
 
     state: BundleState
@@ -515,10 +520,13 @@ def fit_bundle(problem: BundleProblem, start: BundleState,
                options: BundleOptions | None = None) -> BundleSolution:
     """The joint fit of cameras, board poses, microphones, c and latencies.
 
-    Two passes: the first with sigmas estimated from the start's residuals (the camera-frozen
-    solution is a good start: its corner and TOF residuals are near their noise), the second
-    with sigmas re-estimated from the first pass's residuals and its outliers left out. The
-    covariance is the inverse of the final pass's J^T W J.
+    Passes of robust Levenberg-Marquardt, the first with sigmas estimated from the start's
+    residuals, each next one with the sigmas re-estimated from the previous pass's residuals
+    and its outliers left out, until the sigmas change by less than `sigma_tolerance` and the
+    outliers not at all. Why more than two: the start's residuals hold the frozen camera's
+    systematic error, so the first TOF sigma is far too large (the first pass then sides with
+    the corners), and each pass gets closer to the noise. The covariance is the inverse of
+    the final J^T W J.
 
     Raises:
         ValueError: the problem's arrays disagree in shape with the start.
@@ -530,20 +538,27 @@ def fit_bundle(problem: BundleProblem, start: BundleState,
     x = layout.pack(start)
     keep = np.ones(model.n_rows, dtype=bool)
     sigma = _estimate_sigmas(model, model.evaluate(x, jacobian=False)[0], keep)
-    x, first = _Pass(model, sigma, keep, options).run(x)
-    residual = model.evaluate(x, jacobian=False)[0]
-    sigma = _estimate_sigmas(model, residual, keep)
-    keep = _inliers(model, residual / sigma, options.outlier_threshold)
-    sigma = _estimate_sigmas(model, residual, keep)
+    iterations = 0
+    for _ in range(options.max_passes):
+        fit = _Pass(model, sigma, keep, options)
+        x, n = fit.run(x)
+        iterations += n
+        residual = model.evaluate(x, jacobian=False)[0]
+        new_keep = _inliers(model, residual / _estimate_sigmas(model, residual, keep),
+                            options.outlier_threshold)
+        new_sigma = _estimate_sigmas(model, residual, new_keep)
+        settled = (np.max(np.abs(new_sigma / sigma - 1.0)) < options.sigma_tolerance
+                   and np.array_equal(new_keep, keep))
+        sigma, keep = new_sigma, new_keep
+        if settled:
+            break
     final = _Pass(model, sigma, keep, options)
-    x, second = final.run(x)
     residual, jac = model.evaluate(x, jacobian=True)
-    A, _ = final.normal_equations(residual, jac)
-    covariance = _inverse_spd(A)
+    covariance = _inverse_spd(final.normal_equations(residual, jac)[0])
     e = residual * final.whiten
     dof = max(int(keep.sum()) - layout.size, 1)
     return _solution(model, x, residual, keep, sigma, covariance, float(e @ e) / dof,
-                     first + second)
+                     iterations)
 
 
 def _check(problem: BundleProblem, start: BundleState) -> None:
