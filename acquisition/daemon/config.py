@@ -24,7 +24,7 @@ from sim.capture import SimulationOptions
 
 from ..capture_config import CaptureConfig
 from ..errors import UserError
-from .endpoints import DEFAULT_CONTROL, DEFAULT_EVENTS
+from .endpoints import DEFAULT_CONTROL, DEFAULT_EVENTS, beside
 
 ENV_PREFIX = "MICAM_DAEMON_"
 
@@ -58,10 +58,24 @@ class SocketsConfig(_Section):
 
     control: str = Field(default=DEFAULT_CONTROL, description="request/reply control socket")
     events: str = Field(default=DEFAULT_EVENTS, description="publish socket for events")
+    jobs: str | None = Field(
+        default=None, description="ROUTER socket calibration workers connect to for jobs "
+                                  "(default: beside control, see `beside`)")
+    files: str | None = Field(
+        default=None, description="ROUTER socket workers fetch session files from, in chunks "
+                                  "(default: beside control)")
     curve: CurveConfig | None = None
     max_message_bytes: int = Field(
         default=65_536, ge=1024, le=16 * 2**20,
         description="larger requests get a 'too_large' error reply")
+
+    @property
+    def jobs_endpoint(self) -> str:
+        return self.jobs or beside(self.control, "jobs")
+
+    @property
+    def files_endpoint(self) -> str:
+        return self.files or beside(self.control, "files")
 
 
 class QualityConfig(_Section):
@@ -121,6 +135,25 @@ class HardwareConfig(_Section):
         return self
 
 
+class WorkersConfig(_Section):
+    """The calibration hand-off: heartbeats, leases, retries and when live calibration starts."""
+
+    outbox: Path | None = Field(
+        default=None, description="directory of the job files (default: SESSION_ROOT.outbox beside it)")
+    heartbeat_interval_s: float = Field(
+        default=1.0, gt=0, le=30, description="each side sends a heartbeat this often when idle")
+    liveness: int = Field(
+        default=3, ge=2, le=20,
+        description="a worker silent for this many intervals is dead; its job goes to another")
+    job_timeout_s: float = Field(
+        default=3600.0, gt=0, description="a lease longer than this is taken back (a hung job)")
+    max_attempts: int = Field(
+        default=3, ge=1, le=20, description="leases of one job before it is given up as failed")
+    live: bool = Field(default=True, description="calibrate the poses so far after each pose")
+    live_min_poses: int = Field(
+        default=4, ge=1, description="the first pose after which a live calibration runs")
+
+
 class HandsFreeConfig(_Section):
     """Capture by itself once the checkerboard has been held still in view (poses only)."""
 
@@ -151,6 +184,7 @@ class DaemonConfig(BaseSettings):
     simulation: SimulationConfig = SimulationConfig()
     quality: QualityConfig = QualityConfig()
     hands_free: HandsFreeConfig = HandsFreeConfig()
+    workers: WorkersConfig = WorkersConfig()
     poll_interval_s: float = Field(default=0.1, gt=0, le=1.0,
                                    description="longest wait of the service loop")
     camera_timeout_s: float = Field(default=2.0, gt=0, le=30)

@@ -28,3 +28,18 @@ def is_local_endpoint(endpoint: str) -> bool:
         return ipaddress.ip_address(host).is_loopback
     except ValueError:
         return False
+
+
+_OFFSETS = {"jobs": 2, "files": 3}
+
+
+def beside(control: str, role: str) -> str:
+    """The default endpoint of the worker socket `role` ("jobs" or "files") of a daemon whose
+    control socket is `control`: tcp port + 2 / + 3 (5562 and 5563 by default), or the ipc
+    path with "-jobs" / "-files" appended. Two daemons on one machine thus never collide."""
+    transport, _, rest = control.partition("://")
+    if transport == "tcp":
+        host, _, port = rest.rpartition(":")
+        if port.isdigit():
+            return f"tcp://{host}:{int(port) + _OFFSETS[role]}"
+    return f"{control}-{role}"

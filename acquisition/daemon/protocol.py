@@ -18,6 +18,8 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter
 
+from .job_messages import LiveUpdate, job_schemas
+
 PROTOCOL_VERSION = 1
 
 ErrorCode = Literal[
@@ -178,6 +180,21 @@ class SessionSummary(_Message):
     created_utc: datetime
 
 
+class WorkerSummary(_Message):
+    name: str
+    job: str | None = Field(default=None, description="the job it holds, if any")
+
+
+class CalibrationStatus(_Message):
+    """The calibration hand-off: connected workers and the jobs of the outbox."""
+
+    workers: list[WorkerSummary] = []
+    pending: int = 0
+    leased: int = 0
+    done: int = 0
+    failed: int = 0
+
+
 class StatusResult(_Message):
     """The `status` reply: a snapshot of everything `watch` shows."""
 
@@ -192,6 +209,7 @@ class StatusResult(_Message):
     hands_free: bool = False
     events_endpoint: str
     last_event_seq: int
+    calibration: CalibrationStatus = CalibrationStatus()
 
 
 class SessionsResult(_Message):
@@ -281,9 +299,53 @@ class CaptureEvent(_Event):
     reason: str = ""
 
 
+class WorkerEvent(_Event):
+    """A calibration worker joined, left, or was declared dead (silent too long)."""
+
+    type: Literal["worker"] = "worker"
+    worker: str
+    state: Literal["joined", "left", "lost"]
+    reason: str = ""
+
+
+class JobEvent(_Event):
+    """A calibration job changed state; `failed` carries the worker's error for a person."""
+
+    type: Literal["job"] = "job"
+    job_id: str
+    kind: str
+    state: Literal["queued", "leased", "running", "requeued", "done", "failed", "superseded"]
+    attempt: int
+    worker: str | None = None
+    reason: str = ""
+
+
+class LiveCalibrationEvent(_Event):
+    """The calibration of the poses captured so far (see LiveUpdate)."""
+
+    type: Literal["live_calibration"] = "live_calibration"
+    job_id: str
+    update: LiveUpdate
+
+
+class CalibrationEvent(_Event):
+    """A session's final calibration is stored beside it."""
+
+    type: Literal["calibration"] = "calibration"
+    job_id: str
+    attempt: int
+    worker: str
+    path: str = Field(description="result.json in the session's calibration directory")
+    sha256: str
+    n_microphones: int
+    mean_std_m: float = Field(description="mean over microphones of the position std norm")
+    speed_of_sound_m_s: float
+
+
 Event = Annotated[
     StateEvent | InstructionEvent | ProgressEvent | LevelsEvent | CheckerboardEvent
-    | WarningEvent | ErrorEvent | CaptureEvent,
+    | WarningEvent | ErrorEvent | CaptureEvent | WorkerEvent | JobEvent | LiveCalibrationEvent
+    | CalibrationEvent,
     Field(discriminator="type"),
 ]
 EVENT_ADAPTER: TypeAdapter[Event] = TypeAdapter(Event)
@@ -303,4 +365,5 @@ def json_schemas() -> dict[str, dict]:
         "status-result": StatusResult.model_json_schema(),
         "sessions-result": SessionsResult.model_json_schema(),
         "capture-result": CaptureResult.model_json_schema(),
+        **job_schemas(),
     }

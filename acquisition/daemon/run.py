@@ -75,6 +75,8 @@ class Host(Protocol):
 
     def publish(self, event_type: type, **fields: Any) -> None: ...
 
+    def step_completed(self, step: str) -> None: ...
+
 
 @dataclass
 class _Attempt:
@@ -286,6 +288,7 @@ class SessionRun:
         self.last_capture = LastCapture(number=self.captures_requested, step=step,
                                         outcome="complete", warnings=attempt.warnings)
         self._attempt = None
+        self.host.step_completed(step)
 
     def on_abandon(self, step: str, reason: str) -> None:
         self.host.publish(CaptureEvent, step=step, outcome="abandoned", reason=reason)

@@ -18,7 +18,8 @@ from .keys import load_certificate
 
 def check_exposure(sockets: SocketsConfig) -> None:
     """Refuse a non-local bind without CURVE (ConfigError says what to do)."""
-    exposed = [e for e in (sockets.control, sockets.events) if not is_local_endpoint(e)]
+    endpoints = (sockets.control, sockets.events, sockets.jobs_endpoint, sockets.files_endpoint)
+    exposed = [e for e in endpoints if not is_local_endpoint(e)]
     if exposed and sockets.curve is None:
         raise ConfigError(
             f"refusing to bind {', '.join(exposed)} without encryption: a non-loopback address "

@@ -33,6 +33,7 @@ from .security import CurveServer, check_exposure
 log = logging.getLogger("micam.daemon")
 
 HARD_MESSAGE_LIMIT = 16 * 2**20
+MAX_TURNS = 1000  # busy turns of one `serve` call before the loop gets control back
 
 
 class Refusal(Exception):
@@ -103,14 +104,19 @@ class ControlServer:
         try:
             if sockets.curve is not None:
                 self._curve = CurveServer(self._context, sockets.curve)
-            self._rep = self._socket(zmq.REP, sockets.control)
+            self._rep = self.bind(zmq.REP, sockets.control)
             self._rep.maxmsgsize = HARD_MESSAGE_LIMIT
-            self._pub = self._socket(zmq.PUB, sockets.events)
+            self._pub = self.bind(zmq.PUB, sockets.events)
         except BaseException:
             self.close()
             raise
+        self._poller = zmq.Poller()
+        self._poller.register(self._rep, zmq.POLLIN)
+        self._watched: dict[zmq.Socket, Callable[[], None]] = {}
 
-    def _socket(self, kind: int, endpoint: str) -> zmq.Socket:
+    def bind(self, kind: int, endpoint: str) -> zmq.Socket:
+        """A socket of this server's context, CURVE-secured when configured, bound to
+        `endpoint` (ConfigError if that fails). The caller closes it before `close`."""
         sock = self._context.socket(kind)
         sock.linger = 0
         if self._curve is not None:
@@ -131,12 +137,25 @@ class ControlServer:
     def last_event_seq(self) -> int:
         return self._seq
 
+    def watch(self, sock: zmq.Socket, on_readable: Callable[[], None]) -> None:
+        """Also wait on `sock` in `serve`, calling `on_readable` when it has messages."""
+        self._poller.register(sock, zmq.POLLIN)
+        self._watched[sock] = on_readable
+
     def serve(self, timeout_s: float) -> None:
-        """Answer the requests waiting, or wait up to `timeout_s` for one and answer it."""
+        """Answer the requests waiting (and let watched sockets read theirs), or wait up to
+        `timeout_s` for one. Bounded: after MAX_TURNS busy turns it returns to the loop."""
         timeout_ms = round(timeout_s * 1000)
-        while self._rep.poll(timeout_ms, zmq.POLLIN):
-            frames = self._rep.recv_multipart()
-            self._rep.send(self._answer(frames).model_dump_json().encode())
+        for _ in range(MAX_TURNS):
+            ready = dict(self._poller.poll(timeout_ms))
+            if not ready:
+                return
+            if self._rep in ready:
+                frames = self._rep.recv_multipart()
+                self._rep.send(self._answer(frames).model_dump_json().encode())
+            for sock, on_readable in self._watched.items():
+                if sock in ready:
+                    on_readable()
             timeout_ms = 0
 
     def _answer(self, frames: list[bytes]) -> Reply:

@@ -16,14 +16,19 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+import zmq
 from pydantic import BaseModel
 
 from ..capture_config import CaptureConfig
 from ..sequencer import plan_steps
 from ..session import SessionError, SessionReader, SessionWriter
 from ..session._atomic import write_atomic
+from .broker import Broker
 from .config import DaemonConfig
+from .files import FileServer
 from .hardware import Hardware
+from .jobs import job_for_session
+from .outbox import Outbox
 from .protocol import (
     PROTOCOL_VERSION,
     CaptureResult,
@@ -80,6 +85,29 @@ class Daemon:
             "redo": lambda _: self._redo(),
         }
         self.server = ControlServer(config.sockets, self._handle)
+        try:
+            self.broker, self.files = self._open_broker()
+        except BaseException:
+            self.server.close()
+            raise
+
+    def _open_broker(self) -> tuple[Broker, FileServer]:
+        """The calibration hand-off: the outbox, the jobs socket and the file server."""
+        workers = self.config.workers
+        default = self.session_root.with_name(self.session_root.name + ".outbox")
+        outbox = Outbox((workers.outbox or default).expanduser())
+        requeued = outbox.load()
+        sockets = self.config.sockets
+        broker = Broker(self.server.bind(zmq.ROUTER, sockets.jobs_endpoint), workers, outbox,
+                        self.publish)
+        files = FileServer(self.server.bind(zmq.ROUTER, sockets.files_endpoint),
+                           outbox.jobs.get)
+        self.server.watch(broker.sock, broker.serve)
+        self.server.watch(files.sock, files.serve)
+        for job in requeued:
+            log.warning("calibration job %s was leased when the daemon stopped; pending again",
+                        job.job_id)
+        return broker, files
 
     # -- the loop ---------------------------------------------------------------------------
 
@@ -107,6 +135,8 @@ class Daemon:
             sd_notify("STOPPING=1")
             if self.run is not None:  # only on a second signal: left resumable
                 self.run.writer.close()
+            self.broker.close()
+            self.files.sock.close(linger=0)
             self.server.close()
             self.hardware.close()
             log.info("stopped")
@@ -120,6 +150,7 @@ class Daemon:
             run.ending = SessionEnding("aborted", "the daemon was stopped (SIGTERM)",
                                        after_burst=True)
         self.server.serve(timeout_s)
+        self.broker.tick()
         if self.run is not None:
             self.run.hands_free_tick()
 
@@ -144,7 +175,19 @@ class Daemon:
             self._close(f"interrupted: {exc}")
             return
         if closed:
-            self._close(f"session {SessionReader(run.path).status}")
+            status = SessionReader(run.path).status
+            self._close(f"session {status}")
+            if status == "complete":
+                self.broker.submit(job_for_session(run.path, "final"))
+
+    def step_completed(self, step: str) -> None:
+        """After a step's end is journaled: a live calibration job once enough poses are in."""
+        run = self.run
+        workers = self.config.workers
+        if run is None or not step.startswith("pose/") or not workers.live:
+            return
+        if sum(s.startswith("pose/") for s in run.completed()) >= workers.live_min_poses:
+            self.broker.submit(job_for_session(run.path, "live"))
 
     def _close(self, reason: str) -> None:
         self.machine.go(State.STOPPING, reason)
@@ -192,7 +235,7 @@ class Daemon:
             last_capture=run.last_capture if run else None,
             paused=bool(run and run.paused), hands_free=self.config.hands_free.enabled,
             events_endpoint=self.server.events_endpoint,
-            last_event_seq=self.server.last_event_seq)
+            last_event_seq=self.server.last_event_seq, calibration=self.broker.status())
 
     def list_sessions(self) -> SessionsResult:
         sessions, problems = [], []

@@ -1,0 +1,356 @@
+"""The job broker: calibration workers, their heartbeats and leases, and what they send back.
+
+A ROUTER socket (ROUTER_MANDATORY, so a message to a vanished worker fails loudly instead of
+being dropped) that workers connect to with DEALER sockets, after the zguide's Paranoid Pirate
+and Majordomo patterns:
+
+- a worker says `ready`; the broker gives each idle worker at most one job, the oldest pending
+  one, and only to workers that asked (never PUSH: jobs queued to a dead worker are lost);
+- both sides heartbeat; a worker silent for `liveness` intervals is dead and its job goes back
+  to pending; so does a job leased longer than `job_timeout_s`;
+- every lease increments the job's `attempt`, and only the current attempt's answer counts
+  (fencing): a late answer of a dead or timed-out lease is acknowledged as stale and ignored;
+- results are stored once, beside the session (calibration/result.json for the final job, the
+  latest calibration/live.json for live ones), before the job is marked done.
+
+Every state change is in the outbox on disk before it is acted on (see outbox.py). The broker
+runs in the daemon's one loop thread: `serve` reads waiting messages, `tick` does the timed work.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import zmq
+from pydantic import BaseModel, ValidationError
+
+from ..session import SessionError
+from ..session._atomic import make_dirs, write_atomic
+from .config import WorkersConfig
+from .job_messages import (
+    WORKER_MESSAGE,
+    Ack,
+    Bye,
+    Done,
+    Failed,
+    Heartbeat,
+    Job,
+    Live,
+    Progress,
+    Ready,
+    Reconnect,
+    WorkerError,
+    encode,
+)
+from .outbox import JobRecord, Outbox
+from .protocol import (
+    CalibrationEvent,
+    CalibrationStatus,
+    ErrorEvent,
+    JobEvent,
+    LiveCalibrationEvent,
+    WorkerEvent,
+    WorkerSummary,
+)
+
+log = logging.getLogger("micam.daemon")
+
+CALIBRATION_DIR = "calibration"
+RESULT_FILE = "result.json"
+LIVE_FILE = "live.json"
+MAX_MESSAGES_PER_TURN = 100
+
+Publish = Callable[..., Any]
+
+
+@dataclass
+class _Worker:
+    """A connected worker as the broker sees it."""
+
+    identity: bytes
+    name: str
+    last_seen: float
+    job: str | None = None  # the job it works on (maybe taken back since: then its answer is stale)
+    idle_since: float = field(default_factory=time.monotonic)
+
+
+class Broker:
+    """Hands the outbox's jobs to workers on `sock` (a bound ROUTER); see the module docstring."""
+
+    def __init__(self, sock: zmq.Socket, config: WorkersConfig, outbox: Outbox,
+                 publish: Publish) -> None:
+        self.sock = sock
+        sock.router_mandatory = 1
+        self.config = config
+        self.outbox = outbox
+        self._publish = publish
+        self.workers: dict[bytes, _Worker] = {}
+        self._next_heartbeat = 0.0
+
+    @property
+    def silence_s(self) -> float:
+        """A worker silent this long is dead."""
+        return self.config.heartbeat_interval_s * self.config.liveness
+
+    # -- jobs in --------------------------------------------------------------------------------
+
+    def submit(self, job: JobRecord) -> None:
+        """Queue `job` unless the outbox has it already; a newer job of a session supersedes
+        its pending live jobs (their poses are in the newer one)."""
+        if job.job_id in self.outbox.jobs:
+            return
+        for old in list(self.outbox.jobs.values()):
+            if (old.session_id == job.session_id and old.kind == "live"
+                    and old.state == "pending"):
+                self.outbox.remove(old)
+                self._job_event(old, "superseded", reason=f"by {job.job_id}")
+        self.outbox.add(job)
+        self._job_event(job, "queued")
+        self._dispatch()
+
+    def status(self) -> CalibrationStatus:
+        states = [j.state for j in self.outbox.jobs.values()]
+        return CalibrationStatus(
+            workers=[WorkerSummary(name=w.name, job=w.job) for w in self.workers.values()],
+            pending=states.count("pending"), leased=states.count("leased"),
+            done=states.count("done"), failed=states.count("failed"))
+
+    # -- the loop -----------------------------------------------------------------------------
+
+    def serve(self) -> None:
+        """Handle the messages waiting (bounded per turn), then hand out jobs."""
+        for _ in range(MAX_MESSAGES_PER_TURN):
+            try:
+                identity, *frames = self.sock.recv_multipart(zmq.NOBLOCK)
+            except zmq.Again:
+                break
+            try:
+                self._handle(identity, frames)
+            except Exception:  # a bug: log it, keep brokering
+                log.exception("internal error while handling a worker message")
+        self._dispatch()
+
+    def tick(self) -> None:
+        """Timed work: declare silent workers dead, take back overdue leases, heartbeat."""
+        now = time.monotonic()
+        for worker in [w for w in self.workers.values() if now - w.last_seen > self.silence_s]:
+            self._lose(worker, f"silent for more than {self.silence_s:g} s")
+        overdue = time.time() - self.config.job_timeout_s
+        for job in [j for j in self.outbox.jobs.values()
+                    if j.state == "leased" and j.updated_utc.timestamp() < overdue]:
+            self._requeue(job, f"attempt {job.attempt} took longer than "
+                               f"{self.config.job_timeout_s:g} s")
+        if now >= self._next_heartbeat:
+            self._next_heartbeat = now + self.config.heartbeat_interval_s
+            for worker in list(self.workers.values()):
+                self._send(worker, Heartbeat())
+        self._dispatch()
+
+    def close(self) -> None:
+        self.sock.close(linger=0)
+
+    # -- messages -----------------------------------------------------------------------------
+
+    def _handle(self, identity: bytes, frames: list[bytes]) -> None:
+        worker = self.workers.get(identity)
+        if worker is not None:
+            worker.last_seen = time.monotonic()
+        try:
+            message = WORKER_MESSAGE.validate_json(frames[0]) if frames else None
+        except ValidationError as exc:
+            message = None
+            log.warning("unreadable message from a worker: %s", exc.errors()[0]["msg"])
+        if message is None:
+            return
+        if isinstance(message, Ready):
+            self._ready(identity, worker, message)
+        elif worker is None:
+            # Unknown: the daemon restarted or declared it dead. Its answers are stale (every
+            # lease it held was taken back), but acknowledge them so it does not wait.
+            if isinstance(message, Done | Failed | Live):
+                self._send_raw(identity, Ack(job_id=message.job_id, attempt=message.attempt,
+                                            accepted=False, reason="the daemon does not know "
+                                            "this worker; its lease was taken back"))
+            if not isinstance(message, Bye):
+                self._send_raw(identity, Reconnect(reason="unknown worker; say ready"))
+        elif isinstance(message, Heartbeat):
+            pass
+        elif isinstance(message, Progress):
+            job = self._fenced(worker, message.job_id, message.attempt)
+            if job is not None:
+                self._job_event(job, "running", worker=worker.name, reason=message.stage)
+        elif isinstance(message, Live):
+            self._finish(worker, message.job_id, message.attempt,
+                         lambda job: self._store_live(job, worker, message))
+        elif isinstance(message, Done):
+            result = frames[1] if len(frames) == 2 else b""
+            self._finish(worker, message.job_id, message.attempt,
+                         lambda job: self._store_result(job, worker, message, result))
+        elif isinstance(message, Failed):
+            self._finish(worker, message.job_id, message.attempt,
+                         lambda job: self._failed(job, worker, message))
+        elif isinstance(message, WorkerError):
+            self._publish(ErrorEvent, message=f"calibration worker {worker.name}: "
+                                              f"{message.reason}")
+        elif isinstance(message, Bye):
+            self._lose(worker, "it stopped", state="left")
+
+    def _ready(self, identity: bytes, worker: _Worker | None, message: Ready) -> None:
+        if worker is None:
+            self.workers[identity] = _Worker(identity, message.worker, time.monotonic())
+            self._publish(WorkerEvent, worker=message.worker, state="joined")
+            log.info("worker %s joined", message.worker)
+        elif worker.job is not None:  # it restarted its work: whatever it held is lost
+            job = self.outbox.jobs.get(worker.job)
+            worker.job = None
+            worker.idle_since = time.monotonic()
+            if job is not None and job.state == "leased" and job.worker == worker.name:
+                self._requeue(job, f"worker {worker.name} said ready while holding it")
+
+    def _fenced(self, worker: _Worker, job_id: str, attempt: int) -> JobRecord | None:
+        """The job if `attempt` is its current lease, held by `worker`; else None (stale)."""
+        job = self.outbox.jobs.get(job_id)
+        if (job is None or job.state != "leased" or job.attempt != attempt
+                or job.worker != worker.name or worker.job != job_id):
+            return None
+        return job
+
+    def _finish(self, worker: _Worker, job_id: str, attempt: int,
+                apply: Callable[[JobRecord], str]) -> None:
+        """A worker's last word on a job: `apply` it if the lease is current, acknowledge."""
+        job = self._fenced(worker, job_id, attempt)
+        if worker.job == job_id:
+            worker.job = None
+            worker.idle_since = time.monotonic()
+        if job is None:
+            current = self.outbox.jobs.get(job_id)
+            why = (f"stale: the job is {current.state} at attempt {current.attempt}"
+                   if current is not None else "no such job")
+            self._send(worker, Ack(job_id=job_id, attempt=attempt, accepted=False, reason=why))
+            return
+        reason = apply(job)
+        self._send(worker, Ack(job_id=job_id, attempt=attempt, accepted=not reason,
+                               reason=reason))
+
+    def _store_live(self, job: JobRecord, worker: _Worker, message: Live) -> str:
+        directory = Path(job.session_path) / CALIBRATION_DIR
+        make_dirs(directory)
+        text = message.update.model_dump_json(indent=1).encode()
+        write_atomic(directory / LIVE_FILE, lambda fh: fh.write(text), replace=True)
+        self._publish(LiveCalibrationEvent, session_id=job.session_id, job_id=job.job_id,
+                      update=message.update)
+        self._job_event(job, "done", worker=worker.name)
+        self.outbox.remove(job)
+        return ""
+
+    def _store_result(self, job: JobRecord, worker: _Worker, message: Done,
+                      result: bytes) -> str:
+        digest = hashlib.sha256(result).hexdigest()
+        if digest != message.result_sha256:
+            self._requeue(job, f"the result from {worker.name} arrived damaged (sha256 "
+                               f"{digest}, announced {message.result_sha256})")
+            return "result checksum mismatch"
+        try:
+            summary = _summarize(json.loads(result))
+        except (ValueError, KeyError, TypeError) as exc:
+            self._give_up(job, f"worker {worker.name} sent a result that is not a calibration "
+                               f"result: {exc}")
+            return "not a calibration result"
+        directory = Path(job.session_path) / CALIBRATION_DIR
+        make_dirs(directory)
+        path = directory / RESULT_FILE
+        try:
+            write_atomic(path, lambda fh: fh.write(result))
+        except SessionError:  # stored by an earlier attempt whose ack was lost: keep that one
+            log.warning("%s already exists; keeping it", path)
+        job = self.outbox.update(job, state="done", result_sha256=digest, reason="")
+        self._job_event(job, "done", worker=worker.name)
+        self._publish(CalibrationEvent, session_id=job.session_id, job_id=job.job_id,
+                      attempt=job.attempt, worker=worker.name, path=str(path), sha256=digest,
+                      **summary)
+        return ""
+
+    def _failed(self, job: JobRecord, worker: _Worker, message: Failed) -> str:
+        reason = f"on worker {worker.name}: {message.reason}"
+        if message.retryable:
+            self._requeue(job, reason)
+        else:
+            self._give_up(job, reason)
+        return ""
+
+    # -- leases -------------------------------------------------------------------------------
+
+    def _dispatch(self) -> None:
+        """Give the oldest pending jobs to the longest-idle workers, one job per worker."""
+        idle = sorted((w for w in self.workers.values() if w.job is None),
+                      key=lambda w: w.idle_since)
+        for job, worker in zip(self.outbox.pending(), idle, strict=False):
+            job = self.outbox.update(job, state="leased", attempt=job.attempt + 1,
+                                     worker=worker.name, reason="")
+            worker.job = job.job_id
+            offer = Job(job_id=job.job_id, attempt=job.attempt, kind=job.kind,
+                        session_id=job.session_id, poses=job.poses, journal=job.journal,
+                        files=job.files)
+            if self._send(worker, offer):
+                self._job_event(job, "leased", worker=worker.name)
+
+    def _requeue(self, job: JobRecord, reason: str) -> None:
+        """Take a job back; pending again, or failed once `max_attempts` leases are spent."""
+        if job.attempt >= self.config.max_attempts:
+            self._give_up(job, f"{reason}; gave up after {job.attempt} attempts")
+            return
+        job = self.outbox.update(job, state="pending", worker=None, reason=reason)
+        self._job_event(job, "requeued", reason=reason)
+
+    def _give_up(self, job: JobRecord, reason: str) -> None:
+        job = self.outbox.update(job, state="failed", worker=None, reason=reason)
+        self._job_event(job, "failed", reason=reason)
+        log.error("calibration job %s failed: %s", job.job_id, reason)
+        if job.kind == "live":
+            self.outbox.remove(job)
+
+    def _lose(self, worker: _Worker, why: str, state: str = "lost") -> None:
+        """Forget a worker; its job goes back to pending."""
+        self.workers.pop(worker.identity, None)
+        self._publish(WorkerEvent, worker=worker.name, state=state, reason=why)
+        log.warning("worker %s %s: %s", worker.name, state, why)
+        job = self.outbox.jobs.get(worker.job) if worker.job else None
+        if job is not None and job.state == "leased" and job.worker == worker.name:
+            self._requeue(job, f"worker {worker.name} {state} ({why})")
+
+    # -- sending ------------------------------------------------------------------------------
+
+    def _send(self, worker: _Worker, message: BaseModel) -> bool:
+        """Send to a known worker; a vanished one (EHOSTUNREACH) is lost. True if sent."""
+        try:
+            self.sock.send_multipart([worker.identity, encode(message)], zmq.NOBLOCK)
+        except zmq.ZMQError as exc:
+            self._lose(worker, f"unreachable ({exc})")
+            return False
+        return True
+
+    def _send_raw(self, identity: bytes, message: BaseModel) -> None:
+        try:
+            self.sock.send_multipart([identity, encode(message)], zmq.NOBLOCK)
+        except zmq.ZMQError:
+            pass  # it went away again: nothing to tell it
+
+    def _job_event(self, job: JobRecord, state: str, worker: str | None = None,
+                   reason: str = "") -> None:
+        self._publish(JobEvent, session_id=job.session_id, job_id=job.job_id, kind=job.kind,
+                      state=state, attempt=job.attempt, worker=worker or job.worker,
+                      reason=reason)
+
+
+def _summarize(result: dict) -> dict[str, Any]:
+    """The figures a `calibration` event carries, from a result.json document."""
+    stds = [sum(s * s for s in m["std_m"]) ** 0.5 for m in result["microphones"]]
+    return {"n_microphones": len(stds), "mean_std_m": sum(stds) / max(len(stds), 1),
+            "speed_of_sound_m_s": float(result["speed_of_sound_m_s"])}

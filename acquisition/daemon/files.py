@@ -1,0 +1,76 @@
+"""The file-serving endpoint: byte ranges of a job's session files, for workers without the disk.
+
+A worker may fetch only what its job names (the journaled files of the job's steps, and the
+journal prefix), so a request can never read anything else of the machine. Each request is
+answered with one chunk, read with `pread` from a file that is never rewritten once journaled;
+the worker checks each whole file against the journal's SHA-256.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Callable
+from pathlib import Path
+
+import zmq
+from pydantic import ValidationError
+
+from .job_messages import FETCH, Chunk, FetchError, encode
+from .outbox import JobRecord
+
+log = logging.getLogger("micam.daemon")
+
+
+class FileServer:
+    """Answers `fetch` requests on a ROUTER socket; `find_job` looks a job up by id."""
+
+    def __init__(self, sock: zmq.Socket, find_job: Callable[[str], JobRecord | None],
+                 max_per_turn: int = 32) -> None:
+        self.sock = sock
+        self._find_job = find_job
+        self._max_per_turn = max_per_turn
+
+    def serve(self) -> None:
+        """Answer the requests waiting (at most `max_per_turn`, so captures are not held up)."""
+        for _ in range(self._max_per_turn):
+            try:
+                identity, *frames = self.sock.recv_multipart(zmq.NOBLOCK)
+            except zmq.Again:
+                return
+            try:
+                reply = self._answer(frames)
+            except Exception as exc:  # a bug or an I/O error: answer, keep serving
+                log.exception("file request failed")
+                reply = [encode(FetchError(path="", reason=f"{type(exc).__name__}: {exc}"))]
+            try:
+                self.sock.send_multipart([identity, *reply], zmq.NOBLOCK)
+            except zmq.ZMQError as exc:  # the worker went away (ROUTER_MANDATORY)
+                log.info("cannot answer a file request: %s", exc)
+
+    def _answer(self, frames: list[bytes]) -> list[bytes]:
+        if len(frames) != 1:
+            return [encode(FetchError(path="", reason=f"a fetch is one frame; got {len(frames)}"))]
+        try:
+            fetch = FETCH.validate_json(frames[0])
+        except ValidationError as exc:
+            return [encode(FetchError(path="", reason=f"malformed fetch: {exc.errors()[0]['msg']}"))]
+        job = self._find_job(fetch.job_id)
+        size = job.allowed(fetch.path) if job is not None else None
+        if job is None or size is None:
+            return [encode(FetchError(path=fetch.path,
+                                      reason=f"{fetch.path} is not a file of job {fetch.job_id}"))]
+        if fetch.offset > size:
+            return [encode(FetchError(path=fetch.path,
+                                      reason=f"offset {fetch.offset} is past the end ({size})"))]
+        session = Path(job.session_path)
+        length = min(fetch.length, size - fetch.offset)
+        try:
+            fd = os.open(session / fetch.path, os.O_RDONLY)
+        except OSError as exc:
+            return [encode(FetchError(path=fetch.path, reason=f"cannot open it: {exc}"))]
+        try:
+            data = os.pread(fd, length, fetch.offset)
+        finally:
+            os.close(fd)
+        return [encode(Chunk(path=fetch.path, offset=fetch.offset)), data]
