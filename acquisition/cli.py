@@ -21,11 +21,13 @@ from .commands import (
     simulate,
     study,
     watch,
+    worker,
 )
 from .errors import UserError
 
 SUBCOMMANDS = (
     simulate, inspect, calibrate, study, daq, daemon, session, capture, watch, sessions,
+    worker,
 )
 
 

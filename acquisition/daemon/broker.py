@@ -32,7 +32,7 @@ import zmq
 from pydantic import BaseModel, ValidationError
 
 from ..session import SessionError
-from ..session._atomic import make_dirs, write_atomic
+from ..session._atomic import fsync_dir, write_atomic
 from .config import WorkersConfig
 from .job_messages import (
     WORKER_MESSAGE,
@@ -235,13 +235,17 @@ class Broker:
                    if current is not None else "no such job")
             self._send(worker, Ack(job_id=job_id, attempt=attempt, accepted=False, reason=why))
             return
-        reason = apply(job)
+        try:
+            reason = apply(job)
+        except Exception as exc:  # a full disk, a bug: the job is not done; try again later
+            log.exception("cannot store the answer to %s", job_id)
+            self._requeue(job, f"the daemon could not store the answer: {exc}")
+            reason = f"not stored: {exc}"
         self._send(worker, Ack(job_id=job_id, attempt=attempt, accepted=not reason,
                                reason=reason))
 
     def _store_live(self, job: JobRecord, worker: _Worker, message: Live) -> str:
-        directory = Path(job.session_path) / CALIBRATION_DIR
-        make_dirs(directory)
+        directory = _calibration_dir(job)
         text = message.update.model_dump_json(indent=1).encode()
         write_atomic(directory / LIVE_FILE, lambda fh: fh.write(text), replace=True)
         self._publish(LiveCalibrationEvent, session_id=job.session_id, job_id=job.job_id,
@@ -263,9 +267,7 @@ class Broker:
             self._give_up(job, f"worker {worker.name} sent a result that is not a calibration "
                                f"result: {exc}")
             return "not a calibration result"
-        directory = Path(job.session_path) / CALIBRATION_DIR
-        make_dirs(directory)
-        path = directory / RESULT_FILE
+        path = _calibration_dir(job) / RESULT_FILE
         try:
             write_atomic(path, lambda fh: fh.write(result))
         except SessionError:  # stored by an earlier attempt whose ack was lost: keep that one
@@ -347,6 +349,15 @@ class Broker:
         self._publish(JobEvent, session_id=job.session_id, job_id=job.job_id, kind=job.kind,
                       state=state, attempt=job.attempt, worker=worker or job.worker,
                       reason=reason)
+
+
+def _calibration_dir(job: JobRecord) -> Path:
+    """The session's calibration directory (made durable on first use)."""
+    directory = Path(job.session_path) / CALIBRATION_DIR
+    if not directory.is_dir():
+        directory.mkdir()
+        fsync_dir(directory.parent)
+    return directory
 
 
 def _summarize(result: dict) -> dict[str, Any]:

@@ -139,9 +139,11 @@ class WorkersConfig(_Section):
     """The calibration hand-off: heartbeats, leases, retries and when live calibration starts."""
 
     outbox: Path | None = Field(
-        default=None, description="directory of the job files (default: SESSION_ROOT.outbox beside it)")
+        default=None,
+        description="directory of the job files (default: SESSION_ROOT.outbox beside it)")
     heartbeat_interval_s: float = Field(
-        default=1.0, gt=0, le=30, description="each side sends a heartbeat this often when idle")
+        default=1.0, gt=0, le=30,
+        description="each side sends a heartbeat this often when idle")
     liveness: int = Field(
         default=3, ge=2, le=20,
         description="a worker silent for this many intervals is dead; its job goes to another")

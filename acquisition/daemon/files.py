@@ -54,7 +54,8 @@ class FileServer:
         try:
             fetch = FETCH.validate_json(frames[0])
         except ValidationError as exc:
-            return [encode(FetchError(path="", reason=f"malformed fetch: {exc.errors()[0]['msg']}"))]
+            why = exc.errors()[0]["msg"]
+            return [encode(FetchError(path="", reason=f"malformed fetch: {why}"))]
         job = self._find_job(fetch.job_id)
         size = job.allowed(fetch.path) if job is not None else None
         if job is None or size is None:

@@ -1,0 +1,87 @@
+"""The live calibration after a pose: where each microphone is so far, how well it is known,
+what accuracy the poses taken predict, and where one more pose would help most.
+
+- mean uncertainty: the mean over microphones of E|error| from the solver's covariance (the
+  camera-frozen fit of the poses so far, scaled by its residuals);
+- predicted accuracy: the mean E|error| of the per-microphone Cramer-Rao bound
+  (calibration.crlb.mic_position_crlb) for these sources, with the measured timing noise and
+  the cameras' source-position noise. It ignores the errors the microphones share (c, the
+  camera's scale), so it is what the joint final fit approaches, not a guarantee;
+- suggestion: of a grid of rig positions in camera 0's view (azimuth, elevation, distance
+  around the distances used so far, rig facing the camera), the one whose speakers lower the
+  predicted mean error most. The operator can stop when the prediction meets the target.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from acquisition.daemon.job_messages import LiveMicrophone, LiveUpdate, PoseSuggestion
+
+from ..crlb import expected_error_norm, mic_position_crlb
+from ..pipeline import Measurements
+from ..solver import MicrophoneSolution
+
+AZIMUTHS_DEG = (-30.0, -15.0, 0.0, 15.0, 30.0)
+ELEVATIONS_DEG = (-20.0, 0.0, 20.0)
+
+
+def live_update(session_id: str, m: Measurements, sol: MicrophoneSolution) -> LiveUpdate:
+    """The live update of a camera-frozen solution `sol` of the measurements `m`."""
+    valid = np.all(np.isfinite(sol.positions_m), axis=1) & np.all(
+        np.isfinite(sol.covariance_m2), axis=(1, 2))
+    mics = sol.positions_m[valid]
+    std = np.sqrt(np.maximum(np.diagonal(sol.covariance_m2, axis1=1, axis2=2), 0.0))
+    microphones = [LiveMicrophone(id=int(i), position_m=_vec(p), std_m=_vec(s))
+                   for i, p, s, ok in zip(m.data.mic_ids, sol.positions_m, std, valid,
+                                          strict=True) if ok]
+    sources = m.speakers.positions_m.reshape(-1, 3)
+    timing = m.tofs.std_s[m.located]
+    timing_std = float(np.nanmedian(timing[np.isfinite(timing)])) * max(sol.sigma_scale, 1.0)
+    source_var = np.trace(m.speakers.cov_m2, axis1=-2, axis2=-1).reshape(-1) / 3.0
+    source_std = float(np.sqrt(np.median(source_var)))
+    c = sol.speed_of_sound_m_s
+
+    def predicted(extra: np.ndarray | None = None) -> float:
+        points = sources if extra is None else np.vstack([sources, extra])
+        bound = mic_position_crlb(mics, points, c, timing_std, source_std)
+        return float(expected_error_norm(bound).mean())
+
+    return LiveUpdate(
+        session_id=session_id, poses=len(m.located), microphones=microphones,
+        mean_uncertainty_m=float(expected_error_norm(sol.covariance_m2[valid]).mean()),
+        predicted_accuracy_m=predicted(), speed_of_sound_m_s=c,
+        suggestion=_best_pose(m, predicted))
+
+
+def _best_pose(m: Measurements,
+               predicted: Callable[[np.ndarray], float]) -> PoseSuggestion | None:
+    """The grid position whose rig speakers lower `predicted` most (see module docstring)."""
+    centres = m.speakers.positions_m.mean(axis=1)
+    if len(centres) == 0:
+        return None
+    used = np.linalg.norm(centres, axis=1)
+    distances = np.unique(np.round([used.min() * 0.9, np.median(used), used.max() * 1.1], 2))
+    rig = m.data.speakers_rig_m - m.data.speakers_rig_m.mean(axis=0)
+    best: PoseSuggestion | None = None
+    for az in AZIMUTHS_DEG:
+        for el in ELEVATIONS_DEG:
+            a, e = np.radians(az), np.radians(el)
+            direction = np.array([np.sin(a) * np.cos(e), -np.sin(e), np.cos(a) * np.cos(e)])
+            # Rig facing the camera: its normal along -direction (any roll will do here).
+            facing = Rotation.align_vectors([-direction], [[0.0, 0.0, 1.0]])[0]
+            for d in distances:
+                speakers = d * direction + facing.apply(rig)
+                value = predicted(speakers)
+                if best is None or value < best.predicted_accuracy_m:
+                    best = PoseSuggestion(distance_m=float(d), direction=_vec(direction),
+                                          azimuth_deg=az, elevation_deg=el,
+                                          predicted_accuracy_m=value)
+    return best
+
+
+def _vec(v: np.ndarray) -> tuple[float, float, float]:
+    return (float(v[0]), float(v[1]), float(v[2]))
