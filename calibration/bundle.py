@@ -269,6 +269,11 @@ class _Rows:
     width: int
 
 
+def _corner_rows(views: np.ndarray, n_corner: int) -> np.ndarray:
+    """Residual rows (u, v of every corner) of the given views, in order."""
+    return (2 * n_corner * views[:, None] + np.arange(2 * n_corner)).ravel()
+
+
 class _Model:
     """Unwhitened residuals (model - measurement) and their Jacobian at a state."""
 
@@ -289,8 +294,7 @@ class _Model:
         p, groups = self.p, []
         n_corner = p.corners_px.shape[1]
         for i, name in enumerate(p.camera_names):
-            views = np.flatnonzero(p.view_camera == i)
-            rows = (2 * n_corner * views[:, None] + np.arange(2 * n_corner)).ravel()
+            rows = _corner_rows(np.flatnonzero(p.view_camera == i), n_corner)
             groups.append(_Rows(name, rows, np.ones(rows.size), 2))
         start = self.n_corner_rows
         groups.append(_Rows(GROUP_TOF, start + np.arange(self.src.size),
@@ -342,7 +346,7 @@ class _Model:
                          s: BundleState, Y: np.ndarray, jac: np.ndarray) -> None:
         """Jacobian rows of camera i's corners: intrinsics, pose k, camera i's extrinsics."""
         n_corner = self.p.corners_px.shape[1]
-        rows = (2 * n_corner * views[:, None] + np.arange(2 * n_corner)).ravel()
+        rows = _corner_rows(views, n_corner)
         lay = self.layout
         trip.add(rows, lay.columns("intrinsics", np.full(rows.size, i), N_INTRINSICS),
                  jac[:, 6:15])
@@ -562,7 +566,7 @@ def fit_bundle(problem: BundleProblem, start: BundleState,
 
 
 def _check(problem: BundleProblem, start: BundleState) -> None:
-    n_src, n_mic = problem.tof_s.shape
+    n_mic = problem.tof_s.shape[1]
     expected = {
         "intrinsics": ((problem.n_camera, N_INTRINSICS), start.intrinsics.shape),
         "extrinsics": ((problem.n_camera - 1, 6), start.extrinsics.shape),
