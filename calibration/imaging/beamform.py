@@ -32,10 +32,11 @@ def diagonal_norm(n_mics: int, remove_diagonal: bool) -> float:
     return n_mics / (n_mics - 1) if remove_diagonal else 1.0
 
 
-def quadratic_form(h: np.ndarray, csm: np.ndarray) -> np.ndarray:
+def quadratic_form(h: np.ndarray, csm: np.ndarray, overwrite: bool = False) -> np.ndarray:
     """h[g]^H C h[g] for every row g of h (G, M); C Hermitian (M, M). Real (G,).
 
-    `h` is not modified.
+    With overwrite=True a C-contiguous complex128 `h` is used as work space (its content is
+    lost), which saves a copy; otherwise `h` is not modified.
     """
     try:
         chol = np.linalg.cholesky(csm)
@@ -43,7 +44,8 @@ def quadratic_form(h: np.ndarray, csm: np.ndarray) -> np.ndarray:
         t = h @ csm.T  # t[g, m] = (C h[g])_m
         return np.einsum("gk,gk->g", h.view(np.float64), t.view(np.float64))
     # Column-major view of a copy of h is h^T: overwrite it with L^H h^T = (h conj(L))^T.
-    work = np.array(h, dtype=np.complex128, order="C", copy=True)
+    reuse = overwrite and h.dtype == np.complex128 and h.flags.c_contiguous
+    work = h if reuse else np.array(h, dtype=np.complex128, order="C", copy=True)
     ztrmm = blas.get_blas_funcs("trmm", (chol, work))
     t = ztrmm(1.0, chol, work.T, side=0, lower=1, trans_a=2, overwrite_b=1)
     tv = t.T.view(np.float64)
@@ -51,21 +53,22 @@ def quadratic_form(h: np.ndarray, csm: np.ndarray) -> np.ndarray:
 
 
 def beamform_csm(h: np.ndarray, csm: np.ndarray, remove_diagonal: bool = True,
-                 h_power: np.ndarray | None = None) -> np.ndarray:
+                 h_power: np.ndarray | None = None, overwrite: bool = False) -> np.ndarray:
     """Delay-and-sum map (G,) of one CSM (M, M) with steering vectors h (G, M), unclipped.
 
     Args:
         h_power: |h|^2 (G, M) if already known (it does not depend on frequency); computed
             from h otherwise.
+        overwrite: h may be used as work space (see `quadratic_form`).
     """
     csm = np.asarray(csm)
     m = csm.shape[-1]
     if csm.shape != (m, m) or h.ndim != 2 or h.shape[1] != m:
         raise ValueError(f"steering vectors {h.shape} and CSM {csm.shape} do not match: "
                          "expected (G, M) and (M, M)")
-    b = quadratic_form(h, csm)
+    power = h_power if h_power is not None or not remove_diagonal else h.real**2 + h.imag**2
+    b = quadratic_form(h, csm, overwrite)
     if remove_diagonal:
-        power = h_power if h_power is not None else (h.real**2 + h.imag**2)
         b -= power @ np.real(np.diagonal(csm))
         b *= diagonal_norm(m, True)
     return b
@@ -84,7 +87,7 @@ def beamform(spectra: CrossSpectra, steering: SteeringModel, remove_diagonal: bo
     power = steering.amplitude**2
     maps = np.empty((spectra.freqs_hz.size, steering.n_points))
     for i, h in enumerate(steering.vectors_at(spectra.freqs_hz)):
-        maps[i] = beamform_csm(h, spectra.csm[i], remove_diagonal, power)
+        maps[i] = beamform_csm(h, spectra.csm[i], remove_diagonal, power, overwrite=True)
     if clip_negative:
         np.maximum(maps, 0.0, out=maps)
     return maps

@@ -123,26 +123,32 @@ class SteeringModel:
         return self.amplitude * np.exp(-1j * self.wavenumber(freq_hz) * self.path_difference)
 
     def vectors_at(self, freqs_hz: np.ndarray) -> Iterator[np.ndarray]:
-        """Steering vectors for each frequency in turn (each a new (G, M) array).
+        """Steering vectors (G, M) for each frequency in turn.
 
         Between equally spaced frequencies h(f + df) = h(f) * exp(-i k(df) (r_m - r_0)): one
         complex multiplication instead of an exponential, recomputed exactly every
-        `RENORM_STEPS` steps.
+        `RENORM_STEPS` steps. The next array is computed before the current one is yielded,
+        so each yielded array belongs to the caller, who may overwrite it.
         """
         freqs = np.asarray(freqs_hz, dtype=np.float64).ravel()
-        h = step = None
+        if freqs.size == 0:
+            return
+        upcoming = self.vectors(freqs[0])
+        step: tuple[float, np.ndarray] | None = None
         since_exact = 0
-        for i, f in enumerate(freqs):
-            df = f - freqs[i - 1] if i else 0.0
-            if h is not None and since_exact < RENORM_STEPS:
-                if step is None or abs(df - step[0]) > 1e-9 * max(abs(f), 1.0):
-                    step = (df, np.exp(-1j * self.wavenumber(df) * self.path_difference))
-                h = h * step[1]
-                since_exact += 1
-            else:
-                h = self.vectors(f)
-                since_exact = 0
-            yield h
+        for i in range(freqs.size):
+            current = upcoming
+            if i + 1 < freqs.size:
+                f, df = freqs[i + 1], freqs[i + 1] - freqs[i]
+                if since_exact + 1 < RENORM_STEPS:
+                    if step is None or abs(df - step[0]) > 1e-9 * max(abs(f), 1.0):
+                        step = (df, np.exp(-1j * self.wavenumber(df) * self.path_difference))
+                    upcoming = current * step[1]
+                    since_exact += 1
+                else:
+                    upcoming = self.vectors(f)
+                    since_exact = 0
+            yield current
 
 
 def amplitudes(formulation: Formulation, r: np.ndarray, r0: np.ndarray) -> np.ndarray:

@@ -69,7 +69,7 @@ def test_simulated_uncorrelated_speakers_positions_and_levels() -> None:
     pose = BoardPose(0, world.rig_pose.R, world.rig_pose.t, world.speaker_positions())
     grid = rig_grid(pose, world.rig.speakers_m, 0.006, 0.05)
     fs = rec.sample_rate_hz
-    spectra = cross_spectra(rec.signals_v, fs, band_bins(10_000.0, 3, 4096, fs))
+    spectra = cross_spectra(rec.signals_v, fs, band_bins(10_000.0, 12, 4096, fs))
     steering = SteeringModel(grid.points, world.layout.mic_positions_m,
                              world.speed_of_sound_m_s, "true location")
     results = clean_sc_spectra(spectra, steering, CleanScOptions(), grid.shape)
