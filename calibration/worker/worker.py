@@ -97,6 +97,7 @@ class Worker:
         self._reports: queue.Queue[BaseModel | tuple[Done, bytes] | None] = queue.Queue()
         self._thread: threading.Thread | None = None
         self._sock: zmq.Socket | None = None
+        self._announce = False  # `ready` still to be said (sent once connected and idle)
         self.jobs_done = 0
 
     def stop(self) -> None:
@@ -111,6 +112,8 @@ class Worker:
         heard = next_beat = time.monotonic()
         try:
             while not self._stop.is_set() and (max_jobs is None or self.jobs_done < max_jobs):
+                if self._announce and self._thread is None:
+                    self._announce = not self._send(Ready(worker=self.settings.name))
                 now = time.monotonic()
                 if now >= next_beat:
                     self._send(Heartbeat())
@@ -153,24 +156,25 @@ class Worker:
         self._secure(sock)
         sock.connect(self.settings.jobs)
         self._sock = sock
-        if self._thread is None:
-            self._send(Ready(worker=self.settings.name))
+        self._announce = True
 
     def _secure(self, sock: zmq.Socket) -> None:
         s = self.settings
         if s.server_key is not None and s.client_key is not None:
             secure_client(sock, s.server_key, s.client_key)
 
-    def _send(self, message: BaseModel, data: bytes | None = None) -> None:
+    def _send(self, message: BaseModel, data: bytes | None = None) -> bool:
         """Send now or not at all: with no daemon connected, the message is dropped (a lease
-        the daemon no longer sees is given to another worker anyway)."""
+        the daemon no longer sees is given to another worker anyway). True if sent."""
         if self._sock is None:
-            return
+            return False
         frames = [encode(message)] + ([data] if data is not None else [])
         try:
             self._sock.send_multipart(frames, zmq.NOBLOCK)
         except zmq.Again:
-            log.info("daemon not connected; dropped a %s message", message.type)  # type: ignore[attr-defined]
+            log.debug("daemon not connected; dropped a %s message", type(message).__name__)
+            return False
+        return True
 
     def _receive(self, frames: list[bytes]) -> None:
         try:
@@ -183,8 +187,7 @@ class Worker:
         if isinstance(message, Job):
             self._start(message)
         elif isinstance(message, Reconnect):
-            if self._thread is None:
-                self._send(Ready(worker=self.settings.name))
+            self._announce = True
         elif isinstance(message, Ack) and not message.accepted:
             log.info("the daemon did not count %s attempt %d: %s", message.job_id,
                      message.attempt, message.reason)

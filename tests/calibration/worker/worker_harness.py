@@ -21,7 +21,7 @@ HOLD_S = 120.0
 _compute = worker_module.compute
 
 
-def _holding(job, session, joint, on_stage):  # noqa: ANN001, ANN202 - same as compute
+def _holding(job, session, joint, on_stage):
     token = Path(os.environ["HOLD_TOKEN"])
     if job.kind == "final":
         try:

@@ -1,0 +1,146 @@
+"""A worker against a scripted daemon: malformed jobs, a file whose bytes do not match the
+journal, a session that cannot be calibrated. Each gets a clear answer, and the worker goes on
+to calibrate a good job afterwards."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+import zmq
+
+from acquisition.cli import main
+from acquisition.daemon.files import FileServer
+from acquisition.daemon.job_messages import (
+    WORKER_MESSAGE,
+    Done,
+    Failed,
+    Job,
+    JournalPrefix,
+    Ready,
+    WorkerError,
+    encode,
+)
+from acquisition.daemon.jobs import job_for_session
+from acquisition.daemon.outbox import JobRecord
+from calibration.worker import Worker, WorkerSettings
+
+WAIT_S = 60.0
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("worker") / "s"
+    assert main(["simulate", "--out", str(path), "--array", "scatter48", "--poses", "3",
+                 "--mls-order", "9", "--seed", "3", "--quiet"]) == 0
+    return path
+
+
+class ScriptedDaemon:
+    """The daemon's two ROUTER sockets, driven by the test; files served by the real server."""
+
+    def __init__(self, root: Path) -> None:
+        self.context = zmq.Context()
+        self.jobs = self.context.socket(zmq.ROUTER)
+        self.jobs.bind(f"ipc://{root}/jobs")
+        self.records: dict[str, JobRecord] = {}
+        files = self.context.socket(zmq.ROUTER)
+        files.bind(f"ipc://{root}/files")
+        self.files = FileServer(files, self.records.get)
+        self.worker: bytes | None = None
+
+    def receive(self, kind: type) -> tuple[object, list[bytes]]:
+        """The next worker message of `kind` (heartbeats and progress skipped), serving file
+        requests meanwhile. Bounded in time and count."""
+        deadline = time.monotonic() + WAIT_S
+        poller = zmq.Poller()
+        poller.register(self.jobs, zmq.POLLIN)
+        poller.register(self.files.sock, zmq.POLLIN)
+        for _ in range(100_000):
+            left = deadline - time.monotonic()
+            assert left > 0, f"no {kind.__name__} from the worker within {WAIT_S} s"
+            ready = dict(poller.poll(round(left * 1000)))
+            if self.files.sock in ready:
+                self.files.serve()
+            if self.jobs in ready:
+                self.worker, *frames = self.jobs.recv_multipart()
+                message = WORKER_MESSAGE.validate_json(frames[0])
+                if isinstance(message, kind):
+                    return message, frames
+        raise AssertionError("too many messages")
+
+    def send(self, payload: bytes) -> None:
+        assert self.worker is not None
+        self.jobs.send_multipart([self.worker, payload])
+
+    def offer(self, record: JobRecord) -> None:
+        self.records[record.job_id] = record
+        self.send(encode(Job(job_id=record.job_id, attempt=1, kind=record.kind,
+                             session_id=record.session_id, poses=record.poses,
+                             journal=record.journal, files=record.files)))
+
+    def close(self) -> None:
+        self.jobs.close(0)
+        self.files.sock.close(0)
+        self.context.term()
+
+
+@pytest.fixture
+def daemon(tmp_path: Path) -> Iterator[ScriptedDaemon]:
+    scripted = ScriptedDaemon(tmp_path)
+    worker = Worker(WorkerSettings(jobs=f"ipc://{tmp_path}/jobs", files=f"ipc://{tmp_path}/files",
+                                   name="w", cache=tmp_path / "cache", heartbeat_interval_s=0.1,
+                                   joint=False))
+    thread = threading.Thread(target=worker.run, daemon=True)
+    thread.start()
+    try:
+        scripted.receive(Ready)
+        yield scripted
+    finally:
+        worker.stop()
+        thread.join(WAIT_S)
+        assert not thread.is_alive()
+        scripted.close()
+
+
+def _renamed(record: JobRecord, suffix: str, **changes: object) -> JobRecord:
+    return record.model_copy(update={"job_id": f"{record.job_id}-{suffix}", **changes})
+
+
+def test_bad_jobs_get_clear_errors_and_the_worker_keeps_serving(
+        daemon: ScriptedDaemon, session: Path) -> None:
+    daemon.send(b"\xff not json")
+    error, _ = daemon.receive(WorkerError)
+    assert "malformed message from the daemon" in error.reason
+
+    daemon.send(json.dumps({"v": 1, "type": "job", "job_id": "x.final", "attempt": 1}).encode())
+    failed, _ = daemon.receive(Failed)
+    assert failed.job_id == "x.final" and not failed.retryable
+    assert "malformed" in failed.reason and "files" in failed.reason
+
+    good = job_for_session(session, "final")
+    first = good.files[0]
+    wrong = first.model_copy(update={"sha256": "0" * 64})
+    daemon.offer(_renamed(good, "mismatch", files=[wrong, *good.files[1:]]))
+    failed, _ = daemon.receive(Failed)
+    assert "checksum mismatch" in failed.reason and first.path in failed.reason
+    assert not failed.retryable
+
+    journal = (session / "journal.jsonl").read_bytes()
+    cut = journal.index(b'"step_begin"', journal.index(b'"refmic"'))
+    cut = journal.rindex(b"\n", 0, cut) + 1  # the journal before the first pose began
+    early = JournalPrefix(bytes=cut, sha256=hashlib.sha256(journal[:cut]).hexdigest())
+    daemon.offer(_renamed(good, "early", journal=early))
+    failed, _ = daemon.receive(Failed)
+    assert "cannot be calibrated" in failed.reason and not failed.retryable
+
+    daemon.offer(good)
+    done, frames = daemon.receive(Done)
+    assert done.job_id == good.job_id
+    assert hashlib.sha256(frames[1]).hexdigest() == done.result_sha256
+    assert len(json.loads(frames[1])["microphones"]) == 48
