@@ -1,4 +1,5 @@
-"""`micam watch`: a live view of the daemon in the terminal (progress, levels, warnings)."""
+"""`micam watch`: a live view of the daemon in the terminal (progress, levels, warnings, and
+the live calibration: uncertainty, predicted accuracy, where the next pose would help)."""
 
 from __future__ import annotations
 
@@ -15,13 +16,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--count", type=int, metavar="N", help="stop after N events")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     p.add_argument("--json", action="store_true", help="print events as JSON lines")
+    p.add_argument("--target-mm", type=float, metavar="MM",
+                   help="say when the live calibration predicts this mean microphone accuracy")
     add_client_arguments(p)
     p.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> int:
     from acquisition.daemon.client import client_from_args
-    from acquisition.daemon.display import format_event, format_status
+    from acquisition.daemon.display import format_event, format_live, format_status
+    from acquisition.daemon.protocol import LiveCalibrationEvent
 
     deadline = time.monotonic() + args.duration if args.duration is not None else None
     with client_from_args(args) as client:
@@ -41,7 +45,13 @@ def run(args: argparse.Namespace) -> int:
                     print(f"(missed {event.seq - last_seq - 1} events)")
                 last_seq = event.seq
                 seen += 1
-                print(event.model_dump_json() if args.json else format_event(event), flush=True)
+                if args.json:
+                    line = event.model_dump_json()
+                elif isinstance(event, LiveCalibrationEvent) and args.target_mm is not None:
+                    line = format_live(event.update, args.target_mm / 1e3)
+                else:
+                    line = format_event(event)
+                print(line, flush=True)
         finally:
             stream.close()
     return 0

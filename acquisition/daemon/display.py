@@ -4,17 +4,22 @@ from __future__ import annotations
 
 import numpy as np
 
+from .job_messages import LiveUpdate
 from .protocol import (
+    CalibrationEvent,
     CaptureEvent,
     CheckerboardEvent,
     ErrorEvent,
     Event,
     InstructionEvent,
+    JobEvent,
     LevelsEvent,
+    LiveCalibrationEvent,
     ProgressEvent,
     StateEvent,
     StatusResult,
     WarningEvent,
+    WorkerEvent,
 )
 
 
@@ -50,13 +55,51 @@ def format_event(event: Event) -> str:
         return f"WARNING {event.step or ''} {event.check or ''}: {event.message}"
     if isinstance(event, ErrorEvent):
         return f"ERROR {event.step or ''}: {event.message}"
+    if isinstance(event, LiveCalibrationEvent):
+        return format_live(event.update)
+    if isinstance(event, CalibrationEvent):
+        return (f"CALIBRATED: {event.n_microphones} microphones, mean std "
+                f"{event.mean_std_m * 1e3:.3f} mm, c {event.speed_of_sound_m_s:.2f} m/s "
+                f"(worker {event.worker}, attempt {event.attempt}) -> {event.path}")
+    if isinstance(event, JobEvent):
+        if event.state == "failed":
+            return f"ERROR calibration job {event.job_id}: {event.reason}"
+        who = f" on {event.worker}" if event.worker else ""
+        why = f": {event.reason}" if event.reason else ""
+        return f"  job {event.job_id} {event.state}{who} (attempt {event.attempt}){why}"
+    if isinstance(event, WorkerEvent):
+        why = f" ({event.reason})" if event.reason else ""
+        return f"worker {event.worker} {event.state}{why}"
     return repr(event)  # pragma: no cover - every event type is listed above
+
+
+def format_live(update: LiveUpdate, target_m: float | None = None) -> str:
+    """The live calibration in two lines: how good it is, and where to put the next pose."""
+    line = (f"live calibration ({update.poses} poses): mean uncertainty "
+            f"{update.mean_uncertainty_m * 1e3:.3f} mm, predicted accuracy "
+            f"{update.predicted_accuracy_m * 1e3:.3f} mm, c {update.speed_of_sound_m_s:.2f} m/s")
+    if target_m is not None and update.predicted_accuracy_m <= target_m:
+        line += (f"\n  TARGET {target_m * 1e3:g} mm REACHED: you may stop "
+                 "(`micam session stop`)")
+    hint = update.suggestion
+    if hint is not None:
+        side = "right" if hint.azimuth_deg >= 0 else "left"
+        up = "up" if hint.elevation_deg >= 0 else "down"
+        line += (f"\n  next pose helps most at {hint.distance_m:.2f} m, "
+                 f"{abs(hint.azimuth_deg):.0f} deg {side}, "
+                 f"{abs(hint.elevation_deg):.0f} deg {up} "
+                 f"(predicted {hint.predicted_accuracy_m * 1e3:.3f} mm)")
+    return line
 
 
 def format_status(status: StatusResult) -> str:
     """A few lines for `micam session status` and the head of `micam watch`."""
     where = "simulated world" if status.simulated else "hardware"
-    lines = [f"state     {status.state} ({where})"]
+    cal = status.calibration
+    lines = [f"state     {status.state} ({where})",
+             f"workers   {len(cal.workers)} ({', '.join(w.name for w in cal.workers) or 'none'});"
+             f" jobs {cal.pending} pending, {cal.leased} running, {cal.done} done, "
+             f"{cal.failed} failed"]
     s = status.session
     if s is None:
         lines.append("session   none (start one with `micam session start`)")
