@@ -1,0 +1,216 @@
+"""The whole loop on one machine with no hardware: the daemon on the simulated world, a
+calibration worker, a capture scripted through the `micam` commands, the live and the final
+calibration, and a short report against the simulated truth.
+
+    python -m acquisition.demo_loop --out out/loop [--poses 20]
+
+Both processes start with readiness handshakes (the daemon's READY=1 on a notify socket, the
+worker's appearance in the daemon's status), every wait is bounded, and both are stopped
+(SIGTERM, then SIGKILL if they linger) whatever happens. `benchmarks/bench_worker.py` uses the
+same `Loop`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+from types import TracebackType
+
+from .cli import main as micam
+from .daemon.client import DaemonClient, EventStream
+from .daemon.display import format_live
+from .daemon.protocol import CalibrationEvent, LiveCalibrationEvent
+
+STOP_WAIT_S = 30.0
+
+
+class Loop:
+    """A daemon and a worker in subprocesses, under `root` (ipc sockets, sessions, logs)."""
+
+    def __init__(self, root: Path, poses: int, array: str = "sphere72", mls_order: int = 12,
+                 seed: int = 1, live_min_poses: int = 4) -> None:
+        self.root = Path(root).resolve()
+        self.root.mkdir(parents=True, exist_ok=True)
+        self.control = f"ipc://{self.root}/control"
+        self.config = self.root / "daemon.toml"
+        self.config.write_text(
+            f'session_root = "{self.root}/sessions"\n'
+            f"[sockets]\ncontrol = \"{self.control}\"\nevents = \"ipc://{self.root}/events\"\n"
+            f"[simulation]\narray = \"{array}\"\nposes = {poses}\nmls_order = {mls_order}\n"
+            f"seed = {seed}\n[workers]\nlive_min_poses = {live_min_poses}\n")
+        self._procs: list[subprocess.Popen] = []
+
+    def __enter__(self) -> Loop:
+        try:
+            self._start_daemon()
+            self._start("worker", "worker", "--connect", self.control, "--name", "demo-worker",
+                        "--cache", str(self.root / "worker-cache"))
+            with self.client() as client:
+                client.wait_until(lambda s: len(s.calibration.workers) >= 1, 60.0,
+                                  interval_s=0.1)
+        except BaseException:
+            self.close()
+            raise
+        return self
+
+    def __exit__(self, *exc: type[BaseException] | BaseException | TracebackType | None) -> None:
+        self.close()
+
+    def client(self, timeout_s: float = 10.0) -> DaemonClient:
+        return DaemonClient(self.control, timeout_s=timeout_s)
+
+    def _start(self, name: str, *args: str) -> subprocess.Popen:
+        log = (self.root / f"{name}.log").open("w")
+        proc = subprocess.Popen([sys.executable, "-m", "acquisition.cli", *args],
+                                stdout=log, stderr=subprocess.STDOUT,
+                                env={**os.environ, "NOTIFY_SOCKET": str(self.root / "notify")})
+        self._procs.append(proc)
+        return proc
+
+    def _start_daemon(self) -> None:
+        """Start the daemon and wait for its READY=1 (the systemd notify handshake)."""
+        path = self.root / "notify"
+        path.unlink(missing_ok=True)
+        with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as notify:
+            notify.bind(str(path))
+            proc = self._start("daemon", "daemon", "--config", str(self.config))
+            notify.settimeout(1.0)
+            for _ in range(60):
+                try:
+                    if b"READY=1" in notify.recv(4096):
+                        return
+                except TimeoutError:
+                    if proc.poll() is not None:
+                        break
+            raise RuntimeError(f"the daemon did not start; see {self.root / 'daemon.log'}")
+
+    def close(self) -> None:
+        """Stop the processes this loop started: SIGTERM, then SIGKILL after STOP_WAIT_S."""
+        for proc in reversed(self._procs):
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGTERM)
+        for proc in reversed(self._procs):
+            try:
+                proc.wait(STOP_WAIT_S)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(STOP_WAIT_S)
+        self._procs.clear()
+
+
+def scripted_capture(loop: Loop, poses: int, show: bool = True) -> tuple[Path, float]:
+    """Start a session and capture every step through the `micam` commands; the session's
+    path and the monotonic time its last pose was captured."""
+    control = ["--control", loop.control]
+    with loop.client() as client:
+        if micam(["session", "start", "--poses", str(poses), *control]) != 0:
+            raise RuntimeError("micam session start failed")
+        path = Path(client.status().session.path)
+        total = client.status().session.steps_total
+    out = None if show else open(os.devnull, "w")
+    try:
+        for _ in range(total * 3):  # quality retries may add captures
+            with loop.client() as client:
+                if client.status().session is None:
+                    return path, time.monotonic()
+            saved = sys.stdout
+            sys.stdout = out or saved
+            try:
+                code = micam(["capture", *control])
+            finally:
+                sys.stdout = saved
+            if code != 0:
+                raise RuntimeError("micam capture failed")
+    finally:
+        if out is not None:
+            out.close()
+    raise RuntimeError(f"the session did not close after {total * 3} captures")
+
+
+def wait_final(stream: EventStream, timeout_s: float) -> CalibrationEvent:
+    """The `calibration` event of the session's final result (bounded by `timeout_s`); the
+    live calibrations that arrive meanwhile are printed."""
+    deadline = time.monotonic() + timeout_s
+    for _ in range(1_000_000):
+        left = deadline - time.monotonic()
+        if left <= 0:
+            break
+        event = stream.next(min(left, 1.0))
+        if isinstance(event, LiveCalibrationEvent):
+            print(format_live(event.update), flush=True)
+        if isinstance(event, CalibrationEvent):
+            return event
+    raise RuntimeError(f"no final calibration within {timeout_s:g} s")
+
+
+def report(session: Path, result_path: Path, out: Path) -> list[str]:
+    """A short report against the simulated truth: lines printed, report.md and geometry.png."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from calibration.result import CalibrationResult, compare_with_truth
+
+    result = CalibrationResult.model_validate_json(result_path.read_text())
+    truth = json.loads((session / "truth.json").read_text())
+    errors = compare_with_truth(result, truth)
+    lines = [
+        f"session         {session}",
+        f"result          {result_path}",
+        f"microphones     {len(result.microphones)}",
+        f"mean error      {errors['mean_mic_error_m'] * 1e3:.3f} mm against the simulated truth "
+        f"(max {errors['max_mic_error_m'] * 1e3:.3f} mm)",
+        f"speed of sound  {result.speed_of_sound_m_s:.3f} m/s (truth "
+        f"{truth['speed_of_sound_m_s']:.3f}, error {errors['speed_of_sound_error_m_s']:+.3f})",
+        f"focal length    largest relative error {errors['max_focal_error_rel']:.2e}",
+    ]
+    est = result.positions()
+    true = np.array([m["position_m"] for m in sorted(truth["microphones"], key=lambda m: m["id"])])
+    fig, ax = plt.subplots(1, 2, figsize=(10, 4.5))
+    for axis, (i, j, name) in zip(ax, [(0, 2, "top view (x, z)"), (0, 1, "front view (x, y)")],
+                                  strict=True):
+        axis.scatter(true[:, i], true[:, j], s=40, facecolors="none", edgecolors="k",
+                     label="truth")
+        axis.scatter(est[:, i], est[:, j], s=8, c="r", label="calibrated")
+        axis.set_title(name)
+        axis.set_aspect("equal")
+    ax[0].legend()
+    fig.suptitle(f"micam loop: mean error {errors['mean_mic_error_m'] * 1e3:.3f} mm")
+    fig.savefig(out / "geometry.png", dpi=110)
+    plt.close(fig)
+    (out / "report.md").write_text("# micam: the whole loop\n\n```\n" + "\n".join(lines)
+                                   + "\n```\n\n![geometry](geometry.png)\n")
+    return [*lines, f"pictures        {out / 'geometry.png'}, report {out / 'report.md'}"]
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--out", type=Path, required=True, help="working directory (new)")
+    parser.add_argument("--poses", type=int, default=20)
+    parser.add_argument("--mls-order", type=int, default=12)
+    parser.add_argument("--timeout", type=float, default=1800.0,
+                        help="longest wait for the final result, seconds")
+    args = parser.parse_args(argv)
+    with Loop(args.out, args.poses, mls_order=args.mls_order) as loop, loop.client() as client:
+        stream = client.subscribe()
+        try:
+            session, _ = scripted_capture(loop, args.poses)
+            print("session closed; waiting for the worker's final calibration", flush=True)
+            final = wait_final(stream, args.timeout)
+        finally:
+            stream.close()
+    print("\n".join(report(session, Path(final.path), args.out)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
