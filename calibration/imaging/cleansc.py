@@ -11,10 +11,13 @@ Per frequency, starting from the dirty delay-and-sum map B and the CSM D (degrad
    of G_j.
 
 Step 3 uses the linearity of beamforming: B_j(x) = B_max |h(x)^H g|^2, minus
-B_max sum_m |h_m(x)|^2 |g_m|^2 and times M/(M-1) when the diagonal is removed. That costs one
-complex matrix-vector product (G x M) and one real one per iteration. Acoular instead
-re-beamforms G_j over the whole grid from new sines and cosines at every iteration; both give
-the same map to rounding.
+B_max sum_m |h_m(x)|^2 |g_m|^2 and times M/(M-1) when the diagonal is removed. Acoular instead
+re-beamforms G_j over the whole grid from new sines and cosines at every iteration. Here the
+update is applied lazily (`_LazyMap`): exactly, at every iteration, on a candidate set of the
+highest points (one small matrix-vector product); for the other points the pending
+components are applied together, one matrix product over the whole grid, only when a bound
+on their values could reach the candidates' maximum. The peak of every iteration is the
+exact peak of the fully updated map, so the result is Acoular's, to rounding.
 
 The clean map is the sum of the components only (the residual is not added back), as in
 Acoular. Stopping rules (`StopRule`): Acoular's "peak-rise" (stop once the peak exceeds the one
@@ -127,131 +130,192 @@ class CleanScResult:
         return len(self.components)
 
 
-def _offdiag_norms(d: np.ndarray) -> np.ndarray:
-    """Frobenius norms (F,) of the off-diagonal parts of matrices d (F, M, M)."""
-    total = np.sum((d * d.conj()).real, axis=(1, 2))
-    diagonal = np.diagonal(d, axis1=1, axis2=2)
-    return np.sqrt(np.maximum(total - np.sum((diagonal * diagonal.conj()).real, axis=1), 0.0))
+def _offdiag_norm(d: np.ndarray) -> float:
+    """Frobenius norm of the off-diagonal part of a matrix (M, M)."""
+    diagonal = np.diagonal(d)
+    total = np.sum((d * d.conj()).real) - np.sum((diagonal * diagonal.conj()).real)
+    return float(np.sqrt(max(total, 0.0)))
 
 
-def _coherence(d: np.ndarray, w: np.ndarray, peak: np.ndarray, options: CleanScOptions
+def _coherence(d: np.ndarray, w: np.ndarray, peak: float, options: CleanScOptions
                ) -> np.ndarray:
-    """Source vectors g (F, M) of the components at steering w (F, M) with peaks (F,) of the
-    degraded CSMs d (F, M, M) (see the module docstring); all bins at once."""
-    dw = (d @ w[:, :, None])[:, :, 0]
+    """The source vector g (M,) of the component at steering w (see the module docstring)."""
     if not options.remove_diagonal:
-        return dw / peak[:, None]
-    d1 = (dw - np.diagonal(d, axis1=1, axis2=2) * w) / peak[:, None]
+        return (d @ w) / peak
+    d1 = (d @ w - np.diagonal(d) * w) / peak
     w_power = (w * w.conj()).real
     g = w
     for _ in range(options.coherence_iterations):
         g_power = (g * g.conj()).real
         g = d1 + g_power * w
-        g /= np.sqrt(1.0 + np.einsum("fm,fm->f", w_power, g_power))[:, None]
+        g /= np.sqrt(1.0 + w_power @ g_power)
     return g
 
 
+class _LazyMap:
+    """A dirty map under CLEAN-SC updates B <- B - c_j b_j, exact wherever it is read.
+
+    `values` is exact as of the last refresh; the components since then are pending. A
+    candidate set S (the highest points at the refresh) is kept exact at every update. For a
+    point outside S, b_j >= -sum_m |h_m|^2 |g_m|^2 >= -max|h|^2 |g|^2 (and b_j >= 0 with the
+    diagonal kept), so its value is at most tau + bound, with tau its maximum at the refresh
+    and bound the sum of c_j max|h|^2 |g_j|^2. While the candidates' maximum is at least that,
+    it is the map's maximum; otherwise the pending components are applied to all points (one
+    (G x M) (M x k) product) and S is chosen again.
+    """
+
+    def __init__(self, values: np.ndarray, h: np.ndarray, power: np.ndarray,
+                 remove_diagonal: bool, n_candidates: int) -> None:
+        self.values = values
+        self.h = h
+        self.power = power
+        self.remove_diagonal = remove_diagonal
+        self.power_max = float(power.max()) if remove_diagonal else 0.0
+        self.n_candidates = min(max(n_candidates, 1), values.size)
+        self.pending_g: list[np.ndarray] = []
+        self.pending_c: list[float] = []
+        self.refreshes = 0
+        self._select()
+
+    def _beam(self, h: np.ndarray, power: np.ndarray, g: np.ndarray) -> np.ndarray:
+        """b (n,) = |h^H g|^2 (minus sum_m |h_m|^2 |g_m|^2 without the diagonal)."""
+        projection = (h @ g.conj()).view(np.float64).reshape(-1, 2)
+        beam = np.einsum("gk,gk->g", projection, projection)
+        if self.remove_diagonal:
+            beam -= power @ (g * g.conj()).real
+        return beam
+
+    def _select(self) -> None:
+        k = self.n_candidates
+        if k == self.values.size:
+            self.candidates = np.arange(k)
+            self.tau = -np.inf
+        else:
+            order = np.argpartition(self.values, self.values.size - k - 1)
+            self.candidates = np.sort(order[self.values.size - k:])
+            self.tau = float(self.values[order[self.values.size - k - 1]])
+        self.h_c = self.h[self.candidates]
+        self.power_c = self.power[self.candidates]
+        self.values_c = self.values[self.candidates]
+        self.bound = 0.0
+
+    def _apply_pending(self) -> None:
+        if not self.pending_g:
+            return
+        g = np.array(self.pending_g)  # (k, M)
+        c = np.array(self.pending_c)
+        projection = self.h @ g.conj().T  # (G, k)
+        self.values -= (projection.real**2 + projection.imag**2) @ c
+        if self.remove_diagonal:
+            self.values += self.power @ ((g * g.conj()).real.T @ c)
+        self.pending_g.clear()
+        self.pending_c.clear()
+
+    def subtract(self, coefficient: float, g: np.ndarray) -> None:
+        """B <- B - coefficient * b(g)."""
+        self.values_c -= coefficient * self._beam(self.h_c, self.power_c, g)
+        self.pending_g.append(g)
+        self.pending_c.append(coefficient)
+        self.bound += coefficient * self.power_max * float(np.sum((g * g.conj()).real))
+
+    def peak(self) -> tuple[int, float]:
+        """Index and value of the map's maximum."""
+        i = int(np.argmax(self.values_c))
+        if self.values_c[i] < self.tau + self.bound:
+            self._apply_pending()
+            self._select()
+            self.refreshes += 1
+            i = int(np.argmax(self.values_c))
+        return int(self.candidates[i]), float(self.values_c[i])
+
+    def at(self, indices: np.ndarray) -> np.ndarray:
+        """Exact values at some points."""
+        values = self.values[indices]
+        for g, c in zip(self.pending_g, self.pending_c, strict=True):
+            values -= c * self._beam(self.h[indices], self.power[indices], g)
+        return values
+
+    def full(self) -> np.ndarray:
+        """The whole map, exact."""
+        self._apply_pending()
+        self._select()
+        return self.values
+
+
+def _subgrid(lazy: _LazyMap, index: int, shape: tuple[int, int]) -> tuple[float, float]:
+    """Sub-grid peak from the exact 3 x 3 neighbourhood of a node."""
+    i, j = np.unravel_index(index, shape)
+    rows = np.arange(max(i - 1, 0), min(i + 2, shape[0]))
+    cols = np.arange(max(j - 1, 0), min(j + 2, shape[1]))
+    flat = (rows[:, None] * shape[1] + cols[None, :]).ravel()
+    local = lazy.at(flat).reshape(rows.size, cols.size)
+    fi, fj = subgrid_peak(local, local.shape, int(np.flatnonzero(flat == index)[0]))
+    return float(rows[0] + fi), float(cols[0] + fj)
+
+
 def clean_sc(csm: np.ndarray, h: np.ndarray, options: CleanScOptions | None = None,
-             h_power: np.ndarray | None = None, grid_shape: tuple[int, int] | None = None
-             ) -> CleanScResult:
+             h_power: np.ndarray | None = None, grid_shape: tuple[int, int] | None = None,
+             candidate_fraction: float = 1 / 8) -> CleanScResult:
     """CLEAN-SC of one CSM (M, M) with steering vectors h (G, M).
 
     Args:
         h_power: |h|^2 (G, M) if known (frequency-independent); computed otherwise.
         grid_shape: (n_u, n_v) when the G points form a grid (u slowest): each component then
             records the sub-grid position of its dirty-map peak.
-    """
-    power = h_power if h_power is not None else h.real**2 + h.imag**2
-    return clean_sc_bins(np.asarray(csm)[None], h[None], power, options, grid_shape)[0]
-
-
-def clean_sc_bins(csms: np.ndarray, hs: np.ndarray, h_power: np.ndarray,
-                  options: CleanScOptions | None = None,
-                  grid_shape: tuple[int, int] | None = None) -> list[CleanScResult]:
-    """CLEAN-SC of F CSMs (F, M, M) with their steering vectors hs (F, G, M), side by side.
-
-    The bins are independent; running their iterations together shares the small per-
-    iteration work (peak search, source vectors, the diagonal term, which is one real
-    product (G, M) x (M, F) since |h|^2 = h_power (G, M) does not depend on frequency) across
-    bins. A bin leaves the loop when its own stopping rule fires.
+        candidate_fraction: share of the points kept exact at every iteration (`_LazyMap`);
+            it changes the speed, not the result.
     """
     options = options or CleanScOptions()
-    n_bins, n_points, m = hs.shape
-    if csms.shape != (n_bins, m, m) or h_power.shape != (n_points, m):
-        raise ValueError(f"CSMs {csms.shape}, steering {hs.shape} and |h|^2 {h_power.shape} "
-                         "do not match: expected (F, M, M), (F, G, M) and (G, M)")
-    dirty = np.stack([beamform_csm(hs[f], csms[f], options.remove_diagonal, h_power)
-                      for f in range(n_bins)])
-    degraded = np.array(csms, dtype=np.complex128, copy=True)
-    clean = np.zeros((n_bins, n_points))
-    components: list[list[Component]] = [[] for _ in range(n_bins)]
-    csm_norm = _offdiag_norms(degraded)
+    csm = np.asarray(csm)
+    m = csm.shape[-1]
+    power = h_power if h_power is not None else h.real**2 + h.imag**2
+    if power.shape != h.shape:
+        raise ValueError(f"|h|^2 {power.shape} and steering vectors {h.shape} differ in shape")
     norm = diagonal_norm(m, options.remove_diagonal)
     gain = options.loop_gain
-    n_max = options.max_iterations or 2 * m
-    peaks = np.zeros((n_bins, n_max))
-    floors = np.zeros(n_bins)
-    active = np.arange(n_bins)
+    dirty = beamform_csm(h, csm, options.remove_diagonal, power)
+    degraded = np.array(csm, dtype=np.complex128, copy=True)
+    clean = np.zeros(h.shape[0])
+    components: list[Component] = []
+    peaks: list[float] = []
+    floor = -np.inf
+    csm_norm = _offdiag_norm(degraded)
     with _single_threaded_blas():
-        for j in range(n_max):
-            index = np.argmax(dirty[active], axis=1)
-            peak = dirty[active, index]
+        lazy = _LazyMap(dirty, h, power, options.remove_diagonal,
+                        int(np.ceil(candidate_fraction * h.shape[0])))
+        for j in range(options.max_iterations or 2 * m):
+            index, peak = lazy.peak()
             if j == 0 and options.min_peak_db is not None:
-                floors = peak * 10 ** (-options.min_peak_db / 10)
-            go = (peak > 0) & (peak >= floors[active])
-            w = np.sqrt(norm) * hs[active, index]
-            g = _coherence(degraded[active], w, peak, options)
-            source = peak[:, None, None] * g[:, :, None] * g.conj()[:, None, :]
-            if options.stop_rule is StopRule.CSM_NORM:
-                new_norm = _offdiag_norms(degraded[active] - gain * source)
-                go &= new_norm < csm_norm[active]
-                csm_norm[active[go]] = new_norm[go]
-            active, index, peak, g, source = active[go], index[go], peak[go], g[go], source[go]
-            if active.size == 0:
+                floor = peak * 10 ** (-options.min_peak_db / 10)
+            if peak <= 0 or peak < floor:
                 break
-            for f, i, p, gf in zip(active, index, peak, g, strict=True):
-                subgrid = subgrid_peak(dirty[f], grid_shape, int(i)) if grid_shape else None
-                components[f].append(Component(int(i), gain * float(p), float(p), subgrid, gf))
-                clean[f, i] += gain * p
-            peaks[active, j] = peak
-            if options.stop_rule is StopRule.PEAK_RISE and j > options.stop_window:
-                go = peak <= peaks[active, j - options.stop_window]  # a rise: kept, then stop
-                active, peak, g, source = active[go], peak[go], g[go], source[go]
-                if active.size == 0:
+            g = _coherence(degraded, np.sqrt(norm) * h[index], peak, options)
+            source = peak * np.outer(g, g.conj())
+            if options.stop_rule is StopRule.CSM_NORM:
+                new_norm = _offdiag_norm(degraded - gain * source)
+                if new_norm >= csm_norm:
                     break
-            beam = np.empty((active.size, n_points))
-            for k, f in enumerate(active):
-                projection = (hs[f] @ g[k].conj()).view(np.float64).reshape(-1, 2)
-                np.einsum("gk,gk->g", projection, projection, out=beam[k])  # |h(x)^H g|^2
-            if options.remove_diagonal:
-                beam -= (h_power @ (g * g.conj()).real.T).T
-            dirty[active] -= (gain * norm * peak)[:, None] * beam
-            degraded[active] -= gain * source
-    return [CleanScResult(clean[f], dirty[f], components[f]) for f in range(n_bins)]
+                csm_norm = new_norm
+            subgrid = _subgrid(lazy, index, grid_shape) if grid_shape is not None else None
+            components.append(Component(index, gain * peak, peak, subgrid, g))
+            clean[index] += gain * peak
+            peaks.append(peak)
+            if (options.stop_rule is StopRule.PEAK_RISE and j > options.stop_window
+                    and peak > peaks[j - options.stop_window]):
+                break
+            lazy.subtract(gain * peak * norm, g)
+            degraded -= gain * source
+        residual = lazy.full()
+    return CleanScResult(clean, residual, components)
 
 
 def clean_sc_spectra(spectra: CrossSpectra, steering: SteeringModel,
                      options: CleanScOptions | None = None,
-                     grid_shape: tuple[int, int] | None = None, bins_per_batch: int = 4
-                     ) -> list[CleanScResult]:
-    """CLEAN-SC at every frequency of `spectra`; sum the clean maps for a band map.
-
-    Up to bins_per_batch bins run side by side (`clean_sc_bins`), holding their steering
-    vectors at once (bins_per_batch * G * M * 16 bytes). Few bins keep the steering vectors
-    in the processor's cache for the matrix-vector products; more bins share more of the
-    per-iteration work. 4 was fastest for 72 microphones and 101 x 101 points on a 2-core
-    machine with a 32 MB cache (benchmarks/bench_imaging.py).
-    """
+                     grid_shape: tuple[int, int] | None = None) -> list[CleanScResult]:
+    """CLEAN-SC at every frequency of `spectra`; sum the clean maps for a band map."""
     if spectra.n_channels != steering.n_mics:
         raise ValueError(f"the CSM has {spectra.n_channels} channels but the steering model "
                          f"{steering.n_mics} microphones")
-    if bins_per_batch < 1:
-        raise ValueError(f"bins_per_batch {bins_per_batch} must be >= 1")
     power = steering.amplitude**2
-    results: list[CleanScResult] = []
-    vectors = steering.vectors_at(spectra.freqs_hz)
-    for start in range(0, spectra.freqs_hz.size, bins_per_batch):
-        stop = min(start + bins_per_batch, spectra.freqs_hz.size)
-        hs = np.stack([next(vectors) for _ in range(start, stop)])
-        results += clean_sc_bins(spectra.csm[start:stop], hs, power, options, grid_shape)
-    return results
+    return [clean_sc(spectra.csm[i], h, options, power, grid_shape)
+            for i, h in enumerate(steering.vectors_at(spectra.freqs_hz))]
