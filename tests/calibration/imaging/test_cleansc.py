@@ -101,3 +101,20 @@ def test_stop_rules_and_options() -> None:
         CleanScOptions(loop_gain=0.0)
     with pytest.raises(ValueError):
         CleanScOptions(stop_rule="never")
+
+
+def test_lazy_updates_pick_the_same_components_as_full_updates() -> None:
+    grid = PlaneGrid.xy_plane((-0.2, 0.2), (-0.2, 0.2), 1.0, 0.01)
+    rng = np.random.default_rng(4)
+    noise = rng.standard_normal((72, 300)) + 1j * rng.standard_normal((72, 300))
+    csm = point_source_csm(MICS, np.array([[-0.1, 0.05, 1.0], [0.12, 0.1, 1.0]]),
+                           np.array([1.0, 0.4]), 6000.0) + 3e-4 * noise @ noise.conj().T
+    h = SteeringModel(grid.points, MICS, C).vectors(6000.0)
+    full = clean_sc(csm, h, CleanScOptions(), grid_shape=grid.shape, candidate_fraction=1.0)
+    lazy = clean_sc(csm, h, CleanScOptions(), grid_shape=grid.shape, candidate_fraction=0.01)
+    assert [c.index for c in lazy.components] == [c.index for c in full.components]
+    np.testing.assert_allclose([c.subgrid for c in lazy.components],
+                               [c.subgrid for c in full.components], atol=1e-9)
+    np.testing.assert_allclose(lazy.clean_map, full.clean_map, rtol=1e-10)
+    np.testing.assert_allclose(lazy.residual_map, full.residual_map,
+                               atol=1e-10 * full.components[0].peak)
