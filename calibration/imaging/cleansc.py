@@ -236,9 +236,8 @@ class _LazyMap:
         return values
 
     def full(self) -> np.ndarray:
-        """The whole map, exact."""
+        """The whole map, exact (the last call: the candidates are not kept up to date)."""
         self._apply_pending()
-        self._select()
         return self.values
 
 
@@ -266,6 +265,8 @@ def clean_sc(csm: np.ndarray, h: np.ndarray, options: CleanScOptions | None = No
             it changes the speed, not the result.
     """
     options = options or CleanScOptions()
+    if not 0.0 < candidate_fraction <= 1.0:
+        raise ValueError(f"candidate_fraction {candidate_fraction} must be in (0, 1]")
     csm = np.asarray(csm)
     m = csm.shape[-1]
     power = h_power if h_power is not None else h.real**2 + h.imag**2
