@@ -15,6 +15,8 @@ from .commands import (
     capture,
     daemon,
     daq,
+    evaluate_imaging,
+    image,
     inspect,
     session,
     sessions,
@@ -26,7 +28,8 @@ from .commands import (
 from .errors import UserError
 
 SUBCOMMANDS = (
-    simulate, inspect, calibrate, study, daq, daemon, session, capture, watch, sessions,
+    simulate, inspect, calibrate, study, image, evaluate_imaging, daq, daemon, session,
+    capture, watch, sessions,
     worker,
 )
 

@@ -37,7 +37,6 @@ every unknown is the inverse of the final J^T W J.
 
 from __future__ import annotations
 
-import contextlib
 from dataclasses import dataclass, field
 
 import cv2
@@ -46,6 +45,7 @@ from scipy import sparse
 from scipy.linalg import cho_factor, cho_solve
 from scipy.spatial.transform import Rotation
 
+from ._blas import single_threaded_blas
 from .cameras import CameraCalibration, CameraIntrinsics, Extrinsics, Pose
 from .solver import rotated_point_jacobian
 
@@ -539,24 +539,8 @@ def fit_bundle(problem: BundleProblem, start: BundleState,
     """
     options = options or BundleOptions()
     _check(problem, start)
-    with _single_threaded_blas():
+    with single_threaded_blas():
         return _fit(problem, start, options)
-
-
-def _single_threaded_blas() -> contextlib.AbstractContextManager:
-    """BLAS on one thread for the fit, when threadpoolctl is installed.
-
-    The normal equations are small (a few hundred to about 1,100 unknowns): on a loaded
-    2-core machine an OpenBLAS thread spins waiting for a descheduled partner, and a 500 x 500
-    Cholesky factorisation took 0.44 s on 2 threads against 0.01 s on 1 (load 7.8), which
-    made the 30-pose fit 14 s instead of 2 s. Without threadpoolctl the BLAS keeps its own
-    setting (OPENBLAS_NUM_THREADS). (calibration.imaging.cleansc does the same for CLEAN-SC.)
-    """
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:
-        return contextlib.nullcontext()
-    return threadpool_limits(limits=1, user_api="blas")
 
 
 def _fit(problem: BundleProblem, start: BundleState, options: BundleOptions) -> BundleSolution:

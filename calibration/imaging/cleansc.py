@@ -29,32 +29,16 @@ or "none"; always at most `max_iterations` (default 2M) and, optionally, when th
 
 from __future__ import annotations
 
-import contextlib
 from dataclasses import dataclass, field
 from enum import StrEnum
 
 import numpy as np
 
+from .._blas import single_threaded_blas
 from .beamform import beamform_csm, diagonal_norm
 from .csm import CrossSpectra
 from .peaks import subgrid_peak
 from .steering import SteeringModel
-
-
-def _single_threaded_blas() -> contextlib.AbstractContextManager:
-    """BLAS on one thread for the CLEAN-SC loop, when threadpoolctl is installed.
-
-    The loop makes thousands of memory-bound BLAS calls of about 0.1 ms each. A second BLAS
-    thread gains little there, and on a loaded machine an OpenBLAS thread spins waiting for
-    a descheduled partner: a 3534 x 72 zgemv took 0.90 ms on 2 threads against 0.07 ms on 1
-    (load 5.8 on 2 cores). Without threadpoolctl the BLAS keeps its own setting
-    (OPENBLAS_NUM_THREADS).
-    """
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:
-        return contextlib.nullcontext()
-    return threadpool_limits(limits=1, user_api="blas")
 
 
 class StopRule(StrEnum):
@@ -281,7 +265,7 @@ def clean_sc(csm: np.ndarray, h: np.ndarray, options: CleanScOptions | None = No
     peaks: list[float] = []
     floor = -np.inf
     csm_norm = _offdiag_norm(degraded)
-    with _single_threaded_blas():
+    with single_threaded_blas():
         lazy = _LazyMap(dirty, h, power, options.remove_diagonal,
                         int(np.ceil(candidate_fraction * h.shape[0])))
         for j in range(options.max_iterations or 2 * m):

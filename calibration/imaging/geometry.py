@@ -11,7 +11,8 @@ have the same keys:
 
 Positions are metres in the camera-0 frame (OpenCV: x right, y down, z forward); "poses" is
 optional (needed for scanning the rig plane and for evaluation). When the document also has
-"board_latencies_s" ({serial: seconds}) and each microphone its "board", the latencies are
+"board_latencies_s" (truth.json) or "latency_s" (result.json), {serial: seconds}, and each
+microphone its "board", the latencies are
 applied per microphone (`ArrayGeometry.mic_latencies_s`); otherwise they are taken as 0.
 """
 
@@ -117,7 +118,10 @@ def geometry_from_dict(doc: dict, source: str = "geometry") -> ArrayGeometry:
                                        np.array(p["rig_to_cam0"]["t_m"], dtype=np.float64),
                                        np.array(p["speakers_m"], dtype=np.float64))
             for p in doc.get("poses", [])}
-        board_latency = {str(k): float(v) for k, v in doc.get("board_latencies_s", {}).items()}
+        # truth.json: "board_latencies_s" (absolute); result.json: "latency_s" (relative to the
+        # reference microphone's board). Only differences between channels matter for imaging.
+        by_board = doc.get("board_latencies_s", doc.get("latency_s", {}))
+        board_latency = {str(k): float(v) for k, v in by_board.items()}
         latencies = np.array([board_latency.get(str(m.get("board")), 0.0) for m in mics])
     except (KeyError, TypeError, ValueError) as exc:
         raise ValueError(f"{source}: not a calibration result or truth document ({exc!r}); "
