@@ -7,7 +7,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 DEMO_DIR := out/demo-$(shell date +%Y%m%d-%H%M%S)
 
-.PHONY: demo test bench clean-venv
+.PHONY: demo demo-offline test bench clean-venv
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -15,7 +15,13 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[test]'
 	touch $(STAMP)
 
+# The whole loop: the daemon on the simulated world, a calibration worker, a 20-pose capture
+# scripted through the micam commands, live and final calibration, a report against the truth.
 demo: $(STAMP)
+	$(BIN)/python -m acquisition.demo_loop --out $(DEMO_DIR) --poses 20
+
+# The same capture without the daemon, then `micam calibrate` in this process.
+demo-offline: $(STAMP)
 	$(BIN)/micam simulate --out $(DEMO_DIR)/session --poses 20
 	$(BIN)/micam inspect $(DEMO_DIR)/session
 	$(BIN)/micam calibrate $(DEMO_DIR)/session --out $(DEMO_DIR)/result.json \
