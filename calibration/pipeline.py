@@ -60,6 +60,7 @@ from .result import (
 from .session_data import CalibrationInputError, SessionData, load_session
 from .solver import (
     MicrophoneSolution,
+    PriorGeometry,
     RigSources,
     SolverOptions,
     latency_columns,
@@ -112,6 +113,10 @@ class CalibrationOptions:
         allow_interrupted: calibrate the completed poses of an interrupted session.
         joint: finish with the optical-acoustic bundle adjustment (method "micam" only); the
             camera-frozen solution is reported beside it.
+        prior: a known geometry of the array in its own frame (CAD or an earlier
+            calibration), in the session's microphone order: the solver then fits its rigid
+            transform R_m, T_m into the camera-0 frame (paper IV-H), and each microphone's
+            deviation from it if the prior has a deviation std. Method "micam" only.
     """
 
     method: Literal["micam", "paper"] = "micam"
@@ -122,6 +127,7 @@ class CalibrationOptions:
     phat: bool = False
     allow_interrupted: bool = False
     joint: bool = True
+    prior: PriorGeometry | None = None
 
 
 @dataclass
@@ -295,7 +301,7 @@ def solve(m: Measurements, options: CalibrationOptions,
     if options.method == "paper":
         return solve_paper_method(sources, tof, std, solver_options)
     return solve_microphones(sources, tof, std, board_of_mic=board_of_mic,
-                             options=solver_options)
+                             options=solver_options, prior_geometry=options.prior)
 
 
 def _bundle_steps(m: Measurements) -> tuple[list[str], list[RigPoseInCam0]]:

@@ -190,9 +190,29 @@ def compare_with_truth(result: CalibrationResult, truth: dict,
     return out
 
 
-def load_geometry(path: Path) -> tuple[np.ndarray, np.ndarray, float]:
-    """(ids, positions (M, 3), c) from a result.json or a truth.json."""
-    doc = json.loads(Path(path).read_text())
-    mics = sorted(doc["microphones"], key=lambda m: m["id"])
-    return (np.array([m["id"] for m in mics]), np.array([m["position_m"] for m in mics]),
-            float(doc["speed_of_sound_m_s"]))
+def load_prior_positions(path: Path, mic_ids: np.ndarray) -> np.ndarray:
+    """Microphone positions (len(mic_ids), 3), metres, of a known geometry, in `mic_ids` order.
+
+    Reads a result.json or truth.json (`microphones[].id / position_m`) or Acoular's MicGeom
+    XML (`<pos Name="Point k" x y z/>`, Point k being microphone id k - 1, as written by
+    `write_acoular_xml`). Raises ValueError naming the file and the missing microphones.
+    """
+    path = Path(path)
+    try:
+        if path.suffix.lower() == ".xml":
+            import xml.etree.ElementTree as ET
+
+            points = ET.parse(path).getroot().findall("pos")
+            by_id = {int(p.get("Name", "").split()[-1]) - 1:
+                     [float(p.get(axis)) for axis in "xyz"] for p in points}
+        else:
+            doc = json.loads(path.read_text())
+            by_id = {int(m["id"]): m["position_m"] for m in doc["microphones"]}
+    except (OSError, ValueError, KeyError, TypeError, IndexError) as exc:
+        raise ValueError(f"cannot read the prior geometry {path}: {exc}; give a result.json, "
+                         "a truth.json or an Acoular MicGeom XML") from None
+    missing = [int(i) for i in mic_ids if int(i) not in by_id]
+    if missing:
+        raise ValueError(f"the prior geometry {path} lacks microphones {missing[:10]}"
+                         f"{' ...' if len(missing) > 10 else ''}")
+    return np.array([by_id[int(i)] for i in mic_ids], dtype=np.float64)

@@ -31,6 +31,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-joint", action="store_true",
                    help="skip the final joint fit of cameras and array (optical-acoustic "
                         "bundle adjustment) and report the camera-frozen solution")
+    p.add_argument("--prior", type=Path, default=None, metavar="FILE",
+                   help="a known geometry of the array in its own frame (result.json, "
+                        "truth.json or Acoular XML): fit its rigid transform into the camera "
+                        "frame (paper IV-H)")
+    p.add_argument("--prior-std-mm", type=float, default=None,
+                   help="let each microphone deviate from the prior by about this much "
+                        "(default: the prior is rigid)")
     p.add_argument("--phat", action="store_true", help="GCC-PHAT weighting of the correlations")
     p.add_argument("--allow-interrupted", action="store_true",
                    help="calibrate the completed poses of an interrupted session")
@@ -38,6 +45,29 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="a truth.json to compare with (default: SESSION/truth.json if present)")
     p.add_argument("--force", action="store_true", help="overwrite an existing result file")
     p.set_defaults(run=run)
+
+
+def _prior(args: argparse.Namespace):
+    """The --prior geometry in the session's microphone order (checked before any work)."""
+    if args.prior is None:
+        if args.prior_std_mm is not None:
+            raise UserError("--prior-std-mm needs --prior")
+        return None
+    from calibration.result import load_prior_positions
+    from calibration.session_data import load_session
+    from calibration.solver import PriorGeometry
+
+    if args.method == "paper":
+        raise UserError("--prior works with --method micam only (the paper's search has none)")
+    if args.prior_std_mm is not None and args.prior_std_mm <= 0:
+        raise UserError("--prior-std-mm must be positive")
+    try:
+        data = load_session(args.session, args.allow_interrupted)
+        positions = load_prior_positions(args.prior, data.mic_ids)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    std = None if args.prior_std_mm is None else args.prior_std_mm / 1000.0
+    return PriorGeometry(positions, std)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -58,7 +88,8 @@ def run(args: argparse.Namespace) -> int:
     options = CalibrationOptions(
         method=args.method, latency=args.latency, speed_of_sound=args.speed_of_sound,
         refine_poses=args.refine_poses, phat=args.phat,
-        allow_interrupted=args.allow_interrupted, joint=not args.no_joint)
+        allow_interrupted=args.allow_interrupted, joint=not args.no_joint,
+        prior=_prior(args))
     stages = ["load", "cameras", "speakers", "times of flight", "solver", "joint fit"]
     with tqdm(total=len(stages), unit="stage", desc="calibrate") as bar:
         def on_stage(name: str) -> None:

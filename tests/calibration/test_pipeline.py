@@ -137,3 +137,44 @@ def test_reflection_outliers_leave_the_accuracy_unchanged(measurements, truth: d
     sol = solve(corrupted, CalibrationOptions())
     assert _mean_error(sol, corrupted, truth) < clean * 1.1 + 0.02e-3
     assert sol.outliers.sum() >= hit.sum() * 0.95
+
+
+def test_prior_geometry_in_its_own_frame_is_placed_by_one_pose(measurements, truth: dict
+                                                               ) -> None:
+    from scipy.spatial.transform import Rotation
+
+    from calibration.pipeline import solve
+    from calibration.solver import PriorGeometry
+
+    true = {m["id"]: m["position_m"] for m in truth["microphones"]}
+    mics = np.array([true[int(i)] for i in measurements.data.mic_ids])
+    R = Rotation.from_rotvec([0.3, -0.2, 0.5]).as_matrix()
+    own_frame = (mics - 0.1) @ R.T + np.array([1.0, 2.0, 3.0])  # a CAD frame of its own
+    sol = solve(measurements, CalibrationOptions(latency="none", prior=PriorGeometry(own_frame)),
+                poses=np.array([0]))
+    errors = np.linalg.norm(sol.positions_m - mics, axis=1)
+    assert errors.mean() < 2e-3
+    # a rigid prior keeps the shape exactly: every error is the same rigid motion
+    assert np.std(errors) < 0.5e-3
+
+
+def test_prior_from_acoular_xml_on_the_command_line(session: Path, tmp_path: Path,
+                                                     capsys: pytest.CaptureFixture) -> None:
+    first = tmp_path / "first.json"
+    xml = tmp_path / "mics.xml"
+    assert main(["calibrate", str(session), "--out", str(first), "--acoular-xml", str(xml),
+                 "--no-joint"]) == 0
+    again = tmp_path / "again.json"
+    assert main(["calibrate", str(session), "--out", str(again), "--prior", str(xml),
+                 "--prior-std-mm", "0.5", "--no-joint"]) == 0
+    a, b = (np.array([m["position_m"] for m in json.loads(p.read_text())["microphones"]])
+            for p in (first, again))
+    assert np.abs(a - b).max() < 0.5e-3
+    assert main(["calibrate", str(session), "--out", str(tmp_path / "x.json"),
+                 "--prior-std-mm", "1"]) == 2
+    assert "--prior-std-mm needs --prior" in capsys.readouterr().err
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"microphones": [{"id": 0, "position_m": [0, 0, 0]}]}')
+    assert main(["calibrate", str(session), "--out", str(tmp_path / "y.json"),
+                 "--prior", str(bad)]) == 2
+    assert "lacks microphones" in capsys.readouterr().err
