@@ -13,7 +13,15 @@ clips it at 0 like Acoular's `BeamformerBase`, CLEAN-SC works on the unclipped m
 Cost: h^H C h is evaluated for all G points at once as || L^H h ||^2 with C = L L^H (Cholesky),
 one triangular matrix product (BLAS ztrmm, G M^2 / 2 complex multiply-adds), or as a general
 product h C^T when C is not positive definite. The diagonal term is a real matrix-vector
-product with the frequency-independent |h_m|^2. All in float64 / complex128.
+product with the frequency-independent |h_m|^2.
+
+Precision (`precision`): "single" (the default) runs the triangular product in complex64 on
+vectors whose phases were computed in float64 (see `SteeringModel.vectors_at`), which doubles
+the BLAS throughput and halves the memory traffic; the squared norms are summed in float32 and
+everything else (Cholesky factor, diagonal term, maps) is float64. Measured on the benchmark
+workload (72 mics, 101 x 101 grid, 20 bins at 8 kHz): the maps differ from a float64
+evaluation by at most 3e-7 of each bin's maximum, from Acoular's (float32 phases) by 2e-6, the
+same as the float64 path does. "double" keeps complex128 throughout (about 1e-15).
 """
 
 from __future__ import annotations
@@ -24,6 +32,17 @@ from scipy.linalg import blas
 from .csm import CrossSpectra
 from .steering import SteeringModel
 
+PRECISIONS = {"single": np.complex64, "double": np.complex128}
+
+
+def complex_dtype(precision: str) -> type:
+    """The complex dtype of a precision name ("single" or "double")."""
+    try:
+        return PRECISIONS[precision]
+    except KeyError:
+        raise ValueError(f"precision {precision!r} must be one of {sorted(PRECISIONS)}"
+                         ) from None
+
 
 def diagonal_norm(n_mics: int, remove_diagonal: bool) -> float:
     """M/(M-1) when the diagonal is removed, else 1."""
@@ -32,34 +51,42 @@ def diagonal_norm(n_mics: int, remove_diagonal: bool) -> float:
     return n_mics / (n_mics - 1) if remove_diagonal else 1.0
 
 
-def quadratic_form(h: np.ndarray, csm: np.ndarray, overwrite: bool = False) -> np.ndarray:
-    """h[g]^H C h[g] for every row g of h (G, M); C Hermitian (M, M). Real (G,).
+def quadratic_form(h: np.ndarray, csm: np.ndarray, overwrite: bool = False,
+                   precision: str = "single") -> np.ndarray:
+    """h[g]^H C h[g] for every row g of h (G, M); C Hermitian (M, M). Real float64 (G,).
 
-    With overwrite=True a C-contiguous complex128 `h` is used as work space (its content is
-    lost), which saves a copy; otherwise `h` is not modified.
+    The products run in the complex dtype of `precision` (see the module docstring); the
+    Cholesky factor is computed in float64 and cast. With overwrite=True a C-contiguous `h`
+    of that dtype is used as work space (its content is lost), which saves a copy;
+    otherwise `h` is not modified.
     """
+    dtype = complex_dtype(precision)
+    real = np.float32 if dtype == np.complex64 else np.float64
     try:
-        chol = np.linalg.cholesky(csm)
+        chol = np.linalg.cholesky(np.asarray(csm, dtype=np.complex128)).astype(dtype)
     except np.linalg.LinAlgError:
-        t = h @ csm.T  # t[g, m] = (C h[g])_m
-        return np.einsum("gk,gk->g", h.view(np.float64), t.view(np.float64))
+        hd = h.astype(dtype, copy=False)
+        t = hd @ np.asarray(csm).T.astype(dtype)  # t[g, m] = (C h[g])_m
+        return np.einsum("gk,gk->g", hd.view(real), t.view(real)).astype(np.float64)
     # Column-major view of a copy of h is h^T: overwrite it with L^H h^T = (h conj(L))^T.
-    reuse = overwrite and h.dtype == np.complex128 and h.flags.c_contiguous
-    work = h if reuse else np.array(h, dtype=np.complex128, order="C", copy=True)
-    ztrmm = blas.get_blas_funcs("trmm", (chol, work))
-    t = ztrmm(1.0, chol, work.T, side=0, lower=1, trans_a=2, overwrite_b=1)
-    tv = t.T.view(np.float64)
-    return np.einsum("gk,gk->g", tv, tv)
+    reuse = overwrite and h.dtype == dtype and h.flags.c_contiguous
+    work = h if reuse else np.array(h, dtype=dtype, order="C", copy=True)
+    trmm = blas.get_blas_funcs("trmm", (chol, work))
+    t = trmm(1.0, chol, work.T, side=0, lower=1, trans_a=2, overwrite_b=1)
+    tv = t.T.view(real)
+    return np.einsum("gk,gk->g", tv, tv).astype(np.float64)
 
 
 def beamform_csm(h: np.ndarray, csm: np.ndarray, remove_diagonal: bool = True,
-                 h_power: np.ndarray | None = None, overwrite: bool = False) -> np.ndarray:
+                 h_power: np.ndarray | None = None, overwrite: bool = False,
+                 precision: str = "single") -> np.ndarray:
     """Delay-and-sum map (G,) of one CSM (M, M) with steering vectors h (G, M), unclipped.
 
     Args:
         h_power: |h|^2 (G, M) if already known (it does not depend on frequency); computed
             from h otherwise.
         overwrite: h may be used as work space (see `quadratic_form`).
+        precision: "single" or "double" (see the module docstring).
     """
     csm = np.asarray(csm)
     m = csm.shape[-1]
@@ -67,27 +94,31 @@ def beamform_csm(h: np.ndarray, csm: np.ndarray, remove_diagonal: bool = True,
         raise ValueError(f"steering vectors {h.shape} and CSM {csm.shape} do not match: "
                          "expected (G, M) and (M, M)")
     power = h_power if h_power is not None or not remove_diagonal else h.real**2 + h.imag**2
-    b = quadratic_form(h, csm, overwrite)
+    b = quadratic_form(h, csm, overwrite, precision)
     if remove_diagonal:
-        b -= power @ np.real(np.diagonal(csm))
+        b -= power @ np.real(np.diagonal(csm)).astype(power.dtype)
         b *= diagonal_norm(m, True)
     return b
 
 
 def beamform(spectra: CrossSpectra, steering: SteeringModel, remove_diagonal: bool = True,
-             clip_negative: bool = True) -> np.ndarray:
+             clip_negative: bool = True, precision: str = "single") -> np.ndarray:
     """Delay-and-sum maps (F, G), one per frequency of `spectra`, on the steering's points.
 
     Sum the rows for a band map over bins (Acoular's `synthetic`), or beamform a band-summed
-    CSM (`CrossSpectra.band_sum`, the paper's way) for one map per band.
+    CSM (`CrossSpectra.band_sum`, the paper's way) for one map per band. `precision`: see the
+    module docstring ("single": complex64 products on float64 phases, maps within about 3e-7
+    of each bin's maximum of the float64 ones).
     """
     if spectra.n_channels != steering.n_mics:
         raise ValueError(f"the CSM has {spectra.n_channels} channels but the steering model "
                          f"{steering.n_mics} microphones")
+    dtype = complex_dtype(precision)
     power = steering.amplitude**2
     maps = np.empty((spectra.freqs_hz.size, steering.n_points))
-    for i, h in enumerate(steering.vectors_at(spectra.freqs_hz)):
-        maps[i] = beamform_csm(h, spectra.csm[i], remove_diagonal, power, overwrite=True)
+    for i, h in enumerate(steering.vectors_at(spectra.freqs_hz, dtype)):
+        maps[i] = beamform_csm(h, spectra.csm[i], remove_diagonal, power, overwrite=True,
+                               precision=precision)
     if clip_negative:
         np.maximum(maps, 0.0, out=maps)
     return maps

@@ -49,12 +49,14 @@ def test_true_level_and_true_location_properties() -> None:
     reference = MICS.mean(axis=0)
     r0 = np.linalg.norm(SOURCE - reference)
     at = SOURCE[None, :]
-    level = beamform_csm(SteeringModel(at, MICS, C, "true level").vectors(6000.0), csm, False)
+    level = beamform_csm(SteeringModel(at, MICS, C, "true level").vectors(6000.0), csm, False,
+                         precision="double")
     assert level[0] == pytest.approx(2.0 / r0**2, rel=1e-12)
     loc = SteeringModel(at, MICS, C, "true location")
     r = np.linalg.norm(MICS - SOURCE, axis=1)
     assert np.sum(loc.amplitude**2) == pytest.approx(1 / len(MICS))
-    b = beamform_csm(loc.vectors(6000.0), csm, False)
+    b = beamform_csm(loc.vectors(6000.0), csm, False,
+                         precision="double")
     assert b[0] == pytest.approx(2.0 * np.sum(r**-2) / len(MICS), rel=1e-12)
 
 
@@ -63,7 +65,8 @@ def test_paper_equations_relate_to_the_named_formulations() -> None:
     csm = point_source_csm(MICS, SOURCE, 1.0, 9000.0)
     ref = MICS.mean(axis=0)
     r0 = np.linalg.norm(grid.points - ref, axis=1)
-    maps = {f: beamform_csm(SteeringModel(grid.points, MICS, C, f).vectors(9000.0), csm, False)
+    maps = {f: beamform_csm(SteeringModel(grid.points, MICS, C, f).vectors(9000.0), csm, False,
+                            precision="double")
             for f in Formulation}
     np.testing.assert_allclose(maps[Formulation.PAPER_EQ19], r0**2 * maps[Formulation.INVERSE],
                                rtol=1e-10)
@@ -76,11 +79,11 @@ def test_diagonal_removal_and_direct_quadratic_form_agree() -> None:
     x = rng.standard_normal((72, 30)) + 1j * rng.standard_normal((72, 30))
     for csm in (x @ x.conj().T, x[:, :5] @ x[:, :5].conj().T):  # full rank, and rank 5
         direct = np.einsum("gm,mn,gn->g", h.conj(), csm, h).real
-        np.testing.assert_allclose(beamform_csm(h, csm, False), direct, rtol=1e-10,
+        np.testing.assert_allclose(beamform_csm(h, csm, False, precision="double"), direct, rtol=1e-10,
                                    atol=1e-12 * direct.max())
         off = csm - np.diag(np.diag(csm))
         expected = 72 / 71 * np.einsum("gm,mn,gn->g", h.conj(), off, h).real
-        np.testing.assert_allclose(beamform_csm(h, csm, True), expected,
+        np.testing.assert_allclose(beamform_csm(h, csm, True, precision="double"), expected,
                                    atol=1e-12 * direct.max())
 
 

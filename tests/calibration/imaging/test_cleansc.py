@@ -50,12 +50,12 @@ def test_map_update_equals_beamforming_the_degraded_csm() -> None:
                            np.array([1.0, 0.3]), 5000.0) + 1e-4 * noise @ noise.conj().T
     h = SteeringModel(grid.points, MICS, C).vectors(5000.0)
     options = CleanScOptions(max_iterations=25, stop_rule="none")
-    result = clean_sc(csm, h, options)
+    result = clean_sc(csm, h, options, precision="double")
     degraded = csm.copy()
     for c in result.components:
         degraded -= options.loop_gain * c.peak * np.outer(c.coherence, c.coherence.conj())
     # Updating the map by linearity equals re-beamforming the degraded CSM (Acoular's way).
-    np.testing.assert_allclose(result.residual_map, beamform_csm(h, degraded, True),
+    np.testing.assert_allclose(result.residual_map, beamform_csm(h, degraded, True, precision="double"),
                                atol=1e-10 * result.components[0].peak)
 
 
