@@ -9,6 +9,12 @@ Below `PER_BOARD_FROM_SOURCES` (a single pose with fewer than six speakers) the 
 the paper's model, c fixed and no latency: there are too few equations per microphone for the
 board latencies. From there on the latencies are fitted per board: on a 20-pose sphere session
 that halves the error at every N from 6 to 96 (0.25-0.3 mm against 0.44-0.49 mm without).
+
+What it measures is the camera-frozen solver (the joint fit of `calibration.bundle` needs the
+whole session's corners and is not rerun per subset). Beyond about 1 m its error stops falling
+with N: the camera's focal-length error, frozen into every speaker's depth, dominates (about
+2 mm at 1.0-1.5 m with 30 poses), and a single pose can look better than two because its
+latencies absorb that pose's depth error. The joint fit removes this (benchmarks/bench_bundle.py).
 """
 
 from __future__ import annotations
