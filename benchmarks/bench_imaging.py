@@ -61,6 +61,8 @@ from sim.world import World
 
 BAND_HZ, FRACTION, N_GRID, SPACING_M = 8000.0, 12, 101, 0.006
 STAGES = ("csm", "beamforming", "clean_sc")
+DAS_PRECISION = "single"  # complex64 products on float64 phases (see calibration.imaging.beamform)
+CLEAN_PRECISION = "double"  # see calibration.imaging.cleansc: single leaves a rounding floor
 
 
 def best_of(repeat: int, run: Callable[[], object]) -> tuple[dict, object]:
@@ -98,18 +100,19 @@ def ours(world, rec, grid, repeat: int) -> dict:
     c = world.speed_of_sound_m_s
     t_csm, spectra = best_of(repeat, lambda: cross_spectra(rec.signals_v, fs, bins, welch))
 
-    def das():
+    def das(precision=DAS_PRECISION):
         steering = SteeringModel(grid.points, mics, c, "true location")
-        return beamform(spectra, steering)
+        return beamform(spectra, steering, precision=precision)
 
     def clean():
         steering = SteeringModel(grid.points, mics, c, "true location")
-        return clean_sc_spectra(spectra, steering, CleanScOptions())
+        return clean_sc_spectra(spectra, steering, CleanScOptions(), precision=CLEAN_PRECISION)
 
     t_das, das_maps = best_of(repeat, das)
     t_clean, clean_results = best_of(repeat, clean)
+    das_double = das("double")
     times = {"csm": t_csm, "beamforming": t_das, "clean_sc": t_clean}
-    return {"bins": bins, "spectra": spectra, "das_maps": das_maps,
+    return {"bins": bins, "spectra": spectra, "das_maps": das_maps, "das_double": das_double,
             "clean_maps": np.array([r.clean_map for r in clean_results]),
             "iterations": [r.n_iterations for r in clean_results],
             "time_s": {k: times[k]["wall"] for k in STAGES},
@@ -177,7 +180,10 @@ def speed(repeat: int) -> dict:
                            "band_hz": BAND_HZ, "fraction": FRACTION,
                            "bins": int(mine["bins"].size), "steering": "true location"},
               "micam_time_s": mine["time_s"], "micam_cpu_s": mine["cpu_s"],
-              "micam_clean_sc_iterations": mine["iterations"]}
+              "micam_clean_sc_iterations": mine["iterations"],
+              "micam_precision": {"beamforming": DAS_PRECISION, "clean_sc": CLEAN_PRECISION},
+              "micam_beamforming_vs_float64_max_rel_per_bin":
+                  per_bin_relative(mine["das_maps"], mine["das_double"])}
     theirs = acoular_run(world, rec, grid, mine["bins"], repeat)
     if theirs is None:
         report["acoular"] = "not installed (pip install acoular to compare)"
@@ -254,6 +260,9 @@ def main() -> None:
         print(line)
     if isinstance(sp["acoular"], dict):
         print("agreement with acoular:", json.dumps(sp["acoular"]["agreement"]))
+    print(f"beamforming ({sp['micam_precision']['beamforming']} precision) against micam's "
+          f"float64 maps: {sp['micam_beamforming_vs_float64_max_rel_per_bin']:.2e} max relative "
+          "per bin")
     if not args.skip_localization:
         report["localization"] = loc = localization(args.session, args.poses)
         o = loc["overall"]

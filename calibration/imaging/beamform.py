@@ -114,11 +114,15 @@ def beamform(spectra: CrossSpectra, steering: SteeringModel, remove_diagonal: bo
         raise ValueError(f"the CSM has {spectra.n_channels} channels but the steering model "
                          f"{steering.n_mics} microphones")
     dtype = complex_dtype(precision)
-    power = steering.amplitude**2
     maps = np.empty((spectra.freqs_hz.size, steering.n_points))
-    for i, h in enumerate(steering.vectors_at(spectra.freqs_hz, dtype)):
-        maps[i] = beamform_csm(h, spectra.csm[i], remove_diagonal, power, overwrite=True,
-                               precision=precision)
+    work = np.empty((steering.n_points, steering.n_mics), dtype) if dtype == np.complex64 else None
+    for i, h in enumerate(steering.vectors_at(spectra.freqs_hz, dtype, out=work)):
+        maps[i] = quadratic_form(h, spectra.csm[i], overwrite=True, precision=precision)
+    if remove_diagonal:
+        # The diagonal terms of all bins in one product: |h|^2 does not depend on frequency.
+        autospectra = np.real(np.diagonal(spectra.csm, axis1=1, axis2=2))  # (F, M)
+        maps -= autospectra @ (steering.amplitude**2).T
+        maps *= diagonal_norm(steering.n_mics, True)
     if clip_negative:
         np.maximum(maps, 0.0, out=maps)
     return maps
