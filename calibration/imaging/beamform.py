@@ -67,11 +67,21 @@ def quadratic_form(h: np.ndarray, csm: np.ndarray, overwrite: bool = False,
     except np.linalg.LinAlgError:
         hd = h.astype(dtype, copy=False)
         t = hd @ np.asarray(csm).T.astype(dtype)  # t[g, m] = (C h[g])_m
-        return np.einsum("gk,gk->g", hd.view(real), t.view(real)).astype(np.float64)
+        return np.einsum("gk,gk->g", hd.conj(), t).real.astype(np.float64)
+    trmm = blas.get_blas_funcs("trmm", (chol,))
+    if h.flags.f_contiguous and not h.flags.c_contiguous:
+        # Column-major h is the G x M matrix h: overwrite it with h conj(L) = h (L^T)^H,
+        # a right-side product (the faster one for G >> M).
+        reuse = overwrite and h.dtype == dtype
+        work = h if reuse else np.array(h, dtype=dtype, order="F", copy=True)
+        t = trmm(1.0, np.ascontiguousarray(chol.T), work, side=1, lower=0, trans_a=2,
+                 overwrite_b=1)
+        tv = t.T.view(real)  # (M, 2G), row-major
+        sq = np.einsum("mk,mk->k", tv, tv)
+        return (sq[0::2] + sq[1::2]).astype(np.float64)
     # Column-major view of a copy of h is h^T: overwrite it with L^H h^T = (h conj(L))^T.
     reuse = overwrite and h.dtype == dtype and h.flags.c_contiguous
     work = h if reuse else np.array(h, dtype=dtype, order="C", copy=True)
-    trmm = blas.get_blas_funcs("trmm", (chol, work))
     t = trmm(1.0, chol, work.T, side=0, lower=1, trans_a=2, overwrite_b=1)
     tv = t.T.view(real)
     return np.einsum("gk,gk->g", tv, tv).astype(np.float64)
@@ -115,7 +125,8 @@ def beamform(spectra: CrossSpectra, steering: SteeringModel, remove_diagonal: bo
                          f"{steering.n_mics} microphones")
     dtype = complex_dtype(precision)
     maps = np.empty((spectra.freqs_hz.size, steering.n_points))
-    work = np.empty((steering.n_points, steering.n_mics), dtype) if dtype == np.complex64 else None
+    work = (np.empty_like(steering.path_difference, dtype=dtype) if dtype == np.complex64
+            else None)  # the steering's layout (column-major, see `steering._distances`)
     for i, h in enumerate(steering.vectors_at(spectra.freqs_hz, dtype, out=work)):
         maps[i] = quadratic_form(h, spectra.csm[i], overwrite=True, precision=precision)
     if remove_diagonal:
