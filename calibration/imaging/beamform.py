@@ -125,8 +125,8 @@ def beamform(spectra: CrossSpectra, steering: SteeringModel, remove_diagonal: bo
                          f"{steering.n_mics} microphones")
     dtype = complex_dtype(precision)
     maps = np.empty((spectra.freqs_hz.size, steering.n_points))
-    work = (np.empty_like(steering.path_difference, dtype=dtype) if dtype == np.complex64
-            else None)  # the steering's layout (column-major, see `steering._distances`)
+    # in the steering's layout (column-major, see `steering._distances`)
+    work = np.empty_like(steering.path_difference, dtype=dtype)
     for i, h in enumerate(steering.vectors_at(spectra.freqs_hz, dtype, out=work)):
         maps[i] = quadratic_form(h, spectra.csm[i], overwrite=True, precision=precision)
     if remove_diagonal:

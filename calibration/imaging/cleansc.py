@@ -332,5 +332,6 @@ def clean_sc_spectra(spectra: CrossSpectra, steering: SteeringModel,
         raise ValueError(f"the CSM has {spectra.n_channels} channels but the steering model "
                          f"{steering.n_mics} microphones")
     power = steering.amplitude**2
+    work = np.empty_like(steering.path_difference, dtype=np.complex128)
     return [clean_sc(spectra.csm[i], h, options, power, grid_shape, precision=precision)
-            for i, h in enumerate(steering.vectors_at(spectra.freqs_hz))]
+            for i, h in enumerate(steering.vectors_at(spectra.freqs_hz, out=work))]
