@@ -7,7 +7,11 @@ uncorrelated white-noise speakers about 1 m away (rendered by the simulated worl
 best of --repeat runs. When `acoular` is importable (an optional benchmark dependency:
 `.venv/bin/pip install acoular`), the same workload runs through Acoular in the same process
 and the ratios (against Acoular's faster of 1 and all numba threads, per stage) and the per-bin
-agreement of the maps are reported.
+agreement of the maps are reported. micam's beamforming runs in single precision (complex64
+products on float64 phases, `calibration.imaging.beamform`), its CLEAN-SC in float64 (the
+complex64 maps leave a rounding floor that CLEAN-SC goes on cleaning, see
+`calibration.imaging.cleansc`); the beamforming maps are also computed in float64 in the same
+run and the difference reported.
 
 Then the mean CLEAN-SC localization error over the 1/12-octave bands of 5-15 kHz is measured
 on a simulated session with its truth geometry (paper VI-A: 6.6 mm at a 6 mm grid).
