@@ -110,11 +110,13 @@ def unit_phasors(angle: np.ndarray) -> np.ndarray:
 def _power(z: np.ndarray, n: int) -> np.ndarray:
     """z**n elementwise for a positive integer n, by repeated squaring."""
     result = None
-    square = z.copy()
+    square = z.copy(order="K")
     while True:
         if n & 1:
-            result = square.copy() if result is None else np.multiply(result, square,
-                                                                        out=result)
+            if result is None:
+                result = square.copy(order="K")
+            else:
+                np.multiply(result, square, out=result)
         n >>= 1
         if not n:
             return result
