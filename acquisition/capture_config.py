@@ -17,7 +17,7 @@ from daq import CODE_FULL_SCALE, InputChannel, OutputChannel, ScanConfig
 class BoardEntry(BaseModel):
     """One board of the sync group (the first is the clock and trigger master)."""
 
-    model_config = ConfigDict(frozen=True)
+    model_config = ConfigDict(frozen=True, extra="forbid")
 
     model: str
     serial: str
@@ -28,7 +28,7 @@ class BoardEntry(BaseModel):
 class ColumnEntry(BaseModel):
     """One column of every recording: where it comes from and what it is."""
 
-    model_config = ConfigDict(frozen=True)
+    model_config = ConfigDict(frozen=True, extra="forbid")
 
     board: str = Field(description="serial of the board")
     channel: int
@@ -44,7 +44,7 @@ class ColumnEntry(BaseModel):
 class SpeakerEntry(BaseModel):
     """A rig speaker: the output that drives it and its position in the rig frame (metres)."""
 
-    model_config = ConfigDict(frozen=True)
+    model_config = ConfigDict(frozen=True, extra="forbid")
 
     index: int
     board: str
@@ -56,7 +56,7 @@ class ReferenceMicEntry(BaseModel):
     """The reference microphone: its input column and its distance from a speaker during the
     reference recordings (paper IV-C)."""
 
-    model_config = ConfigDict(frozen=True)
+    model_config = ConfigDict(frozen=True, extra="forbid")
 
     board: str
     channel: int
@@ -67,7 +67,7 @@ class BurstConfig(BaseModel):
     """The MLS burst each speaker plays: `pre_samples` of silence, one period of an MLS of
     `mls_order` at `amplitude_v` volts, then `post_samples` of recording while it dies away."""
 
-    model_config = ConfigDict(frozen=True)
+    model_config = ConfigDict(frozen=True, extra="forbid")
 
     mls_order: int = Field(default=14, ge=4, le=20)
     amplitude_v: float = Field(default=1.0, gt=0, le=10)
@@ -83,7 +83,7 @@ class BurstConfig(BaseModel):
 class RigEntry(BaseModel):
     """The calibration rig (see sim.geometry.Rig for the frame)."""
 
-    model_config = ConfigDict(frozen=True)
+    model_config = ConfigDict(frozen=True, extra="forbid")
 
     corners_x: int
     corners_y: int
@@ -93,7 +93,7 @@ class RigEntry(BaseModel):
 
 
 class CameraEntry(BaseModel):
-    model_config = ConfigDict(frozen=True)
+    model_config = ConfigDict(frozen=True, extra="forbid")
 
     name: str
     device_id: str
@@ -102,7 +102,7 @@ class CameraEntry(BaseModel):
 class CaptureConfig(BaseModel):
     """Everything a capture session needs to know about its hardware and its plan."""
 
-    model_config = ConfigDict(frozen=True)
+    model_config = ConfigDict(frozen=True, extra="forbid")
 
     schema_version: Literal[1] = 1
     sample_rate_hz: float = Field(gt=0)

@@ -169,3 +169,14 @@ def test_same_seed_same_recordings(tmp_path: Path, small_options: SimulationOpti
     ra, _ = a.read_recording("pose/0001", "speaker_3.wav")
     rb, _ = b.read_recording("pose/0001", "speaker_3.wav")
     assert np.array_equal(ra, rb)
+
+
+def test_capture_config_refuses_unknown_keys(small_options: SimulationOptions) -> None:
+    from pydantic import ValidationError
+
+    from acquisition.capture_config import CaptureConfig
+
+    doc = build_simulated_capture(small_options).config.model_dump(mode="json")
+    doc["burst"]["mls_ordr"] = 12  # a typo in a hand-written config must not pass silently
+    with pytest.raises(ValidationError, match="mls_ordr"):
+        CaptureConfig.model_validate(doc)
