@@ -166,9 +166,9 @@ class _LazyMap:
     candidate set S (the highest points at the refresh) is kept exact at every update. For a
     point outside S, b_j >= -sum_m |h_m|^2 |g_m|^2 >= -sum_m max_x |h_m(x)|^2 |g_m|^2 (and
     b_j >= 0 with the diagonal kept), so its value is at most tau + bound, with tau its
-    maximum at the refresh and bound the sum of c_j sum_m max_x |h_m(x)|^2 |g_jm|^2. While the candidates' maximum is at least that,
-    it is the map's maximum; otherwise the pending components are applied to all points (one
-    (G x M) (M x k) product) and S is chosen again.
+    maximum at the refresh and bound the sum of c_j sum_m max_x |h_m(x)|^2 |g_jm|^2. While the
+    candidates' maximum is at least that, it is the map's maximum; otherwise the pending
+    components are applied to all points (one (G x M) (M x k) product) and S is chosen again.
     """
 
     def __init__(self, values: np.ndarray, h: np.ndarray, power: np.ndarray,

@@ -55,7 +55,8 @@ def test_map_update_equals_beamforming_the_degraded_csm() -> None:
     for c in result.components:
         degraded -= options.loop_gain * c.peak * np.outer(c.coherence, c.coherence.conj())
     # Updating the map by linearity equals re-beamforming the degraded CSM (Acoular's way).
-    np.testing.assert_allclose(result.residual_map, beamform_csm(h, degraded, True, precision="double"),
+    expected = beamform_csm(h, degraded, True, precision="double")
+    np.testing.assert_allclose(result.residual_map, expected,
                                atol=1e-10 * result.components[0].peak)
 
 
