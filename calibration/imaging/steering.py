@@ -232,17 +232,16 @@ class SteeringModel:
                    out: np.ndarray | None = None) -> Iterator[np.ndarray]:
         """Steering vectors (G, M) for each frequency in turn, as `dtype`.
 
-        Between equally spaced frequencies h(f + df) = h(f) * exp(-i k(df) (r_m - r_0)): one
-        complex multiplication instead of an exponential, recomputed exactly every
-        `RENORM_STEPS` steps. The recurrence always runs in complex128 on phases computed in
-        float64; with dtype=complex64 each yielded array is a cast of it, and the exact
-        recomputations use `_vectors_single_trig` (phase error at most about 3e-7 rad, against
-        Acoular's 8e-6 at 8 kHz) instead of the float64 exponential, and the step is
-        `_step_single`: the yielded vectors are within 5e-7 of `vectors(f)` (relative to their
-        largest element; 4e-7 measured over the 20 bins of the benchmark). Each yielded array belongs to the caller, who may
-        overwrite it; with `out` (shape (G, M), of `dtype`) every bin is written into `out`
-        and `out` is yielded (valid until the next bin), which saves allocating (and the
-        kernel zeroing) a new array per bin.
+        Between equally spaced frequencies h(f + df) = h(f) * exp(-i k(df) (r_m - r_0)): one complex
+        multiplication instead of an exponential, recomputed exactly every `RENORM_STEPS` steps. The
+        recurrence always runs in complex128 on phases computed in float64; with dtype=complex64
+        each yielded array is a cast of it, and the exact recomputations use `_vectors_single_trig`
+        (phase error at most about 3e-7 rad, against Acoular's 8e-6 at 8 kHz) instead of the float64
+        exponential, and the step is `_step_single`: the yielded vectors are within 5e-7 of
+        `vectors(f)` (relative to their largest element; 4e-7 measured over the 20 bins of the
+        benchmark). Each yielded array belongs to the caller, who may overwrite it; with `out`
+        (shape (G, M), of `dtype`) every bin is written into `out` and `out` is yielded (valid until
+        the next bin), which saves allocating (and the kernel zeroing) a new array per bin.
         """
         freqs = np.asarray(freqs_hz, dtype=np.float64).ravel()
         single = np.dtype(dtype) == np.complex64
