@@ -232,16 +232,17 @@ class SteeringModel:
                    out: np.ndarray | None = None) -> Iterator[np.ndarray]:
         """Steering vectors (G, M) for each frequency in turn, as `dtype`.
 
-        Between equally spaced frequencies h(f + df) = h(f) * exp(-i k(df) (r_m - r_0)): one complex
-        multiplication instead of an exponential, recomputed exactly every `RENORM_STEPS` steps. The
-        recurrence always runs in complex128 on phases computed in float64; with dtype=complex64
-        each yielded array is a cast of it, and the exact recomputations use `_vectors_single_trig`
-        (phase error at most about 3e-7 rad, against Acoular's 8e-6 at 8 kHz) instead of the float64
-        exponential, and the step is `_step_single`: the yielded vectors are within 5e-7 of
-        `vectors(f)` (relative to their largest element; 4e-7 measured over the 20 bins of the
-        benchmark). Each yielded array belongs to the caller, who may overwrite it; with `out`
-        (shape (G, M), of `dtype`) every bin is written into `out` and `out` is yielded (valid until
-        the next bin), which saves allocating (and the kernel zeroing) a new array per bin.
+        Between equally spaced frequencies h(f + df) = h(f) * exp(-i k(df) (r_m - r_0)): one
+        complex multiplication instead of an exponential, recomputed exactly every
+        `RENORM_STEPS` steps. With dtype=complex128 the recurrence runs in complex128 on phases
+        computed in float64. With dtype=complex64 it runs in complex64 (half the memory
+        traffic); the exact recomputations use `_vectors_single_trig` (phase error at most about
+        3e-7 rad, against Acoular's 8e-6 at 8 kHz) and the step `_step_single`, so the yielded
+        vectors stay within about 2e-6 of `vectors(f)` (relative to their largest element), and
+        the beamforming maps within 7e-7 per bin of the float64 maps over the 20 bins of the
+        benchmark. Each yielded array belongs to the caller, who may overwrite it; with `out`
+        (shape (G, M), of `dtype`) every bin is written into `out` and `out` is yielded (valid
+        until the next bin), which saves allocating (and the kernel zeroing) a new array per bin.
         """
         freqs = np.asarray(freqs_hz, dtype=np.float64).ravel()
         single = np.dtype(dtype) == np.complex64
@@ -268,6 +269,10 @@ class SteeringModel:
                 state *= self.amplitude
         if state is None:
             state = exact(freqs[0])
+        if single:
+            # The recurrence itself in complex64 too: half the memory traffic, and its rounding
+            # (about 6e-8 per step, RENORM_STEPS at most) stays far below the 1e-5 agreement.
+            state = state.astype(np.complex64)
         since_exact = 0
         for i in range(freqs.size):
             # In complex128 the caller gets `state` itself: the next one is computed first.
@@ -280,7 +285,7 @@ class SteeringModel:
                 f, df = freqs[i + 1], freqs[i + 1] - freqs[i]
                 if since_exact + 1 < RENORM_STEPS:
                     if step is None or abs(df - step[0]) > 1e-9 * max(abs(f), 1.0):
-                        step = (df, self._step_single(df) if single else
+                        step = (df, self._step_single(df).astype(np.complex64) if single else
                                 unit_phasors(self.wavenumber(df) * self.path_difference))
                     if single or out is not None:
                         state *= step[1]
@@ -288,7 +293,7 @@ class SteeringModel:
                         state = state * step[1]
                     since_exact += 1
                 else:
-                    state = exact(f)
+                    state = exact(f).astype(np.complex64) if single else exact(f)
                     since_exact = 0
             yield current
 

@@ -181,7 +181,9 @@ def test_single_precision_steering_vectors_keep_float64_phases() -> None:
     for f, h in zip(freqs, model.vectors_at(freqs, np.complex64), strict=True):
         assert h.dtype == np.complex64
         exact = model.vectors(f)
-        np.testing.assert_allclose(h, exact, rtol=0, atol=5e-7 * np.abs(exact).max())
+        # complex64 recurrence: ~6e-8 per step over up to RENORM_STEPS steps, plus the float32
+        # trig of the exact recomputations; well inside the 1e-5 map agreement asked for
+        np.testing.assert_allclose(h, exact, rtol=0, atol=2e-6 * np.abs(exact).max())
     with pytest.raises(ValueError, match="complex64 or complex128"):
         next(model.vectors_at(freqs, np.float32))
     with pytest.raises(ValueError, match="precision"):
