@@ -2,22 +2,23 @@
 
 It is the contract between acquisition and calibration: which column of a recording is which
 microphone (or the reference microphone), the volts per code of each column, which output
-drives which speaker, the burst, the rig and the cameras.
+drives which speaker, the burst, the rig and the cameras. Every model refuses unknown keys
+(ConfigModel), so a misspelt key of a hand-written `[hardware.capture]` is an error.
 """
 
 from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import Field, model_validator
 
 from daq import CODE_FULL_SCALE, InputChannel, OutputChannel, ScanConfig
 
+from .config_model import ConfigModel
 
-class BoardEntry(BaseModel):
+
+class BoardEntry(ConfigModel):
     """One board of the sync group (the first is the clock and trigger master)."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
 
     model: str
     serial: str
@@ -25,10 +26,8 @@ class BoardEntry(BaseModel):
     outputs: tuple[OutputChannel, ...] = ()
 
 
-class ColumnEntry(BaseModel):
+class ColumnEntry(ConfigModel):
     """One column of every recording: where it comes from and what it is."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
 
     board: str = Field(description="serial of the board")
     channel: int
@@ -41,10 +40,8 @@ class ColumnEntry(BaseModel):
         return self.range_v / CODE_FULL_SCALE
 
 
-class SpeakerEntry(BaseModel):
+class SpeakerEntry(ConfigModel):
     """A rig speaker: the output that drives it and its position in the rig frame (metres)."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
 
     index: int
     board: str
@@ -52,22 +49,18 @@ class SpeakerEntry(BaseModel):
     rig_position_m: tuple[float, float, float]
 
 
-class ReferenceMicEntry(BaseModel):
+class ReferenceMicEntry(ConfigModel):
     """The reference microphone: its input column and its distance from a speaker during the
     reference recordings (paper IV-C)."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
 
     board: str
     channel: int
     distance_from_speaker_m: float = 0.002
 
 
-class BurstConfig(BaseModel):
+class BurstConfig(ConfigModel):
     """The MLS burst each speaker plays: `pre_samples` of silence, one period of an MLS of
     `mls_order` at `amplitude_v` volts, then `post_samples` of recording while it dies away."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
 
     mls_order: int = Field(default=14, ge=4, le=20)
     amplitude_v: float = Field(default=1.0, gt=0, le=10)
@@ -80,10 +73,8 @@ class BurstConfig(BaseModel):
         return self.pre_samples + 2**self.mls_order - 1 + self.post_samples
 
 
-class RigEntry(BaseModel):
+class RigEntry(ConfigModel):
     """The calibration rig (see sim.geometry.Rig for the frame)."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
 
     corners_x: int
     corners_y: int
@@ -92,17 +83,15 @@ class RigEntry(BaseModel):
     reference_mark_m: tuple[float, float, float]
 
 
-class CameraEntry(BaseModel):
-    model_config = ConfigDict(frozen=True, extra="forbid")
+class CameraEntry(ConfigModel):
+    """A camera of the session: its name and the identifier of the device that took it."""
 
     name: str
     device_id: str
 
 
-class CaptureConfig(BaseModel):
+class CaptureConfig(ConfigModel):
     """Everything a capture session needs to know about its hardware and its plan."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
 
     schema_version: Literal[1] = 1
     sample_rate_hz: float = Field(gt=0)

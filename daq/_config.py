@@ -27,7 +27,7 @@ class TriggerSource(StrEnum):
 class InputChannel(BaseModel):
     """One analog input: its channel number on the board and its bipolar full-scale range."""
 
-    model_config = ConfigDict(frozen=True)
+    model_config = ConfigDict(frozen=True, extra="forbid")  # a typo in a config: an error
 
     channel: int = Field(ge=0)
     range_v: float = Field(default=10.0, gt=0)
@@ -36,7 +36,7 @@ class InputChannel(BaseModel):
 class OutputChannel(BaseModel):
     """One analog output: its channel number on the board and its bipolar full-scale range."""
 
-    model_config = ConfigDict(frozen=True)
+    model_config = ConfigDict(frozen=True, extra="forbid")  # a typo in a config: an error
 
     channel: int = Field(ge=0)
     range_v: float = Field(default=10.0, gt=0)

@@ -12,7 +12,7 @@ import tomllib
 from pathlib import Path
 from typing import ClassVar, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import ConfigDict, Field, ValidationError, model_validator
 from pydantic_settings import (
     BaseSettings,
     PydanticBaseSettingsSource,
@@ -23,10 +23,12 @@ from pydantic_settings import (
 from sim.capture import SimulationOptions
 
 from ..capture_config import CaptureConfig
+from ..config_model import ConfigModel, describe_problems
 from ..errors import UserError
 from .endpoints import DEFAULT_CONTROL, DEFAULT_EVENTS, beside
 
 ENV_PREFIX = "MICAM_DAEMON_"
+DOCS = "docs/protocol.md, section Configuration"
 
 Policy = Literal["retry", "warn", "ignore"]
 """What a failed quality check does: abandon the attempt and capture again, keep it with a
@@ -37,11 +39,7 @@ class ConfigError(UserError):
     """The daemon's configuration is missing, unreadable or invalid; the message says where."""
 
 
-class _Section(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class CurveConfig(_Section):
+class CurveConfig(ConfigModel):
     """CURVE encryption and client authentication (needed to bind a non-loopback address).
 
     Make the files with `micam daemon --make-keys DIR`.
@@ -53,7 +51,7 @@ class CurveConfig(_Section):
         description="directory of the public certificates (*.key) of the clients allowed in")
 
 
-class SocketsConfig(_Section):
+class SocketsConfig(ConfigModel):
     """Where the daemon listens: ZeroMQ endpoints (tcp://127.0.0.1:PORT or ipc://PATH)."""
 
     control: str = Field(default=DEFAULT_CONTROL, description="request/reply control socket")
@@ -78,7 +76,7 @@ class SocketsConfig(_Section):
         return self.files or beside(self.control, "files")
 
 
-class QualityConfig(_Section):
+class QualityConfig(ConfigModel):
     """Quality checks of every recording and image set, and what a failure does."""
 
     clip_fraction: float = Field(
@@ -103,7 +101,7 @@ class QualityConfig(_Section):
         description="failed attempts re-captured without asking; then the operator captures again")
 
 
-class V4L2CameraConfig(_Section):
+class V4L2CameraConfig(ConfigModel):
     """One real camera (see acquisition.cameras_v4l2.V4L2Camera)."""
 
     name: str
@@ -117,7 +115,7 @@ class V4L2CameraConfig(_Section):
                                   "None leaves the camera's setting")
 
 
-class HardwareConfig(_Section):
+class HardwareConfig(ConfigModel):
     """Real boards and cameras: the capture configuration plus how to open the devices."""
 
     capture: CaptureConfig = Field(
@@ -135,7 +133,7 @@ class HardwareConfig(_Section):
         return self
 
 
-class WorkersConfig(_Section):
+class WorkersConfig(ConfigModel):
     """The calibration hand-off: heartbeats, leases, retries and when live calibration starts."""
 
     outbox: Path | None = Field(
@@ -156,7 +154,7 @@ class WorkersConfig(_Section):
         default=4, ge=1, description="the first pose after which a live calibration runs")
 
 
-class HandsFreeConfig(_Section):
+class HandsFreeConfig(ConfigModel):
     """Capture by itself once the checkerboard has been held still in view (poses only)."""
 
     enabled: bool = False
@@ -214,7 +212,8 @@ class DaemonConfig(BaseSettings):
 def load_config(path: Path | None = None) -> DaemonConfig:
     """Read the configuration from `path` (None: defaults) and the environment.
 
-    Raises ConfigError naming the file and every invalid field.
+    Raises ConfigError naming the file, then one line per problem (the key, its section and,
+    for an unknown key, the keys the section accepts), then where the keys are documented.
     """
     if path is not None:
         path = Path(path)
@@ -230,7 +229,9 @@ def load_config(path: Path | None = None) -> DaemonConfig:
         return settings_cls()
     except ValidationError as exc:
         where = f"config file {path}" if path else "the configuration"
-        problems = "; ".join(
-            f"{'.'.join(map(str, e['loc'])) or '(top level)'}: {e['msg']}" for e in exc.errors())
-        raise ConfigError(f"{where} (with {ENV_PREFIX}* overrides) is invalid: {problems}") \
-            from None
+        problems = describe_problems(exc, DaemonConfig)
+        raise ConfigError(
+            f"{where} (with {ENV_PREFIX}* overrides) is invalid:\n"
+            + "".join(f"  {line}\n" for line in problems)
+            + f"(the keys and sections are described in {DOCS}; [hardware.capture] is "
+              "acquisition/capture_config.py)") from None
