@@ -28,6 +28,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--cache", type=Path, default=Path("~/.cache/micam/worker"),
                    help="directory for fetched session files, one per worker "
                         "(default ~/.cache/micam/worker)")
+    p.add_argument("--cache-max", type=_size, default="4GiB", metavar="SIZE",
+                   help="size limit of the cache (e.g. 500MiB, 4GiB, 2GB); beyond it the least "
+                        "recently used sessions are evicted, never the one a job is using "
+                        "(default 4GiB)")
     p.add_argument("--heartbeat", type=float, default=1.0, metavar="S",
                    help="heartbeat interval in seconds (default 1; match the daemon's)")
     p.add_argument("--daemon-timeout", type=float, default=10.0, metavar="S",
@@ -42,6 +46,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(run=run)
 
 
+def _size(text: str) -> int:
+    """`--cache-max`: a size in bytes, with an optional unit (argparse's error if invalid)."""
+    from calibration.worker.cache import parse_size
+
+    try:
+        return parse_size(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def run(args: argparse.Namespace) -> int:
     from acquisition.daemon.systemd import configure_logging
     from acquisition.errors import UserError
@@ -53,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
     settings = WorkerSettings(
         jobs=args.jobs or beside(args.connect, "jobs"),
         files=args.files or beside(args.connect, "files"),
-        cache=args.cache, heartbeat_interval_s=args.heartbeat,
+        cache=args.cache, cache_max_bytes=args.cache_max, heartbeat_interval_s=args.heartbeat,
         daemon_timeout_s=args.daemon_timeout, joint=not args.no_joint,
         server_key=args.server_key, client_key=args.client_key,
         **({"name": args.name} if args.name else {}))

@@ -50,7 +50,7 @@ from acquisition.daemon.job_messages import (
 )
 from acquisition.daemon.keys import secure_client
 
-from .cache import ChecksumMismatch, FileCache
+from .cache import DEFAULT_MAX_BYTES, ChecksumMismatch, FileCache
 from .compute import compute
 from .fetch import FetchFailed, fetch_job_files
 
@@ -67,6 +67,8 @@ class WorkerSettings:
         jobs: the daemon's jobs endpoint; files: its file endpoint.
         name: shown in the daemon's events and status.
         cache: where fetched session files are kept (one worker per directory).
+        cache_max_bytes: the cache's size limit, bytes; beyond it whole sessions are evicted,
+            least recently used first, never the one a job is using (default 4 GiB).
         heartbeat_interval_s: how often to heartbeat when there is nothing else to send.
         daemon_timeout_s: a daemon silent this long is presumed gone: reconnect.
         joint: run the joint fit in final jobs (the default calibration).
@@ -78,6 +80,7 @@ class WorkerSettings:
     files: str
     name: str = field(default_factory=lambda: f"{socket.gethostname()}-{os.getpid()}")
     cache: Path = Path("~/.cache/micam/worker")
+    cache_max_bytes: int = DEFAULT_MAX_BYTES
     heartbeat_interval_s: float = 1.0
     daemon_timeout_s: float = 10.0
     joint: bool = True
@@ -91,7 +94,7 @@ class Worker:
 
     def __init__(self, settings: WorkerSettings) -> None:
         self.settings = settings
-        self.cache = FileCache(settings.cache)
+        self.cache = FileCache(settings.cache, settings.cache_max_bytes)
         self._context = zmq.Context()
         self._stop = threading.Event()
         self._reports: queue.Queue[BaseModel | tuple[Done, bytes] | None] = queue.Queue()
@@ -223,18 +226,21 @@ class Worker:
         """The job thread: fetch, calibrate, report (never raises)."""
         report = self._reports.put
         try:
-            files = self._context.socket(zmq.DEALER)
-            files.linger = 0
-            self._secure(files)
-            files.connect(self.settings.files)
-            try:
-                report(Progress(job_id=job.job_id, attempt=job.attempt, stage="fetch"))
-                fetch_job_files(files, job, self.cache, timeout_s=self.settings.fetch_timeout_s)
-            finally:
-                files.close(linger=0)
-            out = compute(job, self.cache.session_dir(job), self.settings.joint,
-                          lambda stage: report(Progress(job_id=job.job_id, attempt=job.attempt,
-                                                        stage=stage[:64])))
+            with self.cache.use(job) as session:  # not evicted while fetched and calibrated
+                files = self._context.socket(zmq.DEALER)
+                files.linger = 0
+                self._secure(files)
+                files.connect(self.settings.files)
+                try:
+                    report(Progress(job_id=job.job_id, attempt=job.attempt, stage="fetch"))
+                    fetch_job_files(files, job, self.cache,
+                                    timeout_s=self.settings.fetch_timeout_s)
+                finally:
+                    files.close(linger=0)
+                out = compute(job, session, self.settings.joint,
+                              lambda stage: report(Progress(job_id=job.job_id,
+                                                            attempt=job.attempt,
+                                                            stage=stage[:64])))
             if isinstance(out, LiveUpdate):
                 report(Live(job_id=job.job_id, attempt=job.attempt, update=out))
             else:
