@@ -10,10 +10,22 @@ zgemv 0.90 ms against 0.07 ms (load 5.8).
 from __future__ import annotations
 
 import contextlib
+import functools
 
-from threadpoolctl import threadpool_limits
+from threadpoolctl import ThreadpoolController
+
+
+@functools.cache
+def _controller() -> ThreadpoolController:
+    """The BLAS libraries of this process, found once (a search of the loaded libraries takes
+    about 3 ms, too much to repeat at every call)."""
+    import scipy.linalg  # noqa: F401  (loads SciPy's own BLAS, so that it is controlled too)
+
+    return ThreadpoolController()
 
 
 def single_threaded_blas() -> contextlib.AbstractContextManager:
-    """A context in which BLAS uses one thread (restored on exit)."""
-    return threadpool_limits(limits=1, user_api="blas")
+    """A context in which BLAS uses one thread (restored on exit). Enter it in the calling
+    thread before starting worker threads that enter it too: each exit restores the limit
+    its entry found."""
+    return _controller().limit(limits=1, user_api="blas")
