@@ -32,6 +32,7 @@ peak is no longer guaranteed at the source) can be shown.
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Iterator
 from enum import StrEnum
 
@@ -55,17 +56,13 @@ every this many steps (the recurrence's rounding error grows by about 1e-16 per 
 
 
 def _distances(points: np.ndarray, mics: np.ndarray) -> np.ndarray:
-    """|points[g] - mics[m]| (G, M), one coordinate at a time (no (G, M, 3) temporary).
-
-    Column-major (Fortran order): every (G, M) array derived from it keeps that layout, the
-    one in which a steering array is, as BLAS sees it, the G x M matrix h itself (see
-    `beamform.quadratic_form`, where it makes the triangular product 10 % faster)."""
-    total = np.zeros((mics.shape[0], points.shape[0]))
+    """|points[g] - mics[m]| (G, M), one coordinate at a time (no (G, M, 3) temporary)."""
+    total = np.zeros((points.shape[0], mics.shape[0]))
     for axis in range(3):
-        d = mics[:, axis, None] - points[None, :, axis]
+        d = points[:, axis, None] - mics[None, :, axis]
         d *= d
         total += d
-    return np.sqrt(total, out=total).T
+    return np.sqrt(total, out=total)
 
 
 def unit_phasors(angle: np.ndarray) -> np.ndarray:
@@ -134,9 +131,10 @@ def _as_points(points: np.ndarray, what: str) -> np.ndarray:
 class SteeringModel:
     """Steering vectors of a set of scan points for one array, at any frequency.
 
-    The distances and amplitudes are computed once; `vectors(f)` then costs one complex
-    exponential per (point, microphone), and `vectors_at(freqs)` advances equally spaced bins
-    by a complex multiplication instead.
+    The distances and amplitudes are computed on first use and kept; `vectors(f)` then costs
+    one complex exponential per (point, microphone), and `vectors_at(freqs)` advances equally
+    spaced bins by a complex multiplication instead. `block(start, stop)` is the model of a
+    contiguous range of the points (for cache-sized, parallel work).
 
     Args:
         points: (G, 3) scan points, metres, in the frame of the microphones.
@@ -162,19 +160,52 @@ class SteeringModel:
         self.formulation = Formulation(formulation)
         self.reference = (self.mics.mean(axis=0) if reference is None
                           else np.asarray(reference, dtype=np.float64).reshape(3))
-        r = _distances(self.points, self.mics)  # (G, M)
-        if np.any(r < 1e-9):
-            raise ValueError("a scan point coincides with a microphone")
-        r0 = np.linalg.norm(self.points - self.reference, axis=1)
-        self.distances = r
-        self.path_difference = r - r0[:, None]
+        self.latencies_s = None
         if latencies_s is not None:
             tau = np.asarray(latencies_s, dtype=np.float64)
             if tau.shape != (self.n_mics,):
                 raise ValueError(f"latencies must be one per microphone ({self.n_mics}), got "
                                  f"shape {tau.shape}")
-            self.path_difference += self.c * tau
-        self.amplitude = amplitudes(self.formulation, r, r0)
+            self.latencies_s = tau
+        self._geometry: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+
+    def _computed(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(distances r_m, path differences r_m - r_0 + c tau_m, amplitudes A_m), each (G, M)."""
+        if self._geometry is None:
+            r = _distances(self.points, self.mics)
+            if np.any(r < 1e-9):
+                raise ValueError("a scan point coincides with a microphone: move the scan "
+                                 "surface off the array")
+            r0 = np.linalg.norm(self.points - self.reference, axis=1)
+            path = r - r0[:, None]
+            if self.latencies_s is not None:
+                path += self.c * self.latencies_s
+            self._geometry = (r, path, amplitudes(self.formulation, r, r0))
+        return self._geometry
+
+    @property
+    def distances(self) -> np.ndarray:
+        """|x - X_m| (G, M), metres."""
+        return self._computed()[0]
+
+    @property
+    def path_difference(self) -> np.ndarray:
+        """r_m - r_0 + c tau_m (G, M), metres: the phase is -k times this."""
+        return self._computed()[1]
+
+    @property
+    def amplitude(self) -> np.ndarray:
+        """A_m (G, M), the formulation's real amplitudes."""
+        return self._computed()[2]
+
+    def block(self, start: int, stop: int) -> SteeringModel:
+        """The model of points[start:stop]: slices of this one's arrays if they are computed,
+        else computed for those points only."""
+        part = copy.copy(self)
+        part.points = self.points[start:stop]
+        if self._geometry is not None:
+            part._geometry = tuple(a[start:stop] for a in self._geometry)
+        return part
 
     @property
     def n_points(self) -> int:
@@ -192,7 +223,7 @@ class SteeringModel:
         return self.amplitude * np.exp(-1j * self.wavenumber(freq_hz) * self.path_difference)
 
     def _vectors_single_trig(self, freq_hz: float) -> np.ndarray:
-        """(G, M) complex128 steering vectors, accurate to about 3e-7 (enough for complex64).
+        """(G, M) complex64 steering vectors, accurate to about 3e-7.
 
         The phase k (r_m - r_0) is computed and reduced to [-pi, pi] in float64; only the
         reduced angle is rounded to float32 and its cosine and sine are taken in float32
@@ -204,10 +235,12 @@ class SteeringModel:
         cycles -= np.rint(cycles)
         angle = cycles.astype(np.float32)
         angle *= np.float32(2.0 * np.pi)
-        h = np.empty_like(angle, dtype=np.complex128)
-        np.multiply(self.amplitude, np.cos(angle), out=h.real)
-        np.multiply(self.amplitude, np.sin(angle), out=h.imag)
-        np.negative(h.imag, out=h.imag)
+        amplitude = self.amplitude.astype(np.float32)
+        h = np.empty_like(angle, dtype=np.complex64)
+        np.multiply(amplitude, np.cos(angle), out=h.real)
+        np.sin(angle, out=angle)
+        amplitude *= angle
+        np.negative(amplitude, out=h.imag)
         return h
 
     def _step_single(self, df_hz: float) -> np.ndarray:
@@ -229,7 +262,7 @@ class SteeringModel:
         return z
 
     def vectors_at(self, freqs_hz: np.ndarray, dtype: type = np.complex128,
-                   out: np.ndarray | None = None) -> Iterator[np.ndarray]:
+                   shared: bool = False) -> Iterator[np.ndarray]:
         """Steering vectors (G, M) for each frequency in turn, as `dtype`.
 
         Between equally spaced frequencies h(f + df) = h(f) * exp(-i k(df) (r_m - r_0)): one
@@ -240,20 +273,22 @@ class SteeringModel:
         3e-7 rad, against Acoular's 8e-6 at 8 kHz) and the step `_step_single`, so the yielded
         vectors stay within about 2e-6 of `vectors(f)` (relative to their largest element), and
         the beamforming maps within 7e-7 per bin of the float64 maps over the 20 bins of the
-        benchmark. Each yielded array belongs to the caller, who may overwrite it; with `out`
-        (shape (G, M), of `dtype`) every bin is written into `out` and `out` is yielded (valid
-        until the next bin), which saves allocating (and the kernel zeroing) a new array per bin.
+        benchmark.
+
+        Each yielded array belongs to the caller, unless `shared`: then it is the generator's
+        own state, read-only and valid until the next bin (it is advanced in place), which
+        saves allocating and writing a new (G, M) array per bin.
         """
         freqs = np.asarray(freqs_hz, dtype=np.float64).ravel()
         single = np.dtype(dtype) == np.complex64
         if not single and np.dtype(dtype) != np.complex128:
             raise ValueError(f"steering vectors are complex64 or complex128, not {dtype}")
-        exact = self._vectors_single_trig if single else self.vectors
-        if out is not None and (out.dtype != np.dtype(dtype)
-                                or out.shape != self.path_difference.shape):
-            raise ValueError(f"out must be a (G, M) {np.dtype(dtype)} array")
         if freqs.size == 0:
             return
+
+        def exact(f: float) -> np.ndarray:
+            return self._vectors_single_trig(f) if single else self.vectors(f)
+
         step: tuple[float, np.ndarray] | None = None
         state = None
         if not single and freqs.size > 1:
@@ -268,40 +303,39 @@ class SteeringModel:
                 state = _power(step[1], n0)
                 state *= self.amplitude
         if state is None:
+            # In complex64 the recurrence runs in complex64 too: half the memory traffic, and
+            # its rounding (about 6e-8 per step, RENORM_STEPS at most) stays far below 1e-5.
             state = exact(freqs[0])
-        if single:
-            # The recurrence itself in complex64 too: half the memory traffic, and its rounding
-            # (about 6e-8 per step, RENORM_STEPS at most) stays far below the 1e-5 agreement.
-            state = state.astype(np.complex64)
         since_exact = 0
         for i in range(freqs.size):
-            # In complex128 the caller gets `state` itself: the next one is computed first.
-            if out is not None:
-                out[...] = state
-                current = out
+            if shared:
+                state.flags.writeable = False
+                yield state
+                state.flags.writeable = True
             else:
-                current = state.astype(np.complex64) if single else state
-            if i + 1 < freqs.size:
-                f, df = freqs[i + 1], freqs[i + 1] - freqs[i]
-                if since_exact + 1 < RENORM_STEPS:
-                    if step is None or abs(df - step[0]) > 1e-9 * max(abs(f), 1.0):
-                        step = (df, self._step_single(df).astype(np.complex64) if single else
-                                unit_phasors(self.wavenumber(df) * self.path_difference))
-                    if single or out is not None:
-                        state *= step[1]
-                    else:
-                        state = state * step[1]
-                    since_exact += 1
-                else:
-                    state = exact(f).astype(np.complex64) if single else exact(f)
-                    since_exact = 0
-            yield current
+                yield state  # the next state is a new array
+            if i + 1 == freqs.size:
+                return
+            f, df = freqs[i + 1], freqs[i + 1] - freqs[i]
+            if since_exact + 1 >= RENORM_STEPS:
+                state = exact(f)
+                since_exact = 0
+                continue
+            if step is None or abs(df - step[0]) > 1e-9 * max(abs(f), 1.0):
+                step = (df, self._step_single(df).astype(np.complex64) if single else
+                        unit_phasors(self.wavenumber(df) * self.path_difference))
+            if shared:
+                state *= step[1]
+            else:
+                state = state * step[1]
+            since_exact += 1
 
 
 def amplitudes(formulation: Formulation, r: np.ndarray, r0: np.ndarray) -> np.ndarray:
     """The real amplitudes A_m (G, M) of a formulation, from distances r (G, M) and r0 (G,)."""
     m = r.shape[1]
-    inv_sq = np.sum(r**-2, axis=1, keepdims=True)
+    inverse = 1.0 / r
+    inv_sq = np.einsum("gm,gm->g", inverse, inverse)[:, None]
     r0 = r0[:, None]
     if formulation is Formulation.CLASSIC:
         return np.full(r.shape, 1.0 / m)
@@ -310,7 +344,7 @@ def amplitudes(formulation: Formulation, r: np.ndarray, r0: np.ndarray) -> np.nd
     if formulation is Formulation.TRUE_LEVEL:
         return 1.0 / (r0 * r * inv_sq)
     if formulation is Formulation.TRUE_LOCATION:
-        return 1.0 / (r * np.sqrt(m * inv_sq))
+        return inverse * (1.0 / np.sqrt(m * inv_sq))
     if formulation is Formulation.PAPER_EQ19:
         return r / m
     return np.broadcast_to(1.0 / np.sqrt(inv_sq), r.shape).copy()
