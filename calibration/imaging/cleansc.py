@@ -13,11 +13,12 @@ Per frequency, starting from the dirty delay-and-sum map B and the CSM D (degrad
 Step 3 uses the linearity of beamforming: B_j(x) = B_max |h(x)^H g|^2, minus
 B_max sum_m |h_m(x)|^2 |g_m|^2 and times M/(M-1) when the diagonal is removed. Acoular instead
 re-beamforms G_j over the whole grid from new sines and cosines at every iteration. Here the
-update is applied lazily (`_LazyMap`): exactly, at every iteration, on a candidate set of the
-highest points (one small matrix-vector product); for the other points the pending
-components are applied together, one matrix product over the whole grid, only when a bound
-on their values could reach the candidates' maximum. The peak of every iteration is the
-exact peak of the fully updated map, so the result is Acoular's, to rounding.
+updates are applied lazily (`_LazyMap`): exactly, at every iteration, on a candidate set of the
+highest points (one small matrix-vector product); every other point keeps the value of its
+last update and an upper bound on what the components since then can have added, and is only
+brought up to date (all its pending components in one matrix product) when that bound could
+reach the candidates' maximum. The peak of every iteration is the exact peak of the fully
+updated map, so the result is Acoular's, to rounding.
 
 The clean map is the sum of the components only (the residual is not added back), as in
 Acoular. Stopping rules (`StopRule`): Acoular's "peak-rise" (stop once the peak exceeds the one
@@ -26,28 +27,29 @@ before a component that would increase the Frobenius norm of the off-diagonal de
 or "none"; always at most `max_iterations` (default 2M) and, optionally, when the peak falls
 `min_peak_db` below the first one.
 
-Precision (`precision`): "double" (the default) is complex128 throughout. "single" computes
-the dirty map and the whole-grid updates (most of the time) in complex64 and keeps the
-candidates' exact updates, the coherence vectors and the degraded CSM in complex128; it is
-about 30 % faster but NOT recommended: the complex64 rounding of the dirty map (6e-7 of its
-maximum) is not cancelled by the updates, so once the sources are removed CLEAN-SC goes on
-picking components from that rounding floor. On the benchmark workload (noise-free simulated
-sources, 144 iterations per bin, peaks down to 1e-14 of the first) its clean maps differ from
-the float64 ones by up to 1.3e-3 of each bin's maximum, against 3e-7 between float64 and
-Acoular (whose float32 phases perturb the dirty map and the updates consistently).
+Precision: complex128 throughout, the dirty map included. Single precision was measured and
+rejected: the complex64 rounding of the dirty map (6e-7 of its maximum) is not cancelled by
+the updates, so once the sources are removed CLEAN-SC goes on picking components from that
+rounding floor. On the benchmark workload (noise-free simulated sources, 144 iterations per
+bin, peaks down to 1e-14 of the first) its clean maps differed from the float64 ones by up to
+1.3e-3 of each bin's maximum, against 3e-7 between float64 and Acoular (whose float32 phases
+perturb the dirty map and the updates consistently).
 """
 
 from __future__ import annotations
 
+import functools
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from enum import StrEnum
 
 import numpy as np
 
 from .._blas import single_threaded_blas
-from .beamform import beamform_csm, complex_dtype, diagonal_norm
+from .beamform import beamform_csm, diagonal_norm
 from .csm import CrossSpectra
+from .parallel import resolve_workers, run_tasks
 from .peaks import subgrid_peak
 from .steering import SteeringModel
 
@@ -114,11 +116,12 @@ class Component:
 
 @dataclass(frozen=True)
 class CleanScResult:
-    """CLEAN-SC of one CSM: the clean map (G,), the residual dirty map (G,), the components."""
+    """CLEAN-SC of one CSM: the clean map (G,), the components, and the residual dirty map
+    (G,) when it was asked for (`clean_sc(..., residual=True)`; None otherwise)."""
 
     clean_map: np.ndarray
-    residual_map: np.ndarray
     components: list[Component]
+    residual_map: np.ndarray | None = None
 
     @property
     def n_iterations(self) -> int:
@@ -132,12 +135,14 @@ def _offdiag_norm(d: np.ndarray) -> float:
     return float(np.sqrt(max(total, 0.0)))
 
 
-def _coherence(d: np.ndarray, w: np.ndarray, peak: float, options: CleanScOptions
+def _coherence(d: np.ndarray, w: np.ndarray, peak: np.ndarray, options: CleanScOptions
                ) -> np.ndarray:
-    """The source vector g (M,) of the component at steering w (see the module docstring)."""
+    """The source vectors g (B, M) of components at steerings w (B, M), peaks (B,), with the
+    degraded CSMs d (B, M, M): several CSMs at once (see the module docstring)."""
+    dw = np.matmul(d, w[:, :, None])[:, :, 0]
     if not options.remove_diagonal:
-        return (d @ w) / peak
-    d1 = (d @ w - np.diagonal(d) * w) / peak
+        return dw / peak[:, None]
+    d1 = (dw - np.diagonal(d, axis1=1, axis2=2) * w) / peak[:, None]
     # The rounds g <- (d1 + |g|^2 w) / sqrt(1 + |w|^2 . |g|^2), from g = w, depend on g only
     # through p = |g|^2, so they are run on p (real): p <- (|d1|^2 + p (2 Re(d1* w) + p |w|^2))
     # / (1 + |w|^2 . p), and g is formed from the last p. The same g as the complex rounds,
@@ -147,108 +152,202 @@ def _coherence(d: np.ndarray, w: np.ndarray, peak: float, options: CleanScOption
     cross = 2.0 * (d1.real * w.real + d1.imag * w.imag)
     p = w_power
     for _ in range(options.coherence_iterations - 1):
-        scale = 1.0 / (1.0 + float(w_power @ p))
+        scale = 1.0 / (1.0 + np.einsum("bm,bm->b", w_power, p))
         q = p * w_power
         q += cross
         q *= p
         q += d1_power
-        q *= scale
+        q *= scale[:, None]
         p = q
     g = d1 + p * w
-    g *= 1.0 / math.sqrt(1.0 + float(w_power @ p))
+    g *= (1.0 / np.sqrt(1.0 + np.einsum("bm,bm->b", w_power, p)))[:, None]
     return g
+
+
+BLOCK_POINTS = 256
+"""Points per block of `_LazyMap`."""
+
+SHRINK_BELOW = 0.1
+"""`_LazyMap` stops updating an exact block at every component once its maximum is below this
+fraction of the map's maximum."""
+
+RESORT_EVERY = 16
+"""`_LazyMap` re-sorts its exact points by value every this many components, so that the exact
+set follows the map as it changes shape."""
 
 
 class _LazyMap:
     """A dirty map under CLEAN-SC updates B <- B - c_j b_j, exact wherever it is read.
 
-    `values` is exact as of the last refresh; the components since then are pending. A
-    candidate set S (the highest points at the refresh) is kept exact at every update. For a
-    point outside S, b_j >= -sum_m |h_m|^2 |g_m|^2 >= -sum_m max_x |h_m(x)|^2 |g_m|^2 (and
-    b_j >= 0 with the diagonal kept), so its value is at most tau + bound, with tau its
-    maximum at the refresh and bound the sum of c_j sum_m max_x |h_m(x)|^2 |g_jm|^2. While the
-    candidates' maximum is at least that, it is the map's maximum; otherwise the pending
-    components are applied to all points (one (G x M) (M x k) product) and S is chosen again.
+    The points are sorted by their dirty-map value, highest first, and cut into blocks of
+    `BLOCK_POINTS`; the steering vectors are copied in that order, so that every block is
+    contiguous. The first `active` blocks are exact: every component is applied to them as it
+    comes (one matrix-vector product). Every other block keeps the values of its last update,
+    its maximum then and its epoch (the number of components then). A component can raise a
+    point by at most c_j sum_m max_x |h_m(x)|^2 |g_jm|^2 (b_j >= -sum_m |h_m|^2 |g_jm|^2 with
+    the diagonal removed, b_j >= 0 with it kept); `raised[k]` sums that over the first k
+    components, so a stale block's values are at most its maximum + raised[n] - raised[epoch].
+    While the exact blocks' maximum is at least every such bound, it is the map's maximum.
+    Otherwise the block with the highest bound is brought up to date (all its pending
+    components in one matrix product) and, if its maximum is within `SHRINK_BELOW` of the peak,
+    swapped in next to the exact blocks and kept exact. The exact points are re-sorted by value
+    now and then (`RESORT_EVERY`) and their last blocks let go once their maximum is below
+    `SHRINK_BELOW` of the peak. As the components are removed
+    the map falls, so the exact set follows its top while the rest is touched only when the
+    peak has fallen to its level, with all its pending components at once; Acoular re-beamforms
+    the whole grid at every component instead.
     """
 
     def __init__(self, values: np.ndarray, h: np.ndarray, power: np.ndarray,
-                 remove_diagonal: bool, n_candidates: int, dtype: type = np.complex128
-                 ) -> None:
-        self.values = values
-        self.h = h
-        self.h_full = h.astype(dtype, copy=False)  # for the whole-grid products
-        self.power = power
+                 remove_diagonal: bool, max_components: int,
+                 block_points: int = BLOCK_POINTS) -> None:
+        self.order = np.argsort(-values, kind="stable")
+        self.position = np.empty_like(self.order)  # inverse permutation
+        self.position[self.order] = np.arange(self.order.size)
+        self.values = values[self.order]
+        self.h = h[self.order]
+        self.power = power[self.order]
         self.remove_diagonal = remove_diagonal
         # max over the points of |h_m|^2, per microphone (0 with the diagonal kept)
         self.power_max = power.max(axis=0) if remove_diagonal else np.zeros(power.shape[1])
-        self.n_candidates = min(max(n_candidates, 1), values.size)
-        self.pending_g: list[np.ndarray] = []
-        self.pending_c: list[float] = []
-        self.refreshes = 0
-        self._select()
+        self.size = max(int(block_points), 1)
+        self.edges = np.append(np.arange(0, values.size, self.size), values.size)
+        n_blocks = self.edges.size - 1
+        self.epoch = np.zeros(n_blocks, dtype=np.intp)
+        self.block_max = self.values[self.edges[:-1]].copy()  # sorted: each block's first
+        self.active = 1
+        self.sorted_at = 0  # the number of components at the last re-sort
+        self.history_conj = np.empty((max_components, h.shape[1]), dtype=np.complex128)
+        self.history_c = np.empty(max_components)
+        self.raised = np.zeros(max_components + 1)
+        self.n = 0
 
-    def _beam(self, h: np.ndarray, power: np.ndarray, g: np.ndarray) -> np.ndarray:
-        """b (n,) = |h^H g|^2 (minus sum_m |h_m|^2 |g_m|^2 without the diagonal)."""
-        projection = (h @ g.conj()).view(np.float64).reshape(-1, 2)
-        beam = np.einsum("gk,gk->g", projection, projection)
+    def _beam(self, h: np.ndarray, power: np.ndarray, start: int) -> np.ndarray:
+        """sum_j c_j b_j (r,) at rows h (r, M) with |h|^2 power (r, M), over the components
+        j from `start` to now, b_j = |h^H g_j|^2 (minus sum_m |h_m|^2 |g_jm|^2 without the
+        diagonal)."""
+        g_conj = self.history_conj[start:self.n]  # (k, M)
+        c = self.history_c[start:self.n]
+        projection = h @ g_conj.T  # (r, k)
+        beam = (projection.real**2 + projection.imag**2) @ c
         if self.remove_diagonal:
-            beam -= power @ (g * g.conj()).real
+            beam -= power @ ((g_conj.real**2 + g_conj.imag**2).T @ c)
         return beam
 
-    def _select(self) -> None:
-        k = self.n_candidates
-        if k == self.values.size:
-            self.candidates = np.arange(k)
-            self.tau = -np.inf
-        else:
-            order = np.argpartition(self.values, self.values.size - k - 1)
-            self.candidates = np.sort(order[self.values.size - k:])
-            self.tau = float(self.values[order[self.values.size - k - 1]])
-        self.h_c = self.h[self.candidates]
-        self.power_c = self.power[self.candidates]
-        self.values_c = self.values[self.candidates]
-        self.bound = 0.0
+    def _rows(self, block: int) -> slice:
+        return slice(self.edges[block], self.edges[block + 1])
 
-    def _apply_pending(self) -> None:
-        if not self.pending_g:
-            return
-        g = np.array(self.pending_g)  # (k, M)
-        c = np.array(self.pending_c)
-        projection = self.h_full @ g.conj().T.astype(self.h_full.dtype)  # (G, k)
-        self.values -= (projection.real**2 + projection.imag**2) @ c
-        if self.remove_diagonal:
-            self.values += self.power @ ((g * g.conj()).real.T @ c)
-        self.pending_g.clear()
-        self.pending_c.clear()
+    def _update(self, block: int) -> None:
+        """Bring a stale block up to date."""
+        if self.epoch[block] < self.n:
+            rows = self._rows(block)
+            self.values[rows] -= self._beam(self.h[rows], self.power[rows],
+                                            int(self.epoch[block]))
+            self.epoch[block] = self.n
+            self.block_max[block] = self.values[rows].max()
+
+    def _swap(self, a: int, b: int) -> None:
+        """Exchange the points of two blocks of the same size (with their state)."""
+        ra, rb = self._rows(a), self._rows(b)
+        for name in ("values", "h", "power", "order"):
+            array = getattr(self, name)
+            array[ra], array[rb] = array[rb].copy(), array[ra].copy()
+        self.position[self.order[ra]] = np.arange(ra.start, ra.stop)
+        self.position[self.order[rb]] = np.arange(rb.start, rb.stop)
+        for state in (self.epoch, self.block_max):
+            state[a], state[b] = state[b], state[a]
+
+    def _activate(self, block: int) -> None:
+        """Make an up-to-date stale block exact: move it next to the exact ones."""
+        last = self.epoch.size - 1
+        if block != self.active and block != last and self.active != last:
+            self._swap(block, self.active)
+        elif block == last and self.active != last:
+            # the last block may be shorter: make every block between exact instead
+            for b in range(self.active, last):
+                self._update(b)
+            self.active = last
+        self.active += 1
+
+    def _resort_exact(self) -> None:
+        """Sort the exact points by their current values (highest first)."""
+        end = self.edges[self.active]
+        order = np.argsort(-self.values[:end], kind="stable")
+        for name in ("values", "h", "power", "order"):
+            array = getattr(self, name)
+            array[:end] = array[:end][order]
+        self.position[self.order[:end]] = np.arange(end)
+
+    def _shrink(self, best: float) -> None:
+        """Let go of the last exact blocks while their maximum is below SHRINK_BELOW * best."""
+        while self.active > 1:
+            last = self.active - 1
+            top = float(self.values[self._rows(last)].max())
+            if top >= SHRINK_BELOW * best:
+                break
+            self.block_max[last] = top  # exact now, stale from the next component on
+            self.epoch[last] = self.n
+            self.active = last
 
     def subtract(self, coefficient: float, g: np.ndarray) -> None:
         """B <- B - coefficient * b(g)."""
-        self.values_c -= coefficient * self._beam(self.h_c, self.power_c, g)
-        self.pending_g.append(g)
-        self.pending_c.append(coefficient)
-        self.bound += coefficient * float(self.power_max @ (g.real * g.real + g.imag * g.imag))
+        n, end = self.n, self.edges[self.active]
+        g_conj = self.history_conj[n]
+        np.conjugate(g, out=g_conj)
+        self.history_c[n] = coefficient
+        projection = (self.h[:end] @ g_conj).view(np.float64).reshape(-1, 2)
+        beam = np.einsum("gk,gk->g", projection, projection)
+        g_power = g.real * g.real + g.imag * g.imag
+        if self.remove_diagonal:
+            beam -= self.power[:end] @ g_power
+        beam *= coefficient
+        self.values[:end] -= beam
+        self.raised[n + 1] = self.raised[n] + coefficient * float(self.power_max @ g_power)
+        self.n = n + 1
 
     def peak(self) -> tuple[int, float]:
-        """Index and value of the map's maximum."""
-        i = int(np.argmax(self.values_c))
-        if self.values_c[i] < self.tau + self.bound:
-            self._apply_pending()
-            self._select()
-            self.refreshes += 1
-            i = int(np.argmax(self.values_c))
-        return int(self.candidates[i]), float(self.values_c[i])
+        """Index (in the caller's order) and value of the map's maximum."""
+        n_blocks = self.epoch.size
+        best = float(np.max(self.values[:self.edges[self.active]]))
+        while self.active < n_blocks:
+            stale = slice(self.active, n_blocks)
+            bounds = self.block_max[stale] + (self.raised[self.n] - self.raised[self.epoch[stale]])
+            t = self.active + int(np.argmax(bounds))
+            if best >= bounds[t - self.active]:
+                break
+            self._update(t)
+            if self.block_max[t] >= SHRINK_BELOW * best:  # near the top: keep it exact
+                self._activate(t)
+                best = max(best, float(self.block_max[t]))
+        if self.active > 1 and self.n % RESORT_EVERY == 0 and self.n != self.sorted_at:
+            self.sorted_at = self.n
+            self._resort_exact()
+            self._shrink(best)
+        i = int(np.argmax(self.values[:self.edges[self.active]]))
+        return int(self.order[i]), float(self.values[i])
+
+    def steering(self, index: int) -> np.ndarray:
+        """h (M,) of a point (caller's index)."""
+        return self.h[self.position[index]]
 
     def at(self, indices: np.ndarray) -> np.ndarray:
-        """Exact values at some points."""
-        values = self.values[indices]
-        for g, c in zip(self.pending_g, self.pending_c, strict=True):
-            values -= c * self._beam(self.h[indices], self.power[indices], g)
+        """Exact values at some points (caller's indices), without changing the state."""
+        rows = self.position[np.asarray(indices)]
+        blocks = np.searchsorted(self.edges, rows, side="right") - 1
+        values = self.values[rows]
+        for b in np.unique(blocks[blocks >= self.active]):
+            pick = blocks == b
+            r = rows[pick]
+            values[pick] -= self._beam(self.h[r], self.power[r], int(self.epoch[b]))
         return values
 
     def full(self) -> np.ndarray:
-        """The whole map, exact (the last call: the candidates are not kept up to date)."""
-        self._apply_pending()
-        return self.values
+        """The whole map, exact, in the caller's order."""
+        for b in range(self.active, self.epoch.size):
+            self._update(b)
+        result = np.empty_like(self.values)
+        result[self.order] = self.values
+        return result
 
 
 def _subgrid(lazy: _LazyMap, index: int, shape: tuple[int, int]) -> tuple[float, float]:
@@ -262,76 +361,171 @@ def _subgrid(lazy: _LazyMap, index: int, shape: tuple[int, int]) -> tuple[float,
     return float(rows[0] + fi), float(cols[0] + fj)
 
 
+class _Deconvolution:
+    """The CLEAN-SC of one CSM, one iteration at a time (`_clean_sc_lockstep` drives several).
+
+    The degraded CSM is a view into the driver's stack, so that the coherence vectors and the
+    CSM updates of all the CSMs are computed together.
+    """
+
+    def __init__(self, degraded: np.ndarray, h: np.ndarray, power: np.ndarray,
+                 options: CleanScOptions, grid_shape: tuple[int, int] | None, block_points: int,
+                 max_iterations: int, workers: int | None) -> None:
+        self.options = options
+        self.grid_shape = grid_shape
+        self.degraded = degraded
+        self.norm = diagonal_norm(degraded.shape[0], options.remove_diagonal)
+        dirty = beamform_csm(h, degraded, options.remove_diagonal, power, "double", workers)
+        self.lazy = _LazyMap(dirty, h, power, options.remove_diagonal, max_iterations,
+                             block_points)
+        self.clean = np.zeros(h.shape[0])
+        self.components: list[Component] = []
+        self.peaks: list[float] = []
+        self.floor = -np.inf
+        self.csm_norm = _offdiag_norm(degraded)
+        self.done = False
+        self.index, self.peak = -1, 0.0
+
+    def find_peak(self) -> None:
+        """The next component's point and peak; done when there is none."""
+        self.index, self.peak = self.lazy.peak()
+        if not self.peaks and self.options.min_peak_db is not None:
+            self.floor = self.peak * 10 ** (-self.options.min_peak_db / 10)
+        if self.peak <= 0 or self.peak < self.floor:
+            self.done = True
+
+    def steering(self) -> np.ndarray:
+        """w = sqrt(M/(M-1)) h (M,) at the peak (the norm is 1 with the diagonal kept)."""
+        return math.sqrt(self.norm) * self.lazy.steering(self.index)
+
+    def accept(self, g: np.ndarray) -> bool:
+        """Record the component of coherence vector g (unless a stop rule says otherwise) and
+        update the map; True when the CSM is to be degraded by it and the iterations go on."""
+        options, gain = self.options, self.options.loop_gain
+        if options.stop_rule is StopRule.CSM_NORM:
+            new_norm = _offdiag_norm(self.degraded - gain * self.peak * np.outer(g, g.conj()))
+            if new_norm >= self.csm_norm:
+                self.done = True
+                return False
+            self.csm_norm = new_norm
+        subgrid = (_subgrid(self.lazy, self.index, self.grid_shape)
+                   if self.grid_shape is not None else None)
+        self.components.append(Component(self.index, gain * self.peak, self.peak, subgrid, g))
+        self.clean[self.index] += gain * self.peak
+        self.peaks.append(self.peak)
+        j = len(self.peaks) - 1
+        if (options.stop_rule is StopRule.PEAK_RISE and j > options.stop_window
+                and self.peak > self.peaks[j - options.stop_window]):
+            self.done = True
+            return False
+        self.lazy.subtract(gain * self.peak * self.norm, g)
+        return True
+
+
+def _clean_sc_lockstep(csms: np.ndarray, steerings: Iterable[np.ndarray], power: np.ndarray,
+                       options: CleanScOptions, grid_shape: tuple[int, int] | None = None,
+                       block_points: int = BLOCK_POINTS, residual: bool = False,
+                       workers: int | None = 1) -> list[CleanScResult]:
+    """CLEAN-SC of several CSMs (B, M, M), each with its steering vectors (G, M) (taken from
+    `steerings` in turn, and copied), iterated together: the per-iteration work of all of them
+    (coherence vectors, CSM updates) is done in one set of array operations instead of one per
+    CSM, which divides the interpreter's share of the time by B. Each CSM's result is the one
+    it would have alone."""
+    degraded = np.array(csms, dtype=np.complex128, copy=True)
+    m = degraded.shape[-1]
+    max_iterations = options.max_iterations or 2 * m
+    gain = options.loop_gain
+    with single_threaded_blas():
+        runs = [_Deconvolution(degraded[b], h, power, options, grid_shape, block_points,
+                               max_iterations, workers)
+                for b, h in zip(range(len(degraded)), steerings, strict=False)]
+        for _ in range(max_iterations):
+            for run in runs:
+                if not run.done:
+                    run.find_peak()
+            live = np.array([b for b, run in enumerate(runs) if not run.done], dtype=np.intp)
+            if live.size == 0:
+                break
+            every = live.size == len(runs)
+            d = degraded if every else degraded[live]
+            peaks = np.array([runs[b].peak for b in live])
+            g = _coherence(d, np.array([runs[b].steering() for b in live]), peaks, options)
+            go_on = np.array([runs[b].accept(g[i]) for i, b in enumerate(live)])
+            if not go_on.any():
+                continue
+            coefficient = gain * peaks * go_on
+            sources = g[:, :, None] * g.conj()[:, None, :]
+            sources *= coefficient[:, None, None]
+            if every:
+                degraded -= sources
+            else:
+                degraded[live] -= sources
+        return [CleanScResult(run.clean, run.components, run.lazy.full() if residual else None)
+                for run in runs]
+
+
 def clean_sc(csm: np.ndarray, h: np.ndarray, options: CleanScOptions | None = None,
              h_power: np.ndarray | None = None, grid_shape: tuple[int, int] | None = None,
-             candidate_fraction: float = 1 / 8, precision: str = "double") -> CleanScResult:
+             block_points: int = BLOCK_POINTS, residual: bool = False,
+             workers: int | None = None) -> CleanScResult:
     """CLEAN-SC of one CSM (M, M) with steering vectors h (G, M).
 
     Args:
         h_power: |h|^2 (G, M) if known (frequency-independent); computed otherwise.
         grid_shape: (n_u, n_v) when the G points form a grid (u slowest): each component then
             records the sub-grid position of its dirty-map peak.
-        candidate_fraction: share of the points kept exact at every iteration (`_LazyMap`);
-            it changes the speed, not the result.
-        precision: "single" or "double" (see the module docstring).
+        block_points: points per block of the lazy map (`_LazyMap`); it changes the speed,
+            not the result.
+        residual: also return the residual dirty map (every component applied to every point:
+            as much work again as the iterations themselves, so off by default; Acoular does
+            not return it).
+        workers: threads for the dirty map (None: all cores).
     """
     options = options or CleanScOptions()
-    if not 0.0 < candidate_fraction <= 1.0:
-        raise ValueError(f"candidate_fraction {candidate_fraction} must be in (0, 1]")
+    if block_points < 1:
+        raise ValueError(f"block_points {block_points} must be at least 1")
     csm = np.asarray(csm)
-    m = csm.shape[-1]
     power = h_power if h_power is not None else h.real**2 + h.imag**2
-    if power.shape != h.shape:
-        raise ValueError(f"|h|^2 {power.shape} and steering vectors {h.shape} differ in shape")
-    norm = diagonal_norm(m, options.remove_diagonal)
-    gain = options.loop_gain
-    dtype = complex_dtype(precision)
-    dirty = beamform_csm(h, csm, options.remove_diagonal, power, precision=precision)
-    degraded = np.array(csm, dtype=np.complex128, copy=True)
-    clean = np.zeros(h.shape[0])
-    components: list[Component] = []
-    peaks: list[float] = []
-    floor = -np.inf
-    csm_norm = _offdiag_norm(degraded)
-    with single_threaded_blas():
-        lazy = _LazyMap(dirty, h, power, options.remove_diagonal,
-                        int(np.ceil(candidate_fraction * h.shape[0])), dtype)
-        for j in range(options.max_iterations or 2 * m):
-            index, peak = lazy.peak()
-            if j == 0 and options.min_peak_db is not None:
-                floor = peak * 10 ** (-options.min_peak_db / 10)
-            if peak <= 0 or peak < floor:
-                break
-            g = _coherence(degraded, np.sqrt(norm) * h[index], peak, options)
-            source = peak * np.outer(g, g.conj())
-            if options.stop_rule is StopRule.CSM_NORM:
-                new_norm = _offdiag_norm(degraded - gain * source)
-                if new_norm >= csm_norm:
-                    break
-                csm_norm = new_norm
-            subgrid = _subgrid(lazy, index, grid_shape) if grid_shape is not None else None
-            components.append(Component(index, gain * peak, peak, subgrid, g))
-            clean[index] += gain * peak
-            peaks.append(peak)
-            if (options.stop_rule is StopRule.PEAK_RISE and j > options.stop_window
-                    and peak > peaks[j - options.stop_window]):
-                break
-            lazy.subtract(gain * peak * norm, g)
-            degraded -= gain * source
-        residual = lazy.full()
-    return CleanScResult(clean, residual, components)
+    if power.shape != h.shape or csm.shape != (h.shape[1], h.shape[1]):
+        raise ValueError(f"steering vectors {h.shape}, |h|^2 {power.shape} and CSM {csm.shape} "
+                         "do not match: expected (G, M), (G, M) and (M, M)")
+    return _clean_sc_lockstep(csm[None], [h], power, options, grid_shape, block_points,
+                              residual, workers)[0]
+
+
+LOCKSTEP_BINS = 4
+"""Bins iterated together by `clean_sc_spectra`: enough to share out the interpreter's work,
+few enough that their exact tiers stay in cache between iterations."""
 
 
 def clean_sc_spectra(spectra: CrossSpectra, steering: SteeringModel,
                      options: CleanScOptions | None = None,
-                     grid_shape: tuple[int, int] | None = None, precision: str = "double"
-                     ) -> list[CleanScResult]:
+                     grid_shape: tuple[int, int] | None = None, workers: int | None = None,
+                     lockstep: int = LOCKSTEP_BINS) -> list[CleanScResult]:
     """CLEAN-SC at every frequency of `spectra`; sum the clean maps for a band map.
-    `precision`: see the module docstring."""
+
+    The bins are shared out, in contiguous runs (each advancing its own steering vectors from
+    bin to bin), over `workers` threads (None: all cores); within a run, groups of `lockstep`
+    bins are iterated together (`_clean_sc_lockstep`).
+    """
     if spectra.n_channels != steering.n_mics:
         raise ValueError(f"the CSM has {spectra.n_channels} channels but the steering model "
                          f"{steering.n_mics} microphones")
+    if lockstep < 1:
+        raise ValueError(f"lockstep {lockstep} must be at least 1 bin")
+    options = options or CleanScOptions()
     power = steering.amplitude**2
-    work = np.empty_like(steering.path_difference, dtype=np.complex128)
-    return [clean_sc(spectra.csm[i], h, options, power, grid_shape, precision=precision)
-            for i, h in enumerate(steering.vectors_at(spectra.freqs_hz, out=work))]
+    freqs = spectra.freqs_hz
+    runs = np.array_split(np.arange(freqs.size), min(resolve_workers(workers), freqs.size))
+    by_run: list[list[CleanScResult]] = [[] for _ in runs]
+
+    def run(k: int) -> None:
+        bins = runs[k]
+        vectors = steering.vectors_at(freqs[bins], shared=True)
+        for start in range(0, bins.size, lockstep):
+            group = bins[start:start + lockstep]
+            by_run[k].extend(_clean_sc_lockstep(spectra.csm[group], vectors, power, options,
+                                                grid_shape))
+
+    run_tasks([functools.partial(run, k) for k in range(len(runs))], workers)
+    return [result for part in by_run for result in part]

@@ -50,7 +50,7 @@ def test_map_update_equals_beamforming_the_degraded_csm() -> None:
                            np.array([1.0, 0.3]), 5000.0) + 1e-4 * noise @ noise.conj().T
     h = SteeringModel(grid.points, MICS, C).vectors(5000.0)
     options = CleanScOptions(max_iterations=25, stop_rule="none")
-    result = clean_sc(csm, h, options, precision="double")
+    result = clean_sc(csm, h, options, residual=True)
     degraded = csm.copy()
     for c in result.components:
         degraded -= options.loop_gain * c.peak * np.outer(c.coherence, c.coherence.conj())
@@ -111,8 +111,11 @@ def test_lazy_updates_pick_the_same_components_as_full_updates() -> None:
     csm = point_source_csm(MICS, np.array([[-0.1, 0.05, 1.0], [0.12, 0.1, 1.0]]),
                            np.array([1.0, 0.4]), 6000.0) + 3e-4 * noise @ noise.conj().T
     h = SteeringModel(grid.points, MICS, C).vectors(6000.0)
-    full = clean_sc(csm, h, CleanScOptions(), grid_shape=grid.shape, candidate_fraction=1.0)
-    lazy = clean_sc(csm, h, CleanScOptions(), grid_shape=grid.shape, candidate_fraction=0.01)
+    full = clean_sc(csm, h, CleanScOptions(), grid_shape=grid.shape,
+                    block_points=grid.points.shape[0],
+                    residual=True)
+    lazy = clean_sc(csm, h, CleanScOptions(), grid_shape=grid.shape, block_points=3,
+                    residual=True)
     assert [c.index for c in lazy.components] == [c.index for c in full.components]
     np.testing.assert_allclose([c.subgrid for c in lazy.components],
                                [c.subgrid for c in full.components], atol=1e-9)
