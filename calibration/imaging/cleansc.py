@@ -38,9 +38,9 @@ perturb the dirty map and the updates consistently).
 
 from __future__ import annotations
 
-import functools
 import math
 from collections.abc import Iterable
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from enum import StrEnum
 
@@ -49,7 +49,7 @@ import numpy as np
 from .._blas import single_threaded_blas
 from .beamform import beamform_csm, diagonal_norm
 from .csm import CrossSpectra
-from .parallel import resolve_workers, run_tasks
+from .parallel import discard_pool, process_pool, resolve_workers
 from .peaks import subgrid_peak
 from .steering import SteeringModel
 
@@ -494,19 +494,36 @@ def clean_sc(csm: np.ndarray, h: np.ndarray, options: CleanScOptions | None = No
 
 
 LOCKSTEP_BINS = 4
-"""Bins iterated together by `clean_sc_spectra`: enough to share out the interpreter's work,
-few enough that their exact tiers stay in cache between iterations."""
+"""Bins iterated together: enough to share out the interpreter's work, few enough that their
+exact blocks stay in cache between iterations."""
+
+
+def _clean_sc_bins(csms: np.ndarray, freqs_hz: np.ndarray, steering: SteeringModel,
+                   options: CleanScOptions, grid_shape: tuple[int, int] | None,
+                   lockstep: int) -> list[CleanScResult]:
+    """CLEAN-SC of consecutive bins (CSMs (B, M, M) at freqs_hz (B,)), `lockstep` at a time,
+    the steering vectors advanced from bin to bin: one job of `clean_sc_spectra`."""
+    power = steering.amplitude**2
+    vectors = steering.vectors_at(freqs_hz, shared=True)
+    results: list[CleanScResult] = []
+    for start in range(0, freqs_hz.size, lockstep):
+        results.extend(_clean_sc_lockstep(csms[start:start + lockstep], vectors, power, options,
+                                          grid_shape))
+    return results
 
 
 def clean_sc_spectra(spectra: CrossSpectra, steering: SteeringModel,
                      options: CleanScOptions | None = None,
-                     grid_shape: tuple[int, int] | None = None, workers: int | None = None,
+                     grid_shape: tuple[int, int] | None = None, workers: int | None = 1,
                      lockstep: int = LOCKSTEP_BINS) -> list[CleanScResult]:
     """CLEAN-SC at every frequency of `spectra`; sum the clean maps for a band map.
 
-    The bins are shared out, in contiguous runs (each advancing its own steering vectors from
-    bin to bin), over `workers` threads (None: all cores); within a run, groups of `lockstep`
-    bins are iterated together (`_clean_sc_lockstep`).
+    With `workers` > 1 (None: all cores) the bins are shared out, in contiguous runs (each
+    advancing its own steering vectors from bin to bin), over that many worker processes
+    (`parallel.process_pool`). Like every use of multiprocessing, that needs a script calling
+    it to keep its top-level work under `if __name__ == "__main__":`, since each worker
+    process imports the main module. Within a run, groups of `lockstep` bins are iterated
+    together (`_clean_sc_lockstep`). The results depend on neither.
     """
     if spectra.n_channels != steering.n_mics:
         raise ValueError(f"the CSM has {spectra.n_channels} channels but the steering model "
@@ -514,18 +531,18 @@ def clean_sc_spectra(spectra: CrossSpectra, steering: SteeringModel,
     if lockstep < 1:
         raise ValueError(f"lockstep {lockstep} must be at least 1 bin")
     options = options or CleanScOptions()
-    power = steering.amplitude**2
     freqs = spectra.freqs_hz
     runs = np.array_split(np.arange(freqs.size), min(resolve_workers(workers), freqs.size))
-    by_run: list[list[CleanScResult]] = [[] for _ in runs]
-
-    def run(k: int) -> None:
-        bins = runs[k]
-        vectors = steering.vectors_at(freqs[bins], shared=True)
-        for start in range(0, bins.size, lockstep):
-            group = bins[start:start + lockstep]
-            by_run[k].extend(_clean_sc_lockstep(spectra.csm[group], vectors, power, options,
-                                                grid_shape))
-
-    run_tasks([functools.partial(run, k) for k in range(len(runs))], workers)
-    return [result for part in by_run for result in part]
+    if len(runs) <= 1:
+        return _clean_sc_bins(spectra.csm, freqs, steering, options, grid_shape, lockstep)
+    pool = process_pool(len(runs))
+    try:
+        jobs = [pool.submit(_clean_sc_bins, spectra.csm[bins], freqs[bins], steering, options,
+                            grid_shape, lockstep) for bins in runs]
+        return [result for job in jobs for result in job.result()]
+    except BrokenProcessPool:
+        discard_pool(len(runs))
+        raise RuntimeError(
+            "a CLEAN-SC worker process died (killed, out of memory, or the calling script "
+            "runs its work at import: put it under `if __name__ == \"__main__\":`); run "
+            "again, or with workers=1 to stay in this process") from None

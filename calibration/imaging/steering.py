@@ -169,6 +169,11 @@ class SteeringModel:
             self.latencies_s = tau
         self._geometry: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
+    def __getstate__(self) -> dict:
+        """Pickled without the computed arrays (G x M each): cheaper to recompute than to
+        ship to another process."""
+        return {**self.__dict__, "_geometry": None}
+
     def _computed(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(distances r_m, path differences r_m - r_0 + c tau_m, amplitudes A_m), each (G, M)."""
         if self._geometry is None:
