@@ -34,6 +34,7 @@ from scipy import fft as sfft
 _CHUNK_ELEMENTS = 8_000_000
 _NEWTON_ITERATIONS = 8
 _NEWTON_TOL_SAMPLES = 1e-7
+_PHASOR_BLOCK = 64  # see _phasors
 
 
 @dataclass(frozen=True)
@@ -161,8 +162,8 @@ def _estimate_chunk(
     guard: int,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """estimate_delays on a chunk of recordings; returns (delay, std, snr_db, psr_db)."""
-    X = sfft.rfft(ref, n_fft, axis=-1)[:, None, bins]  # (r, 1, K)
-    Y = sfft.rfft(rec, n_fft, axis=-1)[..., bins]  # (r, ch, K)
+    X = sfft.rfft(ref, n_fft, axis=-1, workers=-1)[:, None, bins]  # (r, 1, K)
+    Y = sfft.rfft(rec, n_fft, axis=-1, workers=-1)[..., bins]  # (r, ch, K)
     cross = Y * np.conj(X)
     weighted = cross / np.maximum(np.abs(cross), np.finfo(float).tiny) if phat else cross
 
@@ -172,10 +173,9 @@ def _estimate_chunk(
 
     start = peak + _parabolic_offset(corr, peak)
     start = np.where(start >= (n_fft + 1) // 2, start - n_fft, start)
-    omega = 2.0 * np.pi * bins / n_fft  # rad per sample
-    tau = _newton_peak(weighted, omega, start)
+    tau = _newton_peak(weighted, bins, n_fft, start)
 
-    std_s, snr_db = _quality(X, Y, cross, omega, tau, fs)
+    std_s, snr_db = _quality(X, Y, cross, bins, n_fft, tau, fs)
     return tau / fs, std_s, snr_db, psr_db
 
 
@@ -183,7 +183,7 @@ def _integer_lag_correlation(weighted: np.ndarray, bins: np.ndarray, n_fft: int)
     """The band-limited correlation at integer lags (circular), shape (r, ch, n_fft)."""
     full = np.zeros((*weighted.shape[:-1], n_fft // 2 + 1), dtype=complex)
     full[..., bins] = weighted
-    return sfft.irfft(full, n_fft, axis=-1)
+    return sfft.irfft(full, n_fft, axis=-1, workers=-1)
 
 
 def _parabolic_offset(corr: np.ndarray, peak: np.ndarray) -> np.ndarray:
@@ -200,28 +200,62 @@ def _parabolic_offset(corr: np.ndarray, peak: np.ndarray) -> np.ndarray:
     return np.clip(offset, -0.5, 0.5)
 
 
-def _newton_peak(weighted: np.ndarray, omega: np.ndarray, tau: np.ndarray) -> np.ndarray:
+def _phasors(tau: np.ndarray, bins: np.ndarray, n_fft: int) -> np.ndarray:
+    """exp(j omega_k tau) (..., K) for omega_k = 2 pi bins_k / n_fft, tau (...) in samples.
+
+    For consecutive bins (a band), k = k_0 + a B + b and the phasor is the product of three
+    small tables of exact exponentials, exp(j k_0 w tau) exp(j a B w tau) exp(j b w tau) with
+    w = 2 pi / n_fft: one complex multiplication per element instead of an exponential (8x
+    faster), with a phase error of about 1e-13 rad.
+    """
+    step = 2.0 * np.pi / n_fft
+    t = np.asarray(tau, dtype=np.float64)[..., None]
+    k = bins.size
+    if k < 2 or np.any(np.diff(bins) != 1):
+        return np.exp(1j * (step * bins) * t)
+    block = _PHASOR_BLOCK
+    blocks = -(-k // block)
+    base = np.exp(1j * (step * bins[0]) * t)
+    coarse = np.exp(1j * (step * block) * np.arange(blocks) * t)
+    coarse *= base
+    fine = np.exp(1j * step * np.arange(block) * t)
+    full = coarse[..., :, None] * fine[..., None, :]
+    return full.reshape(*t.shape[:-1], blocks * block)[..., :k]
+
+
+def _newton_peak(weighted: np.ndarray, bins: np.ndarray, n_fft: int, tau: np.ndarray
+                 ) -> np.ndarray:
     """Maximise r(tau) = Re sum_k C_k exp(j omega_k tau) by Newton's method (tau in samples).
 
     Steps are clipped to half a sample; where the curvature is not negative (far from a
     peak) a half-sample step uphill is taken instead, so the iteration cannot run to a
-    minimum. Converges quadratically from the parabolic start.
+    minimum. Converges quadratically from the parabolic start; a channel leaves the
+    iterations once its step is below `_NEWTON_TOL_SAMPLES`.
     """
-    tau = tau.astype(np.float64)
+    shape = tau.shape
+    tau = tau.astype(np.float64).ravel()
+    c = weighted.reshape(tau.size, -1)
+    omega = 2.0 * np.pi * bins / n_fft
+    omega2 = omega**2
+    active = np.arange(tau.size)
     for _ in range(_NEWTON_ITERATIONS):
-        z = weighted * np.exp(1j * omega * tau[..., None])
-        d1 = -np.sum(omega * z.imag, axis=-1)
-        d2 = -np.sum(omega**2 * z.real, axis=-1)
+        z = c * _phasors(tau[active], bins, n_fft)
+        d1 = -(z.imag @ omega)
+        d2 = -(z.real @ omega2)
         step = np.where(d2 < 0, -d1 / np.where(d2 < 0, d2, -1.0), 0.5 * np.sign(d1))
         step = np.clip(step, -0.5, 0.5)
-        tau = tau + step
-        if np.max(np.abs(step)) < _NEWTON_TOL_SAMPLES:
+        tau[active] += step
+        going = np.abs(step) >= _NEWTON_TOL_SAMPLES
+        if not going.any():
             break
-    return tau
+        if not going.all():
+            active, c = active[going], c[going]
+    return tau.reshape(shape)
 
 
 def _quality(
-    X: np.ndarray, Y: np.ndarray, cross: np.ndarray, omega: np.ndarray, tau: np.ndarray, fs: float
+    X: np.ndarray, Y: np.ndarray, cross: np.ndarray, bins: np.ndarray, n_fft: int,
+    tau: np.ndarray, fs: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """Predicted delay std (s) and in-band SNR (dB) from the unweighted fit at `tau`.
 
@@ -231,15 +265,17 @@ def _quality(
     sigma_E^2 = residual / K) the bound of `delay_crlb` is evaluated with signal power
     g^2 |X_k|^2. The residual contains the reference's noise (scaled by g) too, as it should.
     """
-    r = np.sum((cross * np.exp(1j * omega * tau[..., None])).real, axis=-1)
-    ex = np.sum(np.abs(X) ** 2, axis=-1)
-    ey = np.sum(np.abs(Y) ** 2, axis=-1)
+    omega = 2.0 * np.pi * bins / n_fft  # rad per sample
+    r = np.sum((cross * _phasors(tau, bins, n_fft)).real, axis=-1)
+    x_power = X.real**2 + X.imag**2
+    ex = np.sum(x_power, axis=-1)
+    ey = np.sum(Y.real**2 + Y.imag**2, axis=-1)
     signal = np.maximum(r, 0.0) ** 2 / ex
     residual = np.maximum(ey - signal, np.finfo(float).tiny * ey + np.finfo(float).tiny)
     noise_per_bin = residual / omega.size
     gain2 = signal / ex
     with np.errstate(divide="ignore", over="ignore"):
-        fisher = 2.0 * gain2 * np.sum((omega * fs) ** 2 * np.abs(X) ** 2, axis=-1) / noise_per_bin
+        fisher = 2.0 * gain2 * np.sum((omega * fs) ** 2 * x_power, axis=-1) / noise_per_bin
         std_s = 1.0 / np.sqrt(fisher)
         snr_db = 10.0 * np.log10(signal / residual)
     return std_s, snr_db
@@ -248,10 +284,15 @@ def _quality(
 def _peak_to_sidelobe_db(corr: np.ndarray, peak: np.ndarray, guard: int) -> np.ndarray:
     """20 log10(peak / max |corr| at circular distance > guard samples from the peak)."""
     n = corr.shape[-1]
-    dist = np.abs(np.arange(n) - peak[..., None])
-    dist = np.minimum(dist, n - dist)
-    side = np.max(np.where(dist > guard, np.abs(corr), 0.0), axis=-1)
     top = np.take_along_axis(corr, peak[..., None], axis=-1)[..., 0]
+    magnitude = np.abs(corr)
+    if 2 * guard + 1 >= n:
+        side = np.zeros(top.shape)
+    else:
+        # the main lobe, peak - guard .. peak + guard (circular), is left out
+        lobe = (peak[..., None] + np.arange(-guard, guard + 1)) % n
+        np.put_along_axis(magnitude, lobe, 0.0, axis=-1)
+        side = magnitude.max(axis=-1)
     with np.errstate(divide="ignore", invalid="ignore"):
         return 20.0 * np.log10(np.maximum(top, 0.0) / side)
 
