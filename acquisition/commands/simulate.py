@@ -59,7 +59,7 @@ def _options_from_args(args: argparse.Namespace):
 
 def run(args: argparse.Namespace) -> int:
     from acquisition.camera import CameraError
-    from acquisition.session import SessionError
+    from acquisition.session import SessionError, SessionExistsError
     from acquisition.simulated import TRUTH_FILE, prepare_simulated_capture
     from daq import DaqError
 
@@ -67,6 +67,10 @@ def run(args: argparse.Namespace) -> int:
     options = None if args.resume else _options_from_args(args)
     try:
         sim, sequencer = prepare_simulated_capture(out, options)
+    except SessionExistsError:
+        raise UserError(f"{out} already holds a session, which is never overwritten: continue "
+                        f"an interrupted one with `micam simulate --resume --out {out}`, or "
+                        "choose a new --out") from None
     except (SessionError, FileNotFoundError) as exc:
         raise UserError(str(exc)) from None
     remaining = len(sequencer.remaining_steps())

@@ -27,6 +27,11 @@ class SessionError(RuntimeError):
     """
 
 
+class SessionExistsError(SessionError):
+    """A new session was asked for in a directory that already holds one (which is never
+    overwritten). Command-line tools catch it to suggest their own way of resuming."""
+
+
 class _Model(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 

@@ -31,6 +31,7 @@ from ._models import (
     FileWritten,
     Record,
     SessionError,
+    SessionExistsError,
     SessionManifest,
     SessionResume,
     SessionStart,
@@ -205,7 +206,7 @@ class SessionWriter:
             raise SessionError(f"{path} is a file, not a directory; choose another session path")
         journal = journal_path(path)
         if journal.exists() and scan_journal(journal).records:
-            raise SessionError(
+            raise SessionExistsError(
                 f"{path} already holds a session; use SessionWriter.resume to continue it"
             )
         if any(entry != journal for entry in path.iterdir()):

@@ -52,7 +52,9 @@ def test_existing_session_is_never_overwritten(tmp_path: Path,
     assert main(["simulate", "--out", str(out), *QUICK]) == 0
     before = (out / "journal.jsonl").read_bytes()
     assert main(["simulate", "--out", str(out), *QUICK]) == 2
-    assert "micam: error:" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "micam: error:" in err and "already holds a session" in err
+    assert f"micam simulate --resume --out {out}" in err  # the command-line way, not the API
     assert (out / "journal.jsonl").read_bytes() == before
 
 
