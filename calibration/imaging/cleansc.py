@@ -47,9 +47,10 @@ from enum import StrEnum
 import numpy as np
 
 from .._blas import single_threaded_blas
+from .._cores import resolve_workers
 from .beamform import beamform_csm, diagonal_norm
 from .csm import CrossSpectra
-from .parallel import discard_pool, process_pool, resolve_workers
+from .parallel import discard_pool, process_pool
 from .peaks import subgrid_peak
 from .steering import SteeringModel
 

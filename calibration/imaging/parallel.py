@@ -19,31 +19,14 @@ from __future__ import annotations
 
 import functools
 import multiprocessing
-import os
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 
 from .._blas import single_threaded_blas
+from .._cores import resolve_workers
 
 BLOCK_POINTS = 1024
 """Scan points per block (see the module docstring)."""
-
-
-def default_workers() -> int:
-    """The cores this process may run on."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
-
-
-def resolve_workers(workers: int | None) -> int:
-    """`workers`, or all cores for None; at least 1."""
-    if workers is None:
-        return default_workers()
-    if workers < 1:
-        raise ValueError(f"workers {workers} must be at least 1 (or None for all cores)")
-    return int(workers)
 
 
 def point_blocks(n_points: int, size: int = BLOCK_POINTS) -> list[tuple[int, int]]:

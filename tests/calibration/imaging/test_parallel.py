@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from calibration._cores import resolve_workers
 from calibration.imaging import (
     CleanScOptions,
     PlaneGrid,
@@ -15,7 +16,7 @@ from calibration.imaging import (
     clean_sc_spectra,
 )
 from calibration.imaging.csm import CrossSpectra
-from calibration.imaging.parallel import point_blocks, resolve_workers, run_blocks
+from calibration.imaging.parallel import point_blocks, run_blocks
 from sim.arrays import sphere72
 
 from .helpers import C, point_source_csm
