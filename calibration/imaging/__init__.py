@@ -14,6 +14,7 @@ from .cleansc import (
     Component,
     StopRule,
     clean_sc,
+    clean_sc_many,
     clean_sc_spectra,
 )
 from .csm import (
@@ -33,7 +34,8 @@ from .steering import Formulation, SteeringModel
 __all__ = [
     "ArrayGeometry", "BoardPose", "CameraView", "CleanScOptions", "CleanScResult", "Component",
     "CrossSpectra", "Formulation", "PlaneGrid", "SteeringModel", "StopRule", "WelchOptions",
-    "band_bins", "band_edges", "beamform", "beamform_csm", "clean_sc", "clean_sc_spectra",
+    "band_bins", "band_edges", "beamform", "beamform_csm", "clean_sc", "clean_sc_many",
+    "clean_sc_spectra",
     "cross_spectra", "geometry_from_dict", "load_geometry", "octave_band_centres",
     "quadratic_offset", "remove_diagonal", "subgrid_peak",
 ]

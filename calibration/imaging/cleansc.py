@@ -363,7 +363,7 @@ def _subgrid(lazy: _LazyMap, index: int, shape: tuple[int, int]) -> tuple[float,
 
 
 class _Deconvolution:
-    """The CLEAN-SC of one CSM, one iteration at a time (`_clean_sc_lockstep` drives several).
+    """The CLEAN-SC of one CSM, one iteration at a time (`clean_sc_many` drives several).
 
     The degraded CSM is a view into the driver's stack, so that the coherence vectors and the
     CSM updates of all the CSMs are computed together.
@@ -423,15 +423,19 @@ class _Deconvolution:
         return True
 
 
-def _clean_sc_lockstep(csms: np.ndarray, steerings: Iterable[np.ndarray], power: np.ndarray,
-                       options: CleanScOptions, grid_shape: tuple[int, int] | None = None,
-                       block_points: int = BLOCK_POINTS, residual: bool = False,
-                       workers: int | None = 1) -> list[CleanScResult]:
-    """CLEAN-SC of several CSMs (B, M, M), each with its steering vectors (G, M) (taken from
-    `steerings` in turn, and copied), iterated together: the per-iteration work of all of them
-    (coherence vectors, CSM updates) is done in one set of array operations instead of one per
-    CSM, which divides the interpreter's share of the time by B. Each CSM's result is the one
-    it would have alone."""
+def clean_sc_many(csms: np.ndarray, steerings: Iterable[np.ndarray], power: np.ndarray,
+                  options: CleanScOptions | None = None,
+                  grid_shape: tuple[int, int] | None = None,
+                  block_points: int = BLOCK_POINTS, residual: bool = False,
+                  workers: int | None = 1) -> list[CleanScResult]:
+    """CLEAN-SC of several CSMs (B, M, M) on the same points, each with its steering vectors
+    (G, M) (taken from `steerings` in turn, and copied; |h|^2 = `power` (G, M) for all, as
+    for any frequency-independent amplitude), iterated together: the per-iteration work of
+    all of them (coherence vectors, CSM updates) is done in one set of array operations
+    instead of one per CSM, which divides the interpreter's share of the time by B. Each
+    CSM's result is the one it would have alone. Arguments as for `clean_sc`.
+    """
+    options = options or CleanScOptions()
     degraded = np.array(csms, dtype=np.complex128, copy=True)
     m = degraded.shape[-1]
     max_iterations = options.max_iterations or 2 * m
@@ -440,6 +444,8 @@ def _clean_sc_lockstep(csms: np.ndarray, steerings: Iterable[np.ndarray], power:
         runs = [_Deconvolution(degraded[b], h, power, options, grid_shape, block_points,
                                max_iterations, workers)
                 for b, h in zip(range(len(degraded)), steerings, strict=False)]
+        if len(runs) != len(degraded):
+            raise ValueError(f"{len(degraded)} CSMs but steering vectors for {len(runs)}")
         for _ in range(max_iterations):
             for run in runs:
                 if not run.done:
@@ -490,7 +496,7 @@ def clean_sc(csm: np.ndarray, h: np.ndarray, options: CleanScOptions | None = No
     if power.shape != h.shape or csm.shape != (h.shape[1], h.shape[1]):
         raise ValueError(f"steering vectors {h.shape}, |h|^2 {power.shape} and CSM {csm.shape} "
                          "do not match: expected (G, M), (G, M) and (M, M)")
-    return _clean_sc_lockstep(csm[None], [h], power, options, grid_shape, block_points,
+    return clean_sc_many(csm[None], [h], power, options, grid_shape, block_points,
                               residual, workers)[0]
 
 
@@ -508,7 +514,7 @@ def _clean_sc_bins(csms: np.ndarray, freqs_hz: np.ndarray, steering: SteeringMod
     vectors = steering.vectors_at(freqs_hz, shared=True)
     results: list[CleanScResult] = []
     for start in range(0, freqs_hz.size, lockstep):
-        results.extend(_clean_sc_lockstep(csms[start:start + lockstep], vectors, power, options,
+        results.extend(clean_sc_many(csms[start:start + lockstep], vectors, power, options,
                                           grid_shape))
     return results
 
@@ -524,7 +530,7 @@ def clean_sc_spectra(spectra: CrossSpectra, steering: SteeringModel,
     (`parallel.process_pool`). Like every use of multiprocessing, that needs a script calling
     it to keep its top-level work under `if __name__ == "__main__":`, since each worker
     process imports the main module. Within a run, groups of `lockstep` bins are iterated
-    together (`_clean_sc_lockstep`). The results depend on neither.
+    together (`clean_sc_many`). The results depend on neither.
     """
     if spectra.n_channels != steering.n_mics:
         raise ValueError(f"the CSM has {spectra.n_channels} channels but the steering model "

@@ -16,7 +16,8 @@ Differences from Acoular's `PowerSpectra` (acoular 26.8), all deliberate:
   of 2 s at 96 kS/s: its CSM is 0.035 dB low); `acoular_block_count` gives its value.
 - DC and Nyquist are not doubled (Acoular doubles them).
 - Only the requested bins are computed: a windowed DFT restricted to those bins, evaluated as
-  one real matrix product per block (BLAS), instead of a full FFT and a CSM for all N/2+1 bins.
+  one real matrix product per block (BLAS) for a few bins, by FFT for more, and a CSM only
+  for those bins instead of all N/2+1.
 The window is symmetric by default, like Acoular's `np.hanning`, so the two agree bin for bin.
 """
 
@@ -28,6 +29,13 @@ from dataclasses import dataclass, replace
 import numpy as np
 import scipy.signal
 from numpy.lib.stride_tricks import sliding_window_view
+from scipy import fft as sfft
+
+DFT_MAX_BINS = 80
+"""Up to this many bins a direct DFT (a matrix product, N x 2F per block, at BLAS speed) is
+cheaper than an FFT of every block; beyond, the FFT (measured for 72 channels of 2 s at
+96 kS/s, 4096-sample blocks: 20 bins 0.046 s against 0.21 s, 100 bins 0.17 s against 0.16 s).
+"""
 
 
 @dataclass(frozen=True)
@@ -189,21 +197,45 @@ def cross_spectra(signals: np.ndarray, sample_rate_hz: float, bins: Sequence[int
         raise ValueError(f"the recording has {x.shape[0]} samples, fewer than one block of {n}")
     x = np.ascontiguousarray(x)
     w = options.window_values()
-    angle = 2.0 * np.pi * np.outer(np.arange(n), bins) / n
-    # (N, 2F) real kernel: windowed cos and -sin, so that X = frame @ kernel in real BLAS.
-    kernel = np.concatenate([w[:, None] * np.cos(angle), -w[:, None] * np.sin(angle)], axis=1)
     frames = sliding_window_view(x, n, axis=0)[:: options.hop][:n_blocks]  # (K, M, N) view
-    n_bins = bins.size
-    spectra = np.empty((n_bins, x.shape[1], n_blocks), dtype=np.complex128)
-    for start in range(0, n_blocks, blocks_per_batch):
-        part = frames[start: start + blocks_per_batch] @ kernel  # (b, M, 2F)
-        block = part[..., :n_bins] + 1j * part[..., n_bins:]
-        spectra[:, :, start: start + part.shape[0]] = block.transpose(2, 1, 0)
+    if bins.size > DFT_MAX_BINS:
+        spectra = _fft_spectra(frames, w, bins, blocks_per_batch)
+    else:
+        spectra = _dft_spectra(frames, w, bins, blocks_per_batch)
     csm = spectra @ spectra.conj().transpose(0, 2, 1)
     one_sided = np.where((bins == 0) | (2 * bins == n), 1.0, 2.0)
     csm *= (one_sided / (n * np.dot(w, w) * n_blocks))[:, None, None]
     return CrossSpectra(freqs_hz=bins * (sample_rate_hz / n), csm=csm, n_blocks=n_blocks,
                         sample_rate_hz=float(sample_rate_hz), options=options, bins=bins)
+
+
+def _dft_spectra(frames: np.ndarray, window: np.ndarray, bins: np.ndarray,
+                 blocks_per_batch: int) -> np.ndarray:
+    """Windowed DFT (F, M, K) of the blocks (K, M, N) at `bins` only: one real matrix product
+    per batch of blocks with a (N, 2F) kernel of windowed cosines and sines."""
+    n_blocks, m, n = frames.shape
+    angle = 2.0 * np.pi * np.outer(np.arange(n), bins) / n
+    kernel = np.concatenate([window[:, None] * np.cos(angle), -window[:, None] * np.sin(angle)],
+                            axis=1)
+    spectra = np.empty((bins.size, m, n_blocks), dtype=np.complex128)
+    for start in range(0, n_blocks, blocks_per_batch):
+        part = frames[start: start + blocks_per_batch] @ kernel  # (b, M, 2F)
+        block = part[..., :bins.size] + 1j * part[..., bins.size:]
+        spectra[:, :, start: start + part.shape[0]] = block.transpose(2, 1, 0)
+    return spectra
+
+
+def _fft_spectra(frames: np.ndarray, window: np.ndarray, bins: np.ndarray,
+                 blocks_per_batch: int) -> np.ndarray:
+    """The same as `_dft_spectra` through real FFTs of whole blocks (cheaper beyond
+    `DFT_MAX_BINS` bins)."""
+    n_blocks, m, _ = frames.shape
+    spectra = np.empty((bins.size, m, n_blocks), dtype=np.complex128)
+    for start in range(0, n_blocks, blocks_per_batch):
+        part = sfft.rfft(frames[start: start + blocks_per_batch] * window, axis=-1,
+                         workers=-1)[..., bins]  # (b, M, F)
+        spectra[:, :, start: start + part.shape[0]] = part.transpose(2, 1, 0)
+    return spectra
 
 
 def remove_diagonal(csm: np.ndarray) -> np.ndarray:

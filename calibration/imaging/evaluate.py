@@ -22,7 +22,7 @@ import numpy as np
 
 from acquisition.session import SessionReader
 
-from .cleansc import CleanScOptions, clean_sc
+from .cleansc import LOCKSTEP_BINS, CleanScOptions, clean_sc_many
 from .csm import CrossSpectra, WelchOptions, band_bins, cross_spectra, octave_band_centres
 from .geometry import ArrayGeometry, BoardPose
 from .grid import PlaneGrid
@@ -128,21 +128,38 @@ def band_spectra(signals: np.ndarray, fs: float, settings: ImagingSettings
 
 
 def locate(spectra: Iterable[CrossSpectra], steering: SteeringModel, grid: PlaneGrid,
-           options: CleanScOptions) -> list[BandLocation]:
-    """The CLEAN-SC peak of each band-summed CSM on `grid`."""
+           options: CleanScOptions, vectors: dict[float, np.ndarray] | None = None
+           ) -> list[BandLocation]:
+    """The CLEAN-SC peak of each band-summed CSM on `grid` (the bands iterated together in
+    groups of `LOCKSTEP_BINS`, see `clean_sc_many`).
+
+    `vectors`: steering vectors by band centre (Hz), filled as they are computed, to be
+    passed again for other recordings on the same grid.
+    """
+    vectors = {} if vectors is None else vectors
+
+    def steering_at(freq_hz: float) -> np.ndarray:
+        if freq_hz not in vectors:
+            vectors[freq_hz] = steering.vectors(freq_hz)
+        return vectors[freq_hz]
+
     power = steering.amplitude**2
+    bands = list(spectra)
     out = []
-    for band in spectra:
-        h = steering.vectors(float(band.freqs_hz[0]))
-        result = clean_sc(band.csm[0], h, options, power, grid.shape)
-        if not result.components:
-            continue
-        node = int(np.argmax(result.clean_map))
-        strongest = max((c for c in result.components if c.index == node),
-                        key=lambda c: c.power)
-        out.append(BandLocation(float(band.freqs_hz[0]), grid.points[node],
-                                grid.at_index(*strongest.subgrid),
-                                float(result.clean_map[node])))
+    for start in range(0, len(bands), LOCKSTEP_BINS):
+        group = bands[start:start + LOCKSTEP_BINS]
+        results = clean_sc_many(np.array([band.csm[0] for band in group]),
+                                (steering_at(float(band.freqs_hz[0])) for band in group),
+                                power, options, grid.shape)
+        for band, result in zip(group, results, strict=True):
+            if not result.components:
+                continue
+            node = int(np.argmax(result.clean_map))
+            strongest = max((c for c in result.components if c.index == node),
+                            key=lambda c: c.power)
+            out.append(BandLocation(float(band.freqs_hz[0]), grid.points[node],
+                                    grid.at_index(*strongest.subgrid),
+                                    float(result.clean_map[node])))
     return out
 
 
@@ -249,10 +266,12 @@ def evaluate_session(reader: SessionReader, geometry: ArrayGeometry,
         raise ValueError(f"{reader.path} has no completed pose recordings to evaluate")
     rows: list[Localization] = []
     steering_of: dict[int, tuple[PlaneGrid, SteeringModel]] = {}
+    vectors: dict[float, np.ndarray] = {}  # of the current pose's grid, by band
     for done, (step, pose, name, speaker) in enumerate(work, start=1):
         board = geometry.pose(pose)
         if pose not in steering_of:
             steering_of.clear()  # one pose at a time: the steering model is large
+            vectors.clear()
             grid = rig_grid(board, rig_speakers, settings.spacing_m, settings.margin_m,
                             settings.grid_shift(pose))
             steering_of[pose] = (grid, geometry_steering(geometry, grid.points,
@@ -261,7 +280,8 @@ def evaluate_session(reader: SessionReader, geometry: ArrayGeometry,
         signals, fs = mic_signals(reader, step, name, geometry)
         truth = board.speakers_m[speaker]
         distance = float(np.linalg.norm(truth - geometry.centre_m))
-        for loc in locate(band_spectra(signals, fs, settings), steering, grid, settings.clean):
+        for loc in locate(band_spectra(signals, fs, settings), steering, grid, settings.clean,
+                          vectors):
             rows.append(Localization(pose, speaker, distance, loc.band_hz,
                                      float(np.linalg.norm(loc.node_m - truth)),
                                      float(np.linalg.norm(loc.subgrid_m - truth))))

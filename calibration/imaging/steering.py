@@ -225,7 +225,9 @@ class SteeringModel:
 
     def vectors(self, freq_hz: float) -> np.ndarray:
         """(G, M) complex128 steering vectors h at freq_hz."""
-        return self.amplitude * np.exp(-1j * self.wavenumber(freq_hz) * self.path_difference)
+        h = unit_phasors(self.wavenumber(freq_hz) * self.path_difference)
+        h *= self.amplitude
+        return h
 
     def _vectors_single_trig(self, freq_hz: float) -> np.ndarray:
         """(G, M) complex64 steering vectors, accurate to about 3e-7.

@@ -26,11 +26,12 @@ def direct_csm(x: np.ndarray, bins: np.ndarray, n: int, hop: int) -> np.ndarray:
 
 
 @pytest.mark.parametrize("overlap", [0.5, 0.75, 0.0])
-def test_csm_matches_direct_computation(overlap: float) -> None:
+@pytest.mark.parametrize("bins", [np.array([3, 17, 64, 100]),  # a few: direct DFT
+                                  np.arange(1, 128)])  # many (> DFT_MAX_BINS): FFT
+def test_csm_matches_direct_computation(overlap: float, bins: np.ndarray) -> None:
     rng = np.random.default_rng(1)
     x = rng.standard_normal((5000, 5)) @ rng.standard_normal((5, 5))
     options = WelchOptions(block_size=256, overlap=overlap)
-    bins = np.array([3, 17, 64, 100])
     spectra = cross_spectra(x, 1000.0, bins, options)
     expected = direct_csm(x, bins, 256, options.hop)
     assert spectra.n_blocks == 1 + (5000 - 256) // options.hop
