@@ -8,13 +8,15 @@ drives which speaker, the burst, the rig and the cameras. Every model refuses un
 
 from __future__ import annotations
 
-from typing import Literal
+from pathlib import Path
+from typing import Any, Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, ValidationError, model_validator
 
 from daq import CODE_FULL_SCALE, InputChannel, OutputChannel, ScanConfig
 
-from .config_model import ConfigModel
+from .config_model import ConfigModel, describe_problems
+from .session import SessionError
 
 
 class BoardEntry(ConfigModel):
@@ -120,6 +122,23 @@ class CaptureConfig(ConfigModel):
         if (self.reference.board, self.reference.channel) not in inputs:
             raise ValueError("the reference microphone's channel is not a configured input")
         return self
+
+    @classmethod
+    def of_session(cls, capture: dict[str, Any], session: Path | str) -> CaptureConfig:
+        """The capture configuration a session was recorded with (`SessionReader.capture`).
+
+        Raises:
+            SessionError: it does not validate (a format of another micam version, or an
+                edited journal), with one clause per problem.
+        """
+        try:
+            return cls.model_validate(capture)
+        except ValidationError as exc:
+            problems = "; ".join(describe_problems(exc, cls))
+            raise SessionError(
+                f"session {session}: its capture configuration is not one this version of micam "
+                f"reads ({problems}); read it with the micam version that recorded it"
+            ) from None
 
     def scan_configs(self) -> list[ScanConfig]:
         """One finite scan configuration per board (the sync group sets clock and trigger)."""

@@ -98,7 +98,10 @@ def load_session(path: Path, allow_interrupted: bool = False) -> SessionData:
             f"session {path} is {reader.status}, not complete; resume the capture first, or "
             "calibrate its completed poses with --allow-interrupted"
         )
-    config = CaptureConfig.model_validate(reader.capture)
+    try:
+        config = CaptureConfig.of_session(reader.capture, path)
+    except SessionError as exc:
+        raise CalibrationInputError(str(exc)) from None
     steps = reader.steps()
     missing = [f"reference/{s.index}" for s in config.speakers
                if f"reference/{s.index}" not in steps]

@@ -111,7 +111,7 @@ class SessionRun:
         self.writer = writer
         self.config = config
         self.created_utc = created_utc
-        self.capture = CaptureConfig.model_validate(writer.capture)
+        self.capture = CaptureConfig.of_session(writer.capture, writer.path)
         self.steps_total = len(plan_steps(self.capture))
         self.sequencer = CaptureSequencer(
             self.capture, hardware.group, hardware.cameras, operator=self,

@@ -54,7 +54,7 @@ def summarize(session_id: str, path: Path, status: str, completed: dict[str, Any
     """A session's summary for `status` and `sessions.list`."""
     return SessionSummary(
         id=session_id, path=str(path), status=status, steps_done=len(completed),
-        steps_total=len(plan_steps(CaptureConfig.model_validate(capture))),
+        steps_total=len(plan_steps(CaptureConfig.of_session(capture, path))),
         poses_done=sum(s.startswith("pose/") for s in completed),
         n_poses=capture["n_poses"], created_utc=created_utc)
 
@@ -287,7 +287,11 @@ class Daemon:
     def _reopen(self, which: str) -> SessionWriter:
         path = self._find_interrupted() if which == "last" else self.session_root / which
         writer = SessionWriter.resume(path)
-        recorded = CaptureConfig.model_validate(writer.capture)
+        try:
+            recorded = CaptureConfig.of_session(writer.capture, path)
+        except SessionError:
+            writer.close()
+            raise
         ours = self.hardware.config.model_copy(update={"n_poses": recorded.n_poses})
         if recorded != ours:
             writer.close()

@@ -99,6 +99,21 @@ def test_interrupted_session_needs_permission(session: Path, tmp_path: Path,
     assert np.all(np.isfinite(run.result.positions()))
 
 
+def test_capture_configuration_of_another_format_is_a_clear_error(
+        session: Path, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    copy = tmp_path / "s"
+    shutil.copytree(session, copy)
+    journal = copy / "journal.jsonl"
+    lines = journal.read_text().splitlines(keepends=True)
+    start = json.loads(lines[0])
+    start["capture"]["burst"]["taper_ms"] = 5.0  # a key this version does not know
+    journal.write_text(json.dumps(start) + "\n" + "".join(lines[1:]))
+    assert main(["calibrate", str(copy), "--out", str(tmp_path / "r.json")]) == 2
+    err = capsys.readouterr().err
+    assert "micam: error:" in err and "Traceback" not in err
+    assert "burst.taper_ms: unknown key 'taper_ms'" in err and "version of micam" in err
+
+
 @pytest.fixture(scope="module")
 def measurements(session: Path):
     from calibration.pipeline import measure
