@@ -323,36 +323,41 @@ def _latency_layout(data: SessionData, options: CalibrationOptions) -> tuple[np.
         reference_board=boards.index(ref_board) if ref_board in boards else None))
 
 
-def fit_joint(m: Measurements, frozen: MicrophoneSolution,
-              options: CalibrationOptions) -> BundleSolution:
+def fit_joint(m: Measurements, frozen: MicrophoneSolution, options: CalibrationOptions,
+              poses: np.ndarray | None = None, speakers: np.ndarray | None = None
+              ) -> BundleSolution:
     """The optical-acoustic bundle adjustment, started from the camera-frozen solution.
 
     Microphones the frozen solver could not place (too few measurements) are left out. The
     reference microphone's start is multilaterated from its times of flight (its board is the
-    latency gauge, so no latency).
+    latency gauge, so no latency). `poses` (indices into the located poses) and `speakers`
+    restrict the acoustic sources to a subset (as `solve` does); every board view still
+    constrains the cameras, as in a calibration that uses all its images.
     """
     data = m.data
     solved = np.flatnonzero(np.all(np.isfinite(frozen.positions_m), axis=1))
-    steps, poses = _bundle_steps(m)
+    steps, board_poses = _bundle_steps(m)
     view_camera, view_pose, corners = board_views(m.cameras, steps)
-    rows = np.asarray(m.located)
-    n_pose, n_spk = rows.size, data.n_speakers
+    pose_idx = np.arange(len(m.located)) if poses is None else np.asarray(poses)
+    speaker_idx = np.arange(data.n_speakers) if speakers is None else np.asarray(speakers)
+    rows = np.asarray(m.located)[pose_idx]
+    n_mic = len(data.mic_ids)
     board_column, n_latency = _latency_layout(data, options)
     latency_column = board_column[board_indices(data)[1]]
     problem = BundleProblem(
         board_points_m=m.cameras.board.object_points(),
         speakers_rig_m=data.speakers_rig_m,
         view_camera=view_camera, view_pose=view_pose, corners_px=corners,
-        pose_of_source=np.repeat(np.arange(n_pose), n_spk),
-        speaker_of_source=np.tile(np.arange(n_spk), n_pose),
-        tof_s=m.tofs.tof_s[rows].reshape(-1, len(data.mic_ids))[:, solved],
-        tof_std_s=m.tofs.std_s[rows].reshape(-1, len(data.mic_ids))[:, solved],
-        reference_tof_s=m.tofs.reference_tof_s[rows].ravel(),
-        reference_std_s=m.tofs.reference_std_s[rows].ravel(),
+        pose_of_source=np.repeat(pose_idx, speaker_idx.size),
+        speaker_of_source=np.tile(speaker_idx, pose_idx.size),
+        tof_s=m.tofs.tof_s[rows][:, speaker_idx].reshape(-1, n_mic)[:, solved],
+        tof_std_s=m.tofs.std_s[rows][:, speaker_idx].reshape(-1, n_mic)[:, solved],
+        reference_tof_s=m.tofs.reference_tof_s[rows][:, speaker_idx].ravel(),
+        reference_std_s=m.tofs.reference_std_s[rows][:, speaker_idx].ravel(),
         latency_column=latency_column[solved], n_latency=n_latency,
         camera_names=tuple(m.cameras.intrinsics),
     )  # fmt: skip
-    sources = _rig_sources(data, m.speakers, np.arange(n_pose), np.arange(n_spk)).positions()
+    sources = _rig_sources(data, m.speakers, pose_idx, speaker_idx).positions()
     reference = multilaterate(sources, frozen.speed_of_sound_m_s
                               * problem.reference_tof_s[:, None])[0]
     latencies = np.zeros(n_latency)
@@ -360,7 +365,7 @@ def fit_joint(m: Measurements, frozen: MicrophoneSolution,
     intrinsics, extrinsics = camera_start(m.cameras)
     start = BundleState(
         intrinsics=intrinsics, extrinsics=extrinsics,
-        poses=np.array([[*p.rig_to_cam0.rvec, *p.rig_to_cam0.tvec] for p in poses]),
+        poses=np.array([[*p.rig_to_cam0.rvec, *p.rig_to_cam0.tvec] for p in board_poses]),
         microphones_m=frozen.positions_m[solved], reference_m=reference,
         speed_of_sound_m_s=frozen.speed_of_sound_m_s, latencies_s=latencies,
     )  # fmt: skip

@@ -10,11 +10,13 @@ the paper's model, c fixed and no latency: there are too few equations per micro
 board latencies. From there on the latencies are fitted per board: on a 20-pose sphere session
 that halves the error at every N from 6 to 96 (0.25-0.3 mm against 0.44-0.49 mm without).
 
-What it measures is the camera-frozen solver (the joint fit of `calibration.bundle` needs the
-whole session's corners and is not rerun per subset). Beyond about 1 m its error stops falling
-with N: the camera's focal-length error, frozen into every speaker's depth, dominates (about
-2 mm at 1.0-1.5 m with 30 poses), and a single pose can look better than two because its
-latencies absorb that pose's depth error. The joint fit removes this (benchmarks/bench_bundle.py).
+Two estimators are measured. The camera-frozen solver: beyond about 1 m its error stops
+falling with N, because the camera's focal-length error, frozen into every speaker's depth,
+dominates (about 2 mm at 1.0-1.5 m with 30 poses), and a single pose can look better than two
+because its latencies absorb that pose's depth error. And, from `JOINT_FROM_SOURCES` on, the
+joint optical-acoustic fit (`calibration.pipeline.fit_joint`) of the same subset of sources,
+with every board view of the session constraining the cameras (as in a calibration, whose
+camera images all count): it removes that error. The bound is the camera-frozen model's.
 """
 
 from __future__ import annotations
@@ -25,9 +27,19 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from .crlb import expected_error_norm, joint_crlb
-from .pipeline import CalibrationOptions, Measurements, _rig_sources, board_indices, solve
+from .pipeline import (
+    CalibrationOptions,
+    Measurements,
+    _rig_sources,
+    board_indices,
+    fit_joint,
+    solve,
+)
+from .solver import MicrophoneSolution
 
 PER_BOARD_FROM_SOURCES = 6
+JOINT_FROM_SOURCES = 12
+"""Sources (two poses) from which the joint fit is run on each subset too."""
 PAPER_TABLE_II_MM = (10.0, 5.5, 5.0, 4.5)
 """The mean-error thresholds of the paper's Table II, millimetres."""
 
@@ -44,6 +56,9 @@ class StudyRow:
         crlb_m: mean over trials of the bound's mean expected error, E|e| per microphone.
         efficiency: mean_error_m / crlb_m (1 is the best any unbiased estimator can do).
         latency: the latency model of the estimator.
+        joint_error_m: the same mean for the joint fit of the same subsets (None below
+            `JOINT_FROM_SOURCES`).
+        joint_sem_m: its standard error over trials.
     """
 
     n_sources: int
@@ -53,6 +68,8 @@ class StudyRow:
     crlb_m: float
     efficiency: float
     latency: str
+    joint_error_m: float | None = None
+    joint_sem_m: float | None = None
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -85,11 +102,13 @@ def source_count_study(m: Measurements, truth: dict, n_sources: Sequence[int], t
     for n in n_sources:
         latency = "per_board" if n >= PER_BOARD_FROM_SOURCES else "none"
         options = CalibrationOptions(latency=latency)
-        errors, bounds = [], []
+        errors, bounds, joint = [], [], []
         for _ in range(trials):
             poses, speakers = _subset(n, len(m.located), m.data.n_speakers, rng)
             sol = solve(m, options, poses, speakers)
             errors.append(float(np.mean(np.linalg.norm(sol.positions_m - mics_true, axis=1))))
+            if n >= JOINT_FROM_SOURCES:
+                joint.append(_joint_error(m, sol, options, poses, speakers, mics_true))
             sigma = m.tofs.std_s[np.asarray(m.located)[poses]][:, speakers].reshape(-1, n_mic)
             bound = joint_crlb(mics_true, _rig_sources(m.data, m.speakers, poses, speakers), c,
                                sigma, fit_speed_of_sound=False, latency=latency,
@@ -98,15 +117,24 @@ def source_count_study(m: Measurements, truth: dict, n_sources: Sequence[int], t
             bounds.append(float(np.mean(expected_error_norm(bound.mic_covariance_m2))))
         mean, crlb = float(np.mean(errors)), float(np.mean(bounds))
         rows.append(StudyRow(n, trials, mean, float(np.std(errors) / np.sqrt(trials)), crlb,
-                             mean / crlb, latency))
+                             mean / crlb, latency,
+                             float(np.mean(joint)) if joint else None,
+                             float(np.std(joint) / np.sqrt(trials)) if joint else None))
     return rows
+
+
+def _joint_error(m: Measurements, frozen: MicrophoneSolution, options: CalibrationOptions,
+                 poses: np.ndarray, speakers: np.ndarray, mics_true: np.ndarray) -> float:
+    """Mean microphone error of the joint fit of one subset (the microphones it placed)."""
+    bundle = fit_joint(m, frozen, options, poses, speakers)
+    solved = np.flatnonzero(np.all(np.isfinite(frozen.positions_m), axis=1))
+    return float(np.mean(np.linalg.norm(bundle.state.microphones_m - mics_true[solved],
+                                        axis=1)))
 
 
 def sources_needed(rows: Sequence[StudyRow], thresholds_mm: Sequence[float] = PAPER_TABLE_II_MM
                    ) -> dict[float, int | None]:
-    """The fewest sources whose mean error is below each threshold (None if none is)."""
-    out: dict[float, int | None] = {}
-    for t in thresholds_mm:
-        below = [r.n_sources for r in rows if r.mean_error_m * 1e3 < t]
-        out[t] = min(below) if below else None
-    return out
+    """The fewest sources whose mean camera-frozen error is below each threshold (None if
+    none is)."""
+    return {t: min((r.n_sources for r in rows if r.mean_error_m * 1e3 < t), default=None)
+            for t in thresholds_mm}
