@@ -35,6 +35,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="put grid nodes on the speakers' rig coordinates instead of a random "
                         "sub-cell shift per pose")
     p.add_argument("--json", type=Path, metavar="FILE", help="also write the summary as JSON")
+    p.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="processes the poses are shared over (default: all cores)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(run=run)
 
@@ -61,8 +63,8 @@ def run(args: argparse.Namespace) -> int:
                 bar.total = total
                 bar.update(done - bar.n)
 
-            result = evaluate_session(reader, geometry, settings, progress)
-    except (SessionError, ValueError) as exc:
+            result = evaluate_session(reader, geometry, settings, progress, args.workers)
+    except (SessionError, ValueError, RuntimeError) as exc:  # RuntimeError: a worker died
         raise UserError(str(exc)) from None
     header = f"{'':>22}  {'n':>6}  {'mean':>8}  {'median':>8}  {'p95':>8}  {'mean@node':>10}"
     print(f"CLEAN-SC localization error, mm (sub-grid peak; 'mean@node' = grid node, "

@@ -40,7 +40,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable
-from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from enum import StrEnum
 
@@ -50,7 +49,7 @@ from .._blas import single_threaded_blas
 from .._cores import resolve_workers
 from .beamform import beamform_csm, diagonal_norm
 from .csm import CrossSpectra
-from .parallel import discard_pool, process_pool
+from .parallel import run_in_processes
 from .peaks import subgrid_peak
 from .steering import SteeringModel
 
@@ -542,14 +541,7 @@ def clean_sc_spectra(spectra: CrossSpectra, steering: SteeringModel,
     runs = np.array_split(np.arange(freqs.size), min(resolve_workers(workers), freqs.size))
     if len(runs) <= 1:
         return _clean_sc_bins(spectra.csm, freqs, steering, options, grid_shape, lockstep)
-    pool = process_pool(len(runs))
-    try:
-        jobs = [pool.submit(_clean_sc_bins, spectra.csm[bins], freqs[bins], steering, options,
-                            grid_shape, lockstep) for bins in runs]
-        return [result for job in jobs for result in job.result()]
-    except BrokenProcessPool:
-        discard_pool(len(runs))
-        raise RuntimeError(
-            "a CLEAN-SC worker process died (killed, out of memory, or the calling script "
-            "runs its work at import: put it under `if __name__ == \"__main__\":`); run "
-            "again, or with workers=1 to stay in this process") from None
+    jobs = [(spectra.csm[bins], freqs[bins], steering, options, grid_shape, lockstep)
+            for bins in runs]
+    return [result for part in run_in_processes(_clean_sc_bins, jobs, len(runs))
+            for result in part]

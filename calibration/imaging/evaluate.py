@@ -17,15 +17,18 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from itertools import pairwise
+from pathlib import Path
 
 import numpy as np
 
 from acquisition.session import SessionReader
 
+from .._cores import resolve_workers
 from .cleansc import LOCKSTEP_BINS, CleanScOptions, clean_sc_many
 from .csm import CrossSpectra, WelchOptions, band_bins, cross_spectra, octave_band_centres
 from .geometry import ArrayGeometry, BoardPose
 from .grid import PlaneGrid
+from .parallel import run_in_processes
 from .steering import Formulation, SteeringModel
 
 DISTANCE_BINS_M = (0.0, 0.6, 1.0, 1.5, 2.0, 3.0, np.inf)
@@ -244,39 +247,21 @@ def pose_index(step: str) -> int | None:
     return int(name) if group == "pose" and name.isdigit() else None
 
 
-def evaluate_session(reader: SessionReader, geometry: ArrayGeometry,
-                     settings: ImagingSettings | None = None,
-                     progress: Callable[[int, int], None] | None = None) -> Evaluation:
-    """Localize every speaker recording of every completed pose step (paper VI-A).
+Recording = tuple[str, str, int]
+"""(step, file name, speaker index) of one speaker recording."""
 
-    Args:
-        progress: called with (done, total) recordings after each one.
-    """
-    settings = settings or ImagingSettings()
+
+def _evaluate_pose(reader: SessionReader, geometry: ArrayGeometry, settings: ImagingSettings,
+                   pose: int, recordings: list[Recording]) -> list[Localization]:
+    """The localizations of one pose's recordings (one grid and steering model for all)."""
     rig_speakers = np.asarray(reader.capture["rig"]["speakers_m"], dtype=np.float64)
-    work = []
-    for step, record in sorted(reader.steps().items()):
-        pose = pose_index(step)
-        if pose is None:
-            continue
-        for name, file in sorted(record.files.items()):
-            if file.role == "recording" and "speaker" in file.meta:
-                work.append((step, pose, name, int(file.meta["speaker"])))
-    if not work:
-        raise ValueError(f"{reader.path} has no completed pose recordings to evaluate")
-    rows: list[Localization] = []
-    steering_of: dict[int, tuple[PlaneGrid, SteeringModel]] = {}
-    vectors: dict[float, np.ndarray] = {}  # of the current pose's grid, by band
-    for done, (step, pose, name, speaker) in enumerate(work, start=1):
-        board = geometry.pose(pose)
-        if pose not in steering_of:
-            steering_of.clear()  # one pose at a time: the steering model is large
-            vectors.clear()
-            grid = rig_grid(board, rig_speakers, settings.spacing_m, settings.margin_m,
-                            settings.grid_shift(pose))
-            steering_of[pose] = (grid, geometry_steering(geometry, grid.points,
-                                                         settings.formulation))
-        grid, steering = steering_of[pose]
+    board = geometry.pose(pose)
+    grid = rig_grid(board, rig_speakers, settings.spacing_m, settings.margin_m,
+                    settings.grid_shift(pose))
+    steering = geometry_steering(geometry, grid.points, settings.formulation)
+    vectors: dict[float, np.ndarray] = {}  # by band, shared by the pose's recordings
+    rows = []
+    for step, name, speaker in recordings:
         signals, fs = mic_signals(reader, step, name, geometry)
         truth = board.speakers_m[speaker]
         distance = float(np.linalg.norm(truth - geometry.centre_m))
@@ -285,6 +270,52 @@ def evaluate_session(reader: SessionReader, geometry: ArrayGeometry,
             rows.append(Localization(pose, speaker, distance, loc.band_hz,
                                      float(np.linalg.norm(loc.node_m - truth)),
                                      float(np.linalg.norm(loc.subgrid_m - truth))))
+    return rows
+
+
+def _evaluate_pose_in_worker(session: Path, geometry: ArrayGeometry, settings: ImagingSettings,
+                             pose: int, recordings: list[Recording]) -> list[Localization]:
+    """`_evaluate_pose` in a worker process, which opens the session itself."""
+    return _evaluate_pose(SessionReader(session), geometry, settings, pose, recordings)
+
+
+def evaluate_session(reader: SessionReader, geometry: ArrayGeometry,
+                     settings: ImagingSettings | None = None,
+                     progress: Callable[[int, int], None] | None = None,
+                     workers: int | None = 1) -> Evaluation:
+    """Localize every speaker recording of every completed pose step (paper VI-A).
+
+    Args:
+        progress: called with (done, total) recordings after each pose.
+        workers: processes the poses are shared over (None: all cores; 1: this process; see
+            `parallel.run_in_processes`, and `clean_sc_spectra` for what a script calling it
+            with more than 1 must do).
+    """
+    settings = settings or ImagingSettings()
+    by_pose: dict[int, list[Recording]] = {}
+    for step, record in sorted(reader.steps().items()):
+        pose = pose_index(step)
+        if pose is None:
+            continue
+        for name, file in sorted(record.files.items()):
+            if file.role == "recording" and "speaker" in file.meta:
+                by_pose.setdefault(pose, []).append((step, name, int(file.meta["speaker"])))
+    if not by_pose:
+        raise ValueError(f"{reader.path} has no completed pose recordings to evaluate")
+    total = sum(len(r) for r in by_pose.values())
+    n_processes = min(resolve_workers(workers), len(by_pose))
+    if n_processes > 1:
+        jobs = [(Path(reader.path), geometry, settings, pose, recordings)
+                for pose, recordings in by_pose.items()]
+        results = run_in_processes(_evaluate_pose_in_worker, jobs, n_processes)
+    else:
+        results = (_evaluate_pose(reader, geometry, settings, pose, recordings)
+                   for pose, recordings in by_pose.items())
+    rows: list[Localization] = []
+    done = 0
+    for recordings, pose_rows in zip(by_pose.values(), results, strict=True):
+        rows.extend(pose_rows)
+        done += len(recordings)
         if progress is not None:
-            progress(done, len(work))
+            progress(done, total)
     return Evaluation(rows, settings)

@@ -11,16 +11,19 @@ and no OpenBLAS thread spinning for a descheduled partner on a loaded machine, s
 
 CLEAN-SC is the opposite case: thousands of small array operations per bin, during which the
 interpreter holds its global lock, so threads do not run them in parallel (measured: 1.2x on
-two cores). Its bins are independent and small to ship (a CSM, a steering model without its
-arrays, the results), so they go to worker processes instead (`process_pool`).
+two cores). Its bins, and the poses of a localization evaluation, are independent and small to
+ship (CSMs or a session path, a steering model without its arrays, the results), so they go to
+worker processes instead (`run_in_processes`).
 """
 
 from __future__ import annotations
 
 import functools
 import multiprocessing
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+from typing import Any
 
 from .._blas import single_threaded_blas
 from .._cores import resolve_workers
@@ -73,7 +76,7 @@ def process_pool(workers: int) -> ProcessPoolExecutor:
         context = multiprocessing.get_context("forkserver" if "forkserver" in methods
                                               else "spawn")
         if context.get_start_method() == "forkserver":
-            context.set_forkserver_preload(["calibration.imaging.cleansc"])
+            context.set_forkserver_preload(["calibration.imaging"])
         pool = _POOLS[workers] = ProcessPoolExecutor(workers, mp_context=context)
     return pool
 
@@ -83,3 +86,25 @@ def discard_pool(workers: int) -> None:
     pool = _POOLS.pop(workers, None)
     if pool is not None:
         pool.shutdown(wait=False, cancel_futures=True)
+
+
+def run_in_processes(function: Callable[..., Any], jobs: list[tuple[Any, ...]],
+                     workers: int) -> Iterator[Any]:
+    """function(*job) for every job on the pool of `workers` processes, results in the jobs'
+    order as they become available. `function` and the jobs' arguments must pickle.
+
+    Raises:
+        RuntimeError: a worker process died; the pool is discarded (a new one is made next
+            time) and the message says what usually causes it.
+    """
+    pool = process_pool(workers)
+    try:
+        futures = [pool.submit(function, *job) for job in jobs]
+        for future in futures:
+            yield future.result()
+    except BrokenProcessPool:
+        discard_pool(workers)
+        raise RuntimeError(
+            "a micam worker process died (killed, out of memory, or the calling script runs "
+            "its work at import: put it under `if __name__ == \"__main__\":`); run again, or "
+            "with workers=1 to stay in this process") from None

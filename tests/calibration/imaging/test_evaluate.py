@@ -90,3 +90,17 @@ def test_geometry_reads_board_latencies_per_microphone(session: Path) -> None:
     geometry = load_geometry(session / "truth.json")
     for mic, latency in zip(truth["microphones"], geometry.mic_latencies_s, strict=True):
         assert latency == truth["board_latencies_s"][mic["board"]]
+
+
+def test_poses_in_worker_processes_give_the_same_localizations(tmp_path: Path) -> None:
+    out = tmp_path / "s"
+    assert run_command(simulate, ["--out", str(out), "--poses", "2", "--mls-order", "11",
+                                  "--seed", "8", "--quiet"]) == 0
+    settings = ImagingSettings(band_lo_hz=9000.0, band_hi_hz=10000.0)
+    geometry = load_geometry(out / "truth.json")
+    seen: list[tuple[int, int]] = []
+    alone = evaluate_session(SessionReader(out), geometry, settings)
+    shared = evaluate_session(SessionReader(out), geometry, settings,
+                              lambda done, total: seen.append((done, total)), workers=2)
+    assert shared.rows == alone.rows and len(alone.rows) == 2 * 6  # one band: 9514 Hz
+    assert seen == [(6, 12), (12, 12)]  # after each pose
