@@ -13,11 +13,11 @@ Per frequency, starting from the dirty delay-and-sum map B and the CSM D (degrad
 Step 3 uses the linearity of beamforming: B_j(x) = B_max |h(x)^H g|^2, minus
 B_max sum_m |h_m(x)|^2 |g_m|^2 and times M/(M-1) when the diagonal is removed. Acoular instead
 re-beamforms G_j over the whole grid from new sines and cosines at every iteration. Here the
-updates are applied lazily (`lazymap.LazyMap`): exactly, at every iteration, on a candidate set of the
-highest points (one small matrix-vector product); every other point keeps the value of its
-last update and an upper bound on what the components since then can have added, and is only
-brought up to date (all its pending components in one matrix product) when that bound could
-reach the candidates' maximum. The peak of every iteration is the exact peak of the fully
+updates are applied lazily (`lazymap.LazyMap`): exactly, at every iteration, on a candidate
+set of the highest points (one small matrix-vector product); every other point keeps the value
+of its last update and an upper bound on what the components since then can have added, and
+is only brought up to date (all its pending components in one matrix product) when that bound
+could reach the candidates' maximum. The peak of every iteration is the exact peak of the fully
 updated map, so the result is Acoular's, to rounding.
 
 The clean map is the sum of the components only (the residual is not added back), as in
