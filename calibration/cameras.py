@@ -31,7 +31,8 @@ alone).
 
 from __future__ import annotations
 
-from collections import deque
+import threading
+from collections import OrderedDict, deque
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -349,13 +350,30 @@ def _colours_match(grey: np.ndarray, grid: np.ndarray) -> bool:
 # Calibration
 
 
+Detection = tuple[np.ndarray | None, tuple[int, int]]
+"""The corners found in an image (None: no board) and the image's (width, height)."""
+
+DETECTION_CACHE_SIZE = 20_000
+"""Images whose detections `calibrate_session` remembers (about 1 kB each)."""
+
+_detections: OrderedDict[tuple[str, Checkerboard], Detection] = OrderedDict()
+_detections_lock = threading.Lock()
+
+
+def _detect(image: np.ndarray, board: Checkerboard) -> Detection:
+    return detect_corners(image, board), image.shape[1::-1]
+
+
 def calibrate_session(
     reader: SessionReader, min_views: int = MIN_VIEWS, min_shared_views: int = MIN_SHARED_VIEWS
 ) -> CameraCalibration:
     """Calibrate every camera of a session from all its checkerboard images.
 
     Every completed step with camera images ("pose/<nnnn>" and "refmic") is used: each is a
-    board view that constrains the intrinsics.
+    board view that constrains the intrinsics. The detections are remembered by the image
+    file's SHA-256 (session files never change once written), so that a long-running process
+    (the calibration worker, whose live jobs see the same images again with a few more poses
+    each time) decodes and searches each image once.
 
     Raises:
         CameraCalibrationError: camera 0 has fewer than `min_views` views with a board.
@@ -363,12 +381,29 @@ def calibrate_session(
     capture = reader.capture
     board = Checkerboard.from_capture(capture)
     cameras = [c["name"] for c in capture["cameras"]]
-    keys = [(camera, step) for step, record in sorted(reader.steps().items())
-            for camera in cameras if f"{camera}.png" in record.files]
-    with ThreadPoolExecutor(default_workers()) as pool:  # PNG decoding releases the lock
-        decoded = pool.map(lambda key: reader.read_image(key[1], f"{key[0]}.png"), keys)
-        images = dict(zip(keys, decoded, strict=True))
-    return calibrate_images(images, cameras, board, min_views, min_shared_views)
+    files = {(camera, step): record.files[f"{camera}.png"]
+             for step, record in sorted(reader.steps().items())
+             for camera in cameras if f"{camera}.png" in record.files}
+    with _detections_lock:
+        known = {key: _detections.get((file.sha256, board)) for key, file in files.items()}
+    new = [key for key, found in known.items() if found is None]
+
+    def detect(key: tuple[str, str]) -> Detection:
+        camera, step = key
+        return _detect(reader.read_image(step, f"{camera}.png"), board)
+
+    # PNG decoding and OpenCV's search release the interpreter lock: one image per core
+    with ThreadPoolExecutor(default_workers()) as pool:
+        detected = dict(zip(new, pool.map(detect, new), strict=True))
+    with _detections_lock:
+        for key, found in detected.items():
+            _detections[(files[key].sha256, board)] = found
+        for key in files:
+            _detections.move_to_end((files[key].sha256, board))
+        while len(_detections) > DETECTION_CACHE_SIZE:
+            _detections.popitem(last=False)
+    detections = {key: known[key] or detected[key] for key in files}
+    return calibrate_detections(detections, cameras, board, min_views, min_shared_views)
 
 
 def calibrate_images(
@@ -378,10 +413,24 @@ def calibrate_images(
     min_views: int = MIN_VIEWS,
     min_shared_views: int = MIN_SHARED_VIEWS,
 ) -> CameraCalibration:
-    """Calibrate cameras from images keyed by (camera, step).
+    """Calibrate cameras from images keyed by (camera, step) (see `calibrate_detections`)."""
+    with ThreadPoolExecutor(default_workers()) as pool:  # OpenCV releases the lock
+        found = list(pool.map(lambda image: _detect(image, board), images.values()))
+    return calibrate_detections(dict(zip(images, found, strict=True)), cameras, board,
+                                min_views, min_shared_views)
+
+
+def calibrate_detections(
+    detections: dict[tuple[str, str], Detection],
+    cameras: list[str],
+    board: Checkerboard,
+    min_views: int = MIN_VIEWS,
+    min_shared_views: int = MIN_SHARED_VIEWS,
+) -> CameraCalibration:
+    """Calibrate cameras from the corners found in their images, keyed by (camera, step).
 
     Args:
-        images: the images; those without a detectable board are reported in `missed`.
+        detections: corners (None: no board, reported in `missed`) and image size per image.
         cameras: camera names, camera 0 (the reference frame) first.
         board: the checkerboard.
         min_views: fewest views a camera needs; cameras other than camera 0 with fewer are
@@ -393,10 +442,7 @@ def calibrate_images(
     """
     corners: dict[tuple[str, str], np.ndarray] = {}
     missed = []
-    # OpenCV releases the interpreter lock: one image per core at a time (2x on two cores)
-    with ThreadPoolExecutor(default_workers()) as pool:
-        found_all = list(pool.map(lambda image: detect_corners(image, board), images.values()))
-    for (camera, step), found in zip(images, found_all, strict=True):
+    for (camera, step), (found, _) in detections.items():
         if found is None:
             missed.append(MissedImage(camera, step, "no checkerboard found"))
         else:
@@ -418,7 +464,7 @@ def calibrate_images(
                 )
             uncalibrated[camera] = reason
             continue
-        size = _image_size(images, camera)
+        size = _image_size(detections, camera)
         intrinsics[camera], camera_views = _calibrate_camera(camera, own, size, board)
         views.update({(camera, v.step): v for v in camera_views})
     extrinsics = _link_cameras(intrinsics, views, board, min_shared_views)
@@ -433,9 +479,9 @@ def calibrate_images(
     return CameraCalibration(board, linked, extrinsics, views, missed, uncalibrated)
 
 
-def _image_size(images: dict[tuple[str, str], np.ndarray], camera: str) -> tuple[int, int]:
+def _image_size(detections: dict[tuple[str, str], Detection], camera: str) -> tuple[int, int]:
     """(width, height) of a camera's images, checked to be the same for all of them."""
-    sizes = {im.shape[1::-1] for (cam, _), im in images.items() if cam == camera}
+    sizes = {size for (cam, _), (_, size) in detections.items() if cam == camera}
     if len(sizes) != 1:
         raise CameraCalibrationError(f"{camera}'s images differ in size: {sorted(sizes)}")
     return sizes.pop()

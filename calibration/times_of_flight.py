@@ -8,6 +8,8 @@ batched call of `calibration.tof.estimate_delays`; poses are processed one at a 
 
 from __future__ import annotations
 
+import threading
+from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -15,10 +17,44 @@ import numpy as np
 from scipy import fft as sfft
 
 from .session_data import SessionData
-from .tof import estimate_delays, tof_from_delay
+from .tof import TofEstimate, estimate_delays, tof_from_delay
 
 MAX_RANGE_M = 6.0
 """Longest path searched for a correlation peak; later peaks are reflections."""
+
+TOF_CACHE_POSES = 2_000
+"""Poses whose delays `measure_session_tofs` remembers (about 15 kB each for 73 channels)."""
+
+_estimates: OrderedDict[tuple, TofEstimate] = OrderedDict()
+_estimates_lock = threading.Lock()
+
+
+def _recording_hashes(data: SessionData, step: str) -> tuple[str, ...]:
+    """SHA-256 of every speaker's recording in `step` (a format with {} for the speaker index
+    gives one step per speaker, e.g. "reference/{}")."""
+    hashes = []
+    steps = data.reader.steps()
+    for speaker in data.config.speakers:
+        name = step.format(speaker.index)
+        hashes.append(steps[name].files[f"speaker_{speaker.index}.wav"].sha256)
+    return tuple(hashes)
+
+
+def _remembered(key: tuple) -> TofEstimate | None:
+    with _estimates_lock:
+        est = _estimates.get(key)
+        if est is not None:
+            _estimates.move_to_end(key)
+        return est
+
+
+def _remember(key: tuple, est: TofEstimate) -> None:
+    for array in (est.delay_s, est.std_s, est.snr_db, est.peak_to_sidelobe_db):
+        array.flags.writeable = False  # shared by every later reader of the same pose
+    with _estimates_lock:
+        _estimates[key] = est
+        while len(_estimates) > TOF_CACHE_POSES:
+            _estimates.popitem(last=False)
 
 
 @dataclass(frozen=True)
@@ -54,19 +90,32 @@ def measure_session_tofs(
 
     `speed_of_sound_m_s` only converts the reference microphone's distance from the speaker
     (about 2 mm, i.e. 6 us) into time, so a value within a few m/s is exact to picoseconds.
+
+    Each pose's delays are remembered by the SHA-256 of its recordings and of the references,
+    with the settings (session files never change once written): a long-running process, such
+    as the calibration worker whose live jobs see the same poses again with a few more each
+    time, correlates every pose once.
     """
-    references = data.references()
+    references: np.ndarray | None = None  # read on the first pose not remembered
     columns = np.append(data.mic_columns, data.reference_column)
     d_ref = data.config.reference.distance_from_speaker_m
     window = (-1e-4, MAX_RANGE_M / speed_of_sound_m_s)
     # Bursts are recorded with silence before and after, so zero-padding to a fast FFT length
     # changes nothing but the speed (19 k samples is 19 x 997: a slow length).
-    n_fft = sfft.next_fast_len(references.shape[1], real=True)
+    n_fft = sfft.next_fast_len(data.config.burst.n_samples, real=True)
+    settings = (band_hz, phat, window, n_fft, tuple(columns.tolist()),
+                _recording_hashes(data, "reference/{}"))
     parts = []
     for step in data.pose_steps:
-        recordings = data.pose_recordings(step)[:, columns, :]
-        est = estimate_delays(recordings, references, data.fs, band=band_hz, phat=phat,
-                              delay_window_s=window, n_fft=n_fft)
+        key = (_recording_hashes(data, step), settings)
+        est = _remembered(key)
+        if est is None:
+            if references is None:
+                references = data.references()
+            recordings = data.pose_recordings(step)[:, columns, :]
+            est = estimate_delays(recordings, references, data.fs, band=band_hz, phat=phat,
+                                  delay_window_s=window, n_fft=n_fft)
+            _remember(key, est)
         parts.append((tof_from_delay(est.delay_s, d_ref, speed_of_sound_m_s), est.std_s,
                       est.snr_db, est.peak_to_sidelobe_db))
         if on_pose is not None:

@@ -193,3 +193,27 @@ def test_prior_from_acoular_xml_on_the_command_line(session: Path, tmp_path: Pat
     assert main(["calibrate", str(session), "--out", str(tmp_path / "y.json"),
                  "--prior", str(bad)]) == 2
     assert "lacks microphones" in capsys.readouterr().err
+
+
+def test_measuring_again_reuses_each_pose_and_image(session: Path,
+                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    """A long-running process (the worker's live jobs) decodes, searches and correlates every
+    file once: the second measurement of the same files reads none of them."""
+    from acquisition.session import SessionReader
+    from calibration.pipeline import measure
+
+    first = measure(session)
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("a file was read again")
+
+    monkeypatch.setattr(SessionReader, "read_recording", refuse)
+    monkeypatch.setattr(SessionReader, "read_image", refuse)
+    again = measure(session)
+    np.testing.assert_array_equal(again.tofs.tof_s, first.tofs.tof_s)
+    np.testing.assert_array_equal(again.tofs.reference_tof_s, first.tofs.reference_tof_s)
+    # the same corners; OpenCV's camera fit itself repeats to about 1e-13 m
+    np.testing.assert_allclose(again.speakers.positions_m, first.speakers.positions_m,
+                               rtol=0, atol=1e-9)
+    with pytest.raises(AssertionError, match="read again"):  # other settings: not remembered
+        measure(session, CalibrationOptions(band_hz=(500.0, 18_000.0)))
