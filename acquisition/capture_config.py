@@ -76,13 +76,33 @@ class BurstConfig(ConfigModel):
 
 
 class RigEntry(ConfigModel):
-    """The calibration rig (see sim.geometry.Rig for the frame)."""
+    """The calibration rig (see sim.geometry.Rig for the frame) and how well it is known.
+
+    The tolerances are priors of the calibration, not corrections: it fits each speaker's
+    position on the rig and the print's scale, held to the stated values with these
+    standard deviations.
+    """
 
     corners_x: int
     corners_y: int
     square_m: float
     speakers_m: tuple[tuple[float, float, float], ...]
     reference_mark_m: tuple[float, float, float]
+    speaker_tolerance_m: float = Field(
+        default=3e-4, ge=0, le=0.01,
+        description="build tolerance: standard deviation, per axis in the board plane, of each "
+                    "speaker's position about its stated one (m)")
+    acoustic_centre_m: float = Field(
+        default=0.0, ge=-0.02, le=0.02,
+        description="expected offset of each speaker's acoustic centre from its stated "
+                    "position along the board normal, + out of the printed face (m)")
+    acoustic_centre_std_m: float = Field(
+        default=5e-3, ge=0, le=0.05,
+        description="standard deviation of that offset, per speaker (m)")
+    print_scale_std: float = Field(
+        default=2e-3, ge=0, le=0.05,
+        description="relative standard deviation of the printed pattern's scale about the "
+                    "stated square size (0.002: within about 0.2 %)")
 
 
 class CameraEntry(ConfigModel):
