@@ -38,7 +38,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--prior-std-mm", type=float, default=None,
                    help="let each microphone deviate from the prior by about this much "
                         "(default: the prior is rigid)")
-    p.add_argument("--phat", action="store_true", help="GCC-PHAT weighting of the correlations")
+    p.add_argument("--weighting", choices=("compact", "matched", "phat"), default="compact",
+                   help="spectral weighting of the TOF correlations: compact (default; robust "
+                        "to early reflections), matched (maximum likelihood in free field) "
+                        "or phat (GCC-PHAT)")
     p.add_argument("--allow-interrupted", action="store_true",
                    help="calibrate the completed poses of an interrupted session")
     p.add_argument("--truth", type=Path, default=None,
@@ -87,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--truth {truth_path} is not a file")
     options = CalibrationOptions(
         method=args.method, latency=args.latency, speed_of_sound=args.speed_of_sound,
-        refine_poses=args.refine_poses, phat=args.phat,
+        refine_poses=args.refine_poses, weighting=args.weighting,
         allow_interrupted=args.allow_interrupted, joint=not args.no_joint,
         prior=_prior(args))
     stages = ["load", "cameras", "speakers", "times of flight", "solver", "joint fit"]
