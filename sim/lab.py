@@ -27,6 +27,8 @@ Effects (names as `micam simulate --effect NAME` takes them):
   directions plus an incoherent part.
 - directivity: each speaker radiates as a baffled piston of its stated diameter (off-axis
   roll-off at high frequencies).
+- air-sensor: the lab has a calibrated thermometer and hygrometer beside the array, read at
+  every pose; each has a fixed calibration error drawn from its stated accuracy.
 """
 
 from __future__ import annotations
@@ -34,13 +36,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-import scipy.special
 
 from .geometry import Rig
 
 EFFECTS = ("acoustic-centres", "rig-tolerance", "print-scale", "mic-responses", "air-drift",
-           "room", "ambient-noise", "directivity")
-"""Every effect's name, in the order of docs/simulation.md's table."""
+           "room", "ambient-noise", "directivity", "air-sensor")
+"""Every effect's name, in the order of docs/simulation.md's table ("air-sensor" is not an
+error but the lab's instrument: a thermometer and hygrometer beside the array)."""
 
 
 @dataclass(frozen=True)
@@ -136,6 +138,25 @@ class AmbientNoiseModel:
 
 
 @dataclass(frozen=True)
+class AirSensorModel:
+    """The lab's air sensor: what it states as its accuracy (1 sigma), and what it is.
+
+    Attributes:
+        temperature_std_k: its thermometer's calibration error (fixed for the session) is
+            drawn from N(0, this); a calibrated platinum thermometer (1/10 DIN class) is
+            good to a few hundredths of a kelvin.
+        relative_humidity_std: the hygrometer's (a calibrated capacitive one: about 1 %).
+        pressure_std_pa: the barometer's.
+        reading_noise_k: the thermometer's reading-to-reading noise.
+    """
+
+    temperature_std_k: float = 0.03
+    relative_humidity_std: float = 0.01
+    pressure_std_pa: float = 100.0
+    reading_noise_k: float = 0.005
+
+
+@dataclass(frozen=True)
 class LabEffects:
     """Which systematic effects the simulated lab has, and how large they are.
 
@@ -152,6 +173,7 @@ class LabEffects:
         room: image sources of a room (None: free field).
         ambient_noise: low-frequency ambient noise (None: none).
         directivity: speakers radiate as baffled pistons (False: omnidirectional).
+        air_sensor: the lab's air sensor (None: none, the speed of sound is not measured).
     """
 
     acoustic_centres: AcousticCentreModel | None = None
@@ -162,6 +184,7 @@ class LabEffects:
     room: RoomModel | None = None
     ambient_noise: AmbientNoiseModel | None = None
     directivity: bool = False
+    air_sensor: AirSensorModel | None = None
 
     @classmethod
     def ideal(cls) -> LabEffects:
@@ -189,6 +212,7 @@ class LabEffects:
             room=RoomModel() if "room" in on else None,
             ambient_noise=AmbientNoiseModel() if "ambient-noise" in on else None,
             directivity="directivity" in on,
+            air_sensor=AirSensorModel() if "air-sensor" in on else None,
         )
 
     @property
@@ -203,6 +227,7 @@ class LabEffects:
             "room": self.room is not None,
             "ambient-noise": self.ambient_noise is not None,
             "directivity": self.directivity,
+            "air-sensor": self.air_sensor is not None,
         }
         return tuple(n for n in EFFECTS if on[n])
 
@@ -223,6 +248,7 @@ class LabTruth:
         reference_delay_s, reference_resonance_hz: the same for the reference microphone.
         temperature_drift_k: signed total drift over the session.
         wander_phase: phase of the slow temperature wander.
+        sensor_errors: (3,) the air sensor's fixed errors: kelvin, relative humidity, pascal.
     """
 
     effects: LabEffects
@@ -236,6 +262,7 @@ class LabTruth:
     temperature_drift_k: float
     wander_phase: float
     ambient_directions: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    sensor_errors: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     @classmethod
     def draw(cls, effects: LabEffects, n_speakers: int, n_mics: int,
@@ -249,6 +276,7 @@ class LabTruth:
         z_res = rng.normal(0.0, 1.0, n_mics + 1)
         sign_drift, phase = rng.choice([-1.0, 1.0]), rng.uniform(0, 2 * np.pi)
         directions = rng.normal(size=(8, 3))
+        z_sensor = rng.normal(size=3)
         ac = effects.acoustic_centres
         offsets = (np.zeros(n_speakers) if ac is None
                    else ac.offset_range_m[0] + u_centre * np.subtract(*ac.offset_range_m[::-1]))
@@ -273,6 +301,9 @@ class LabTruth:
             wander_phase=float(phase),
             ambient_directions=directions[:n_waves] / np.linalg.norm(directions[:n_waves],
                                                                      axis=1, keepdims=True),
+            sensor_errors=(np.zeros(3) if effects.air_sensor is None else z_sensor * np.array(
+                [effects.air_sensor.temperature_std_k, effects.air_sensor.relative_humidity_std,
+                 effects.air_sensor.pressure_std_pa])),
         )
 
     def physical_rig(self, stated: Rig) -> Rig:
@@ -327,6 +358,9 @@ class LabTruth:
             "mic_resonances_hz": [None if not np.isfinite(f) else float(f)
                                   for f in self.mic_resonances_hz],
             "temperature_drift_k": self.temperature_drift_k,
+            "air_sensor_errors": {"temperature_k": float(self.sensor_errors[0]),
+                                  "relative_humidity": float(self.sensor_errors[1]),
+                                  "pressure_pa": float(self.sensor_errors[2])},
         }
 
 
@@ -336,13 +370,3 @@ def _capsule_response(freqs_hz: np.ndarray, delays_s: np.ndarray, resonances_hz:
     f = np.asarray(freqs_hz, dtype=np.float64)[None, :]
     x = f / resonances_hz[:, None]  # 0 for an infinite resonance: a pure delay
     return np.exp(-2j * np.pi * f * delays_s[:, None]) / (1.0 + 1j * x / q - x**2)
-
-
-def piston_directivity(freqs_hz: np.ndarray, sin_theta: np.ndarray, radius_m: float,
-                       speed_of_sound_m_s: float) -> np.ndarray:
-    """Far-field directivity 2 J1(x) / x, x = k a sin(theta), of a baffled piston of radius a:
-    (n_dir, n_freq) real amplitude factors (1 on axis). Real: it changes no arrival time."""
-    k = 2 * np.pi * np.asarray(freqs_hz, dtype=np.float64)[None, :] / speed_of_sound_m_s
-    x = k * radius_m * np.abs(np.asarray(sin_theta, dtype=np.float64))[:, None]
-    safe = np.where(x < 1e-6, 1.0, x)
-    return np.where(x < 1e-6, 1.0, 2.0 * scipy.special.j1(safe) / safe)

@@ -12,11 +12,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from acquisition.air import speed_of_sound
+
 from .arrays import ArrayLayout
 from .geometry import Rig, RigidTransform
 from .lab import LabEffects, LabTruth
 from .poses import FACING_CAMERA
-from .sound import SpeakerResponse, mls_burst, speed_of_sound
+from .sound import SpeakerResponse, mls_burst
 
 
 @dataclass(frozen=True)
@@ -69,8 +71,11 @@ class World:
         layout: the array, its cameras and wiring.
         rig: the calibration rig as stated (its description); the rig as built is
             `physical_rig` (the lab's print scale and speaker build errors).
-        temperature_c: air temperature at the start of the session; sets the speed of sound
-            (the lab's air drift changes it as the session progresses).
+        temperature_c: air temperature at the start of the session (the lab's air drift
+            changes it as the session progresses).
+        relative_humidity: of the air (0..1); with the temperature and the pressure it sets
+            the speed of sound by Cramer's formula (acquisition.air).
+        pressure_pa: the air's static pressure.
         sample_rate_hz: the shared sample clock of all boards.
         noise: levels and noise.
         seed: seeds every random draw of this world (hidden parameters and noise).
@@ -85,6 +90,8 @@ class World:
     layout: ArrayLayout
     rig: Rig = field(default_factory=Rig)
     temperature_c: float = 20.0
+    relative_humidity: float = 0.45
+    pressure_pa: float = 101_325.0
     sample_rate_hz: float = 96_000.0
     noise: NoiseModel = field(default_factory=NoiseModel)
     seed: int = 0
@@ -119,7 +126,8 @@ class World:
     @property
     def speed_of_sound_m_s(self) -> float:
         """The speed of sound now, m/s."""
-        return speed_of_sound(self.air_temperature_c)
+        return float(speed_of_sound(self.air_temperature_c, self.relative_humidity,
+                                    self.pressure_pa))
 
     def set_session_progress(self, progress: float) -> None:
         """Where the session is in time, 0 (its start) to 1 (its last pose): the air drifts."""
