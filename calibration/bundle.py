@@ -198,9 +198,9 @@ class BundleState:
         reference_m: (3,) the reference microphone's position on its stand.
         speeds_of_sound_m_s: (n_c,) c, one for the session or one per pose with sources.
         latencies_s: (n_latency,) board latencies relative to the gauge board.
-        mic_delays_s: (n_mic,) each microphone's own delay (None: zeros).
+        mic_delays_s: (n_mic,) each microphone's own delay (empty: zeros).
         speaker_offsets_m: (n_speaker, 3) each speaker's offset from its stated rig position,
-            rig frame (None: zeros).
+            rig frame (empty: zeros).
         print_scale: the printed pattern's scale relative to the stated one.
     """
 
@@ -211,8 +211,8 @@ class BundleState:
     reference_m: np.ndarray
     speeds_of_sound_m_s: np.ndarray
     latencies_s: np.ndarray
-    mic_delays_s: np.ndarray | None = None
-    speaker_offsets_m: np.ndarray | None = None
+    mic_delays_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    speaker_offsets_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     print_scale: float = 1.0
 
     @property
@@ -221,14 +221,14 @@ class BundleState:
         return float(np.mean(self.speeds_of_sound_m_s))
 
     def completed(self, n_speaker: int) -> BundleState:
-        """The state with its optional unknowns filled in (zeros where None)."""
+        """The state with its optional unknowns filled in (zeros where empty)."""
+        delays = np.asarray(self.mic_delays_s, float)
+        offsets = np.asarray(self.speaker_offsets_m, float).reshape(-1, 3)
         return replace(
             self,
             speeds_of_sound_m_s=np.atleast_1d(np.asarray(self.speeds_of_sound_m_s, float)),
-            mic_delays_s=(np.zeros(len(self.microphones_m)) if self.mic_delays_s is None
-                          else np.asarray(self.mic_delays_s, float)),
-            speaker_offsets_m=(np.zeros((n_speaker, 3)) if self.speaker_offsets_m is None
-                               else np.asarray(self.speaker_offsets_m, float)),
+            mic_delays_s=delays if delays.size else np.zeros(len(self.microphones_m)),
+            speaker_offsets_m=offsets if offsets.size else np.zeros((n_speaker, 3)),
         )
 
 
@@ -300,7 +300,6 @@ class _Layout:
     @classmethod
     def of(cls, state: BundleState) -> _Layout:
         """The layout of a completed state (`BundleState.completed`)."""
-        assert state.mic_delays_s is not None and state.speaker_offsets_m is not None
         shapes = {
             "intrinsics": state.intrinsics.shape, "extrinsics": state.extrinsics.shape,
             "poses": state.poses.shape, "microphones": state.microphones_m.shape,
@@ -320,7 +319,6 @@ class _Layout:
         return self.slices["print_scale"].stop
 
     def pack(self, s: BundleState) -> np.ndarray:
-        assert s.mic_delays_s is not None and s.speaker_offsets_m is not None
         return np.concatenate([s.intrinsics.ravel(), s.extrinsics.ravel(), s.poses.ravel(),
                                s.microphones_m.ravel(), s.reference_m, s.speeds_of_sound_m_s,
                                s.latencies_s, s.mic_delays_s, s.speaker_offsets_m.ravel(),
@@ -484,7 +482,6 @@ class _Model:
         """(n_src, 3) source positions R_k (P_s + D_s) + t_k and (n_src, 3, 9) their
         derivatives by pose k's (rvec, t) and by the speaker's offset D_s."""
         p = self.p
-        assert s.speaker_offsets_m is not None
         k, spk = p.pose_of_source, p.speaker_of_source
         points = p.speakers_rig_m[spk] + s.speaker_offsets_m[spk]
         rvec = s.poses[k, :3]
@@ -498,7 +495,6 @@ class _Model:
               trip: _Triplets | None) -> np.ndarray:
         """Modelled minus measured times of flight: array microphones, then the reference."""
         p, lay = self.p, self.layout
-        assert s.mic_delays_s is not None
         parts = []
         start = self.n_corner_rows
         d_ref = (np.zeros(p.pose_of_source.size) if p.reference_distance_m is None

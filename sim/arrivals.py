@@ -18,7 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .lab import LabTruth, RoomModel, piston_directivity
+from acquisition.air import piston_directivity
+
+from .lab import LabTruth, RoomModel
 
 REAR_RADIATION = 0.1
 """Amplitude a baffled speaker radiates behind its plate (diffraction around the edges),

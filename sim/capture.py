@@ -25,6 +25,7 @@ from acquisition.capture_config import (
 )
 from daq import Board, InputChannel, OutputChannel, SyncGroup, board_model
 
+from .air_sensor import SimulatedAirSensor
 from .arrays import ARRAY_KINDS, ArrayLayout, array_layout
 from .bench import AcousticBench
 from .boards import SimulatedBoard
@@ -60,6 +61,12 @@ class SimulationOptions(BaseModel):
                     "'realistic' (every effect of sim.lab on)",
     )
     effects: tuple[str, ...] = Field(default=(), description="lab effects added to the profile")
+    description_mistake: Literal["none", "turned-pattern", "sample-rate"] = Field(
+        default="none",
+        description="a mistake in the capture's description, for testing that calibration "
+                    "catches it: 'turned-pattern' states the speakers as seen from the "
+                    "pattern's opposite corner (a print of the other colour convention), "
+                    "'sample-rate' states a sample rate 10 % above the clock's")
     without_effects: tuple[str, ...] = Field(
         default=(), description="lab effects removed from the profile")
 
@@ -105,6 +112,7 @@ class SimulatedCapture:
     operator: SimulatedOperator
     config: CaptureConfig
     poses: list[RigidTransform]
+    air_sensor: SimulatedAirSensor | None = None
 
 
 def capture_config_for(layout: ArrayLayout, rig: Rig, n_poses: int, sample_rate_hz: float,
@@ -145,7 +153,8 @@ def capture_config_for(layout: ArrayLayout, rig: Rig, n_poses: int, sample_rate_
         burst=burst,
         rig=RigEntry(corners_x=rig.corners_x, corners_y=rig.corners_y, square_m=rig.square_m,
                      speakers_m=tuple(tuple(p) for p in rig.speakers_m),
-                     reference_mark_m=tuple(rig.reference_mark_m)),
+                     reference_mark_m=tuple(rig.reference_mark_m),
+                     speaker_diameter_m=rig.speaker_diameter_m),
         cameras=tuple(CameraEntry(name=c.name, device_id=c.device_id) for c in cameras),
         n_poses=n_poses,
     )
@@ -176,10 +185,14 @@ def build_simulated_capture(options: SimulationOptions) -> SimulatedCapture:
     poses = sample_poses(layout.cameras[0], rig, options.poses, options.distance_m,
                          np.random.default_rng([options.seed, 4]))
     operator = SimulatedOperator(world, poses, reference_stand_position(layout.cameras[0]))
-    config = capture_config_for(layout, rig, options.poses, world.sample_rate_hz,
+    stated_rig = rig.turned() if options.description_mistake == "turned-pattern" else rig
+    stated_rate = world.sample_rate_hz * (1.1 if options.description_mistake == "sample-rate"
+                                          else 1.0)
+    config = capture_config_for(layout, stated_rig, options.poses, stated_rate,
                                 BurstConfig(mls_order=options.mls_order), cameras)
+    air_sensor = SimulatedAirSensor(world) if world.lab.air_sensor is not None else None
     return SimulatedCapture(options, world, bench, SyncGroup(hardware), cameras, operator,
-                            config, poses)
+                            config, poses, air_sensor)
 
 
 def truth_document(sim: SimulatedCapture) -> dict:
@@ -218,6 +231,8 @@ def truth_document(sim: SimulatedCapture) -> dict:
         "speed_of_sound_m_s": float(np.mean(pose_c)) if pose_c else start_c,
         "speed_of_sound_at_start_m_s": start_c,
         "temperature_c": w.temperature_c,
+        "relative_humidity": w.relative_humidity,
+        "pressure_pa": w.pressure_pa,
         "cameras": [c.to_json() for c in layout.cameras],
         "poses": poses,
         "reference_microphone": {
