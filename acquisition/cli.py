@@ -17,6 +17,7 @@ from .commands import (
     daq,
     evaluate_imaging,
     image,
+    import_session,
     inspect,
     session,
     sessions,
@@ -28,7 +29,8 @@ from .commands import (
 from .errors import UserError
 
 SUBCOMMANDS = (
-    simulate, inspect, calibrate, study, image, evaluate_imaging, daq, daemon, session,
+    simulate, import_session, inspect, calibrate, study, image, evaluate_imaging, daq, daemon,
+    session,
     capture, watch, sessions,
     worker,
 )

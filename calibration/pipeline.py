@@ -16,7 +16,10 @@ Choices made here, and why (see docs/calibration.md for the figures behind them)
   sees the same camera scale as the speaker positions (so c absorbs a checkerboard or focal
   length scale error, as the paper intends) and is far more precise than the same c fitted
   inside the solver, where it trades off against every microphone's range. The solver's own c
-  is still computed and reported beside it. (The joint fit, on by default, fits c itself:
+  is still computed and reported beside it. Without that fit (no reference microphone on its
+  stand in the pose recordings, or no image of it) a known c (`speed_of_sound_prior`, or the
+  session description's measured air) weights the solver's c; with neither, c is solved. The
+  result says which (`speed_of_sound_from`). (The joint fit, on by default, fits c itself:
   there the cameras' scale is corrected by the times of flight instead of absorbed by c.)
 - joint fit: on by default because, against the simulated truth, it removes the common depth
   offset a frozen camera's focal-length error leaves in the array (0.38 -> 0.01 mm mean error
@@ -33,6 +36,8 @@ from typing import Literal
 
 import numpy as np
 
+from acquisition.rig_description import KnownIntrinsics
+
 from .bundle import (
     GROUP_TOF,
     BundleProblem,
@@ -44,7 +49,7 @@ from .bundle import (
     pose_estimate,
     refined_cameras,
 )
-from .cameras import CameraCalibration, calibrate_session
+from .cameras import CameraCalibration, Checkerboard, calibrate_session
 from .result import (
     CalibrationResult,
     CameraFrozenResult,
@@ -53,6 +58,7 @@ from .result import (
     MicrophoneResult,
     PoseResult,
     ResidualStats,
+    SpeedOfSoundFrom,
     SpeedOfSoundReference,
     TofQuality,
     TransformResult,
@@ -117,6 +123,12 @@ class CalibrationOptions:
             calibration), in the session's microphone order: the solver then fits its rigid
             transform R_m, T_m into the camera-0 frame (paper IV-H), and each microphone's
             deviation from it if the prior has a deviation std. Method "micam" only.
+        speed_of_sound_prior: a known c and its standard deviation (m/s), from a measured air
+            temperature or speed of sound; it replaces the session description's `air`. The
+            camera-frozen solver holds its c to it (fixed if the std is 0) when the session
+            has no reference-microphone fit.
+        intrinsics: camera calibrations known from elsewhere, by camera name ("fixed" or a
+            "prior"); they replace the session description's.
     """
 
     method: Literal["micam", "paper"] = "micam"
@@ -128,6 +140,8 @@ class CalibrationOptions:
     allow_interrupted: bool = False
     joint: bool = True
     prior: PriorGeometry | None = None
+    speed_of_sound_prior: tuple[float, float] | None = None
+    intrinsics: dict[str, KnownIntrinsics] | None = None
 
 
 @dataclass
@@ -201,7 +215,8 @@ def measure(path: Path, options: CalibrationOptions | None = None,
     with _timed(timings, "load", on_stage):
         data = load_session(path, options.allow_interrupted)
     with _timed(timings, "cameras", on_stage):
-        cams = calibrate_session(data.reader)
+        cams = calibrate_session(data.reader, Checkerboard.of_rig(data.rig),
+                                 list(data.camera_names), known_intrinsics(data, options))
     with _timed(timings, "speakers", on_stage):
         speakers = speaker_positions(cams, data.speakers_rig_m, data.pose_steps)
         reference = _reference_position(cams, data)
@@ -236,7 +251,8 @@ def calibrate(path: Path, options: CalibrationOptions | None = None,
         joint_m, joint_solution = joint_measurements(m, bundle, solution, options)
     result = _assemble(joint_m, joint_solution, options, timings)
     result = result.model_copy(update={
-        "camera_frozen": _frozen_summary(m, solution),
+        "camera_frozen": _frozen_summary(m, solution, options),
+        "speed_of_sound_from": "joint_fit",
         "joint_fit": _joint_summary(m, bundle),
         "notes": [*result.notes, JOINT_NOTE],
     })
@@ -245,12 +261,45 @@ def calibrate(path: Path, options: CalibrationOptions | None = None,
 
 def _reference_position(cams: CameraCalibration,
                         data: SessionData) -> ReferenceMicrophonePosition | None:
-    if "refmic" not in data.reader.steps():
+    """The reference microphone on its stand, when the pose recordings hold it and the
+    session has its image (and the rig its reference mark); otherwise None."""
+    mark = data.rig.reference_mark_m
+    if data.reference_column is None or mark is None or "refmic" not in data.reader.steps():
         return None
     try:
-        return reference_microphone_position(cams, np.array(data.config.rig.reference_mark_m))
+        return reference_microphone_position(cams, np.array(mark))
     except SpeakerLocationError:
         return None
+
+
+def known_intrinsics(data: SessionData,
+                     options: CalibrationOptions) -> dict[str, KnownIntrinsics]:
+    """The cameras' known intrinsics: the session description's, replaced by the options'."""
+    known = {c.name: c.intrinsics for c in data.description.cameras if c.intrinsics is not None}
+    return {**known, **(options.intrinsics or {})}
+
+
+def speed_of_sound_plan(m: Measurements, options: CalibrationOptions
+                        ) -> tuple[SpeedOfSoundFrom, float, float | None]:
+    """Where the camera-frozen solver's c comes from, its start value and its prior std
+    (None: fixed at the reference-microphone fit, or solved with the solver's default)."""
+    if m.reference_fit is not None and options.speed_of_sound == "reference":
+        return "reference_microphone", m.reference_fit.speed_of_sound_m_s, None
+    known = known_speed_of_sound(m.data, options)
+    if known is not None:
+        return "known", known[0], known[1]
+    c0 = (m.reference_fit.speed_of_sound_m_s if m.reference_fit is not None
+          else NOMINAL_SPEED_OF_SOUND_M_S)
+    return "solved", c0, None
+
+
+def known_speed_of_sound(data: SessionData,
+                         options: CalibrationOptions) -> tuple[float, float] | None:
+    """The known (c, std) in m/s: the options', else the session description's air."""
+    if options.speed_of_sound_prior is not None:
+        return options.speed_of_sound_prior
+    air = data.description.air
+    return None if air is None else air.speed_of_sound_prior()
 
 
 def _rig_sources(data: SessionData, speakers: SpeakerPositions, pose_idx: np.ndarray,
@@ -286,14 +335,13 @@ def solve(m: Measurements, options: CalibrationOptions,
     tof = m.tofs.tof_s[rows][:, spk_idx].reshape(-1, n_mic)
     std = m.tofs.std_s[rows][:, spk_idx].reshape(-1, n_mic)
     sources = _rig_sources(data, m.speakers, pose_idx, spk_idx)
-    c_known = m.reference_fit is not None and options.speed_of_sound == "reference"
-    c0 = (m.reference_fit.speed_of_sound_m_s if m.reference_fit is not None
-          else NOMINAL_SPEED_OF_SOUND_M_S)
+    source, c0, c_std = speed_of_sound_plan(m, options)
     boards, board_of_mic = board_indices(data)
-    ref_board = data.config.reference.board
+    ref_board = data.reference_group
     solver_options = SolverOptions(
         speed_of_sound_m_s=c0,
-        fit_speed_of_sound=not c_known,
+        fit_speed_of_sound=source == "solved" or bool(c_std),
+        speed_of_sound_prior_std_m_s=c_std if source == "known" else 1.0,
         latency=options.latency,
         reference_board=boards.index(ref_board) if ref_board in boards else None,
         refine_poses=options.refine_poses,
@@ -317,7 +365,7 @@ def _latency_layout(data: SessionData, options: CalibrationOptions) -> tuple[np.
     """Latency column of every array board (-1: the gauge board, when it records array
     microphones too) and the number of latency unknowns, for the latency model of `options`."""
     boards, _ = board_indices(data)
-    ref_board = data.config.reference.board
+    ref_board = data.reference_group
     return latency_columns(len(boards), SolverOptions(
         latency=options.latency,
         reference_board=boards.index(ref_board) if ref_board in boards else None))
@@ -358,8 +406,13 @@ def fit_joint(m: Measurements, frozen: MicrophoneSolution, options: CalibrationO
         camera_names=tuple(m.cameras.intrinsics),
     )  # fmt: skip
     sources = _rig_sources(data, m.speakers, pose_idx, speaker_idx).positions()
-    reference = multilaterate(sources, frozen.speed_of_sound_m_s
-                              * problem.reference_tof_s[:, None])[0]
+    if data.reference_column is not None:
+        reference = multilaterate(sources, frozen.speed_of_sound_m_s
+                                  * problem.reference_tof_s[:, None])[0]
+    else:
+        # Not recorded on the poses: no time of flight reaches the reference unknown, which
+        # stays at this start (the camera) and is reported nowhere.
+        reference = np.zeros(3)
     latencies = np.zeros(n_latency)
     latencies[board_column[board_column >= 0]] = frozen.latency_s[board_column >= 0]
     intrinsics, extrinsics = camera_start(m.cameras)
@@ -432,6 +485,12 @@ def _assemble(m: Measurements, sol: MicrophoneSolution, options: CalibrationOpti
     notes += [f"camera {name} not calibrated: {why}" for name, why in cams.uncalibrated.items()]
     notes += [f"{step}: the board was not found in any calibrated camera; pose skipped"
               for step in speakers.unlocated]
+    source, c0, c_std = speed_of_sound_plan(m, options)
+    notes.append(_speed_of_sound_note(m, options, source, c0, c_std))
+    notes += [f"camera {name}: intrinsics given as {known.use}; the joint fit refines every "
+              "camera's intrinsics from the images and times of flight"
+              for name, known in known_intrinsics(data, options).items()
+              if options.joint and options.method == "micam"]
     ref_entry = None
     if reference_fit is not None and reference is not None:
         ref_entry = SpeedOfSoundReference(
@@ -448,6 +507,8 @@ def _assemble(m: Measurements, sol: MicrophoneSolution, options: CalibrationOpti
                                 or reference_fit is None
                                 else reference_fit.speed_of_sound_std_m_s),
         speed_of_sound_reference=ref_entry,
+        speed_of_sound_from=source,
+        speed_of_sound_known_m_s=known_speed_of_sound(data, options),
         latency_s=_per_board(boards, sol.latency_s),
         latency_std_s=_per_board(boards, sol.latency_std_s),
         cameras=[_camera_result(cams, name) for name in cams.intrinsics],
@@ -462,8 +523,27 @@ def _assemble(m: Measurements, sol: MicrophoneSolution, options: CalibrationOpti
             median_predicted_std_s=float(np.median(tofs.std_s[located]))),
         timings_s=dict(timings),
         notes=notes,
-        latency_gauge_board=data.config.reference.board,
+        latency_gauge_board=data.reference_group,
     )
+
+
+def _speed_of_sound_note(m: Measurements, options: CalibrationOptions, source: str, c0: float,
+                         c_std: float | None) -> str:
+    """Where the camera-frozen solver's c came from, for a person."""
+    if source == "reference_microphone":
+        return ("Speed of sound (camera frozen): fixed at the reference-microphone fit (paper "
+                "IV-G, the reference microphone on its stand in every pose recording).")
+    why = ("the pose recordings do not hold the reference microphone"
+           if m.data.reference_column is None else
+           "the session has no located image of the reference microphone on its stand"
+           if m.reference is None else "--speed-of-sound solve")
+    if source == "known":
+        given = ("given" if options.speed_of_sound_prior is not None
+                 else m.data.description.air.source())  # type: ignore[union-attr]
+        return (f"Speed of sound (camera frozen): held to the known {c0:.3f} ± {c_std:.3f} m/s "
+                f"({given}), because {why}.")
+    return (f"Speed of sound (camera frozen): solved from the times of flight (no known c), "
+            f"because {why}; give a measured air temperature or c to constrain it.")
 
 
 def _microphone_results(data: SessionData, sol: MicrophoneSolution) -> list[MicrophoneResult]:
@@ -481,12 +561,14 @@ def _microphone_results(data: SessionData, sol: MicrophoneSolution) -> list[Micr
     return mics
 
 
-def _frozen_summary(m: Measurements, sol: MicrophoneSolution) -> CameraFrozenResult:
+def _frozen_summary(m: Measurements, sol: MicrophoneSolution,
+                    options: CalibrationOptions) -> CameraFrozenResult:
     """The camera-frozen solution, for the result beside the joint one."""
     boards, _ = board_indices(m.data)
     intr = m.cameras.intrinsics
     return CameraFrozenResult(
         microphones=_microphone_results(m.data, sol),
+        speed_of_sound_from=speed_of_sound_plan(m, options)[0],
         speed_of_sound_m_s=sol.speed_of_sound_m_s,
         speed_of_sound_std_m_s=(sol.speed_of_sound_std_m_s if m.reference_fit is None
                                 else m.reference_fit.speed_of_sound_std_m_s),
@@ -501,6 +583,7 @@ def _joint_summary(m: Measurements, bundle: BundleSolution) -> JointFitResult:
     """The joint fit's noise estimates, outliers and convergence, for the result."""
     names = list(m.cameras.intrinsics)
     view_camera = board_views(m.cameras, _bundle_steps(m)[0])[0]
+    on_stand = m.data.reference_column is not None
     return JointFitResult(
         sigmas=bundle.sigmas,
         corner_outliers={n: int(bundle.corner_outliers[view_camera == i].sum())
@@ -509,8 +592,8 @@ def _joint_summary(m: Measurements, bundle: BundleSolution) -> JointFitResult:
         reference_tof_outliers=int(bundle.reference_outliers.sum()),
         chi2_per_dof=bundle.chi2_per_dof,
         iterations=bundle.iterations,
-        reference_microphone_m=_vec(bundle.state.reference_m),
-        reference_microphone_std_m=_vec(bundle.std.reference_m),
+        reference_microphone_m=(_vec(bundle.state.reference_m) if on_stand else None),
+        reference_microphone_std_m=(_vec(bundle.std.reference_m) if on_stand else None),
     )
 
 
