@@ -88,6 +88,17 @@ from .times_of_flight import SessionTofs, measure_session_tofs
 NOMINAL_SPEED_OF_SOUND_M_S = 343.0
 """Start value of c when nothing better is known (about 20 degC)."""
 
+MAX_MEDIAN_RESIDUAL_S = 30e-6
+"""Largest median |residual| of the camera-frozen solve that a description matching its
+recordings gives: 30 us is 10 mm of path, beyond any speaker's acoustic centre, rig tolerance
+or room; a board frame turned by half a turn (the wrong `origin_square`), speakers or columns
+in the wrong order give hundreds of microseconds."""
+
+
+class GeometryMismatchError(CalibrationInputError):
+    """The times of flight do not fit any geometry: the description and the recordings
+    disagree (board colours, speaker order, channel map); no result is written."""
+
 JOINT_NOTE = (
     "Final fit: the optical-acoustic bundle adjustment (cameras, board poses, microphones, c "
     "and latencies fitted to the corner pixels and the times of flight together); the "
@@ -244,6 +255,7 @@ def calibrate(path: Path, options: CalibrationOptions | None = None,
     timings = dict(m.timings_s)
     with _timed(timings, "solver", on_stage):
         solution = solve(m, options)
+    _check_fit(solution)
     if not (options.joint and options.method == "micam"):
         return CalibrationRun(_assemble(m, solution, options, timings), m, solution)
     with _timed(timings, "joint fit", on_stage):
@@ -257,6 +269,20 @@ def calibrate(path: Path, options: CalibrationOptions | None = None,
         "notes": [*result.notes, JOINT_NOTE],
     })
     return CalibrationRun(result, joint_m, joint_solution, solution, bundle)
+
+
+def _check_fit(solution: MicrophoneSolution) -> None:
+    """Refuse a solution whose times of flight fit no geometry (see MAX_MEDIAN_RESIDUAL_S)."""
+    residuals = solution.residuals_s[np.isfinite(solution.residuals_s) & ~solution.outliers]
+    median = float(np.median(np.abs(residuals))) if residuals.size else 0.0
+    if median > MAX_MEDIAN_RESIDUAL_S:
+        raise GeometryMismatchError(
+            f"the times of flight do not fit the speaker positions: median |residual| "
+            f"{1e6 * median:.0f} us (an honest fit leaves well under "
+            f"{1e6 * MAX_MEDIAN_RESIDUAL_S:.0f} us), so the rig and array description does "
+            "not match the recordings; check rig.origin_square (the colour of the board's "
+            "square at its origin), the speakers' order (rig.speakers_m against the "
+            "recordings), the channel map and the reference microphone's columns")
 
 
 def _reference_position(cams: CameraCalibration,
@@ -624,6 +650,6 @@ def _pose_result(data: SessionData, speakers: SpeakerPositions, i: int) -> PoseR
 
 
 __all__ = [
-    "CalibrationInputError", "CalibrationOptions", "CalibrationRun", "Measurements", "calibrate",
-    "measure", "solve",
+    "CalibrationInputError", "CalibrationOptions", "CalibrationRun", "GeometryMismatchError",
+    "Measurements", "calibrate", "measure", "solve",
 ]
