@@ -153,7 +153,8 @@ class CaptureConfig(ConfigModel):
         roles = [c.role for c in self.columns]
         if roles.count("reference") != 1:
             problems.append(f"columns: {roles.count('reference')} columns have role "
-                            "'reference'; exactly one records the reference microphone")
+                            "'reference'; write role = 'reference' on exactly the one that "
+                            "records the reference microphone")
         for j, c in enumerate(self.columns):
             if c.role == "mic" and c.mic_id is None:
                 problems.append(f"columns[{j}].mic_id: missing for a 'mic' column; write the "

@@ -139,22 +139,22 @@ class ImportSpec(RigArrayDescription):
         rec = self.recordings
         if len(rec.references) != n:
             problems.append(f"recordings.references: {len(rec.references)} files for {n} "
-                            "speakers; list one reference recording per speaker, in order")
+                            "speakers; write one reference recording per speaker, in order")
         cameras = [c.name for c in self.cameras]
         for i, pose in enumerate(rec.poses):
             if len(pose.bursts) != n:
                 problems.append(f"recordings.poses[{i}].bursts: {len(pose.bursts)} files for "
-                                f"{n} speakers; list one recording per speaker, in order")
+                                f"{n} speakers; write one recording per speaker, in order")
             unknown = sorted(set(pose.images) - set(cameras))
             if unknown:
                 problems.append(f"recordings.poses[{i}].images: camera {unknown[0]!r} is not "
-                                f"in cameras ({', '.join(cameras)}); use one of those names")
+                                f"in cameras ({', '.join(cameras)}); write one of those names")
         if rec.refmic_images is not None:
             if self.reference.pose_recordings_column is None:
                 problems.append(
                     "recordings.refmic_images: the reference microphone's image on its stand "
-                    "is only of use when the pose recordings hold it; set "
-                    "reference.pose_recordings_column, or leave refmic_images out")
+                    "is only of use when the pose recordings hold it; write "
+                    "reference.pose_recordings_column = ..., or leave refmic_images out")
             if self.rig.reference_mark_m is None:
                 problems.append("recordings.refmic_images: needs rig.reference_mark_m, the rig "
                                 "point touched to the reference microphone; write it, e.g. "
@@ -162,11 +162,11 @@ class ImportSpec(RigArrayDescription):
             unknown = sorted(set(rec.refmic_images) - set(cameras))
             if unknown:
                 problems.append(f"recordings.refmic_images: camera {unknown[0]!r} is not in "
-                                "cameras; use one of their names")
+                                "cameras; write one of their names")
         for i, c in enumerate(self.cameras):
             if c.intrinsics_file is not None and c.intrinsics is not None:
                 problems.append(f"cameras[{i}]: both intrinsics and intrinsics_file are given; "
-                                "keep one of them")
+                                "write only one of them")
             if (c.intrinsics_file is not None and c.intrinsics_use == "prior"
                     and c.intrinsics_std is None and not c.intrinsics_file.endswith(".json")):
                 problems.append(f"cameras[{i}].intrinsics_std: a prior needs its standard "
@@ -211,11 +211,12 @@ def inside(base: Path, relative: str, where: str) -> Path:
     pure = PurePosixPath(relative)
     if pure.is_absolute() or ".." in pure.parts or not relative.strip():
         raise ImportSpecError(f"{where}: {relative!r} must be a path inside the TOML file's "
-                              "folder, relative to it (no leading '/', no '..')")
+                              "folder; write it relative to that folder (no leading '/', no "
+                              "'..')")
     path = base / pure
     if not path.resolve().is_relative_to(base.resolve()):
         raise ImportSpecError(f"{where}: {relative!r} leads out of the TOML file's folder "
-                              "(through a link); copy the file into that folder")
+                              "(through a link); copy the file into that folder and write its path")
     if not path.is_file():
         raise ImportSpecError(f"{where}: {relative!r} does not exist (looked for {path}); "
                               "write the path relative to the TOML file")
@@ -251,7 +252,8 @@ class _Recording:
 def _requantize(data: np.ndarray, where: str) -> tuple[np.ndarray, list[float]]:
     """16-bit codes of a recording in another format, scaled per column to its peak."""
     if not np.all(np.isfinite(data)):
-        raise ImportSpecError(f"{where}: the recording holds NaN or infinite samples")
+        raise ImportSpecError(f"{where}: the recording holds NaN or infinite samples; write "
+                              "the path of a recording without them")
     peak = np.max(np.abs(data), axis=0)
     scale = np.where(peak > 0, CODE_FULL_SCALE / np.where(peak > 0, peak, 1.0), 1.0)
     codes = np.rint(data * scale).astype(np.int16)
@@ -264,12 +266,12 @@ def _hdf5(path: Path, where: str) -> Any:
     except ImportError:
         raise ImportSpecError(
             f"{where}: {path.name} is HDF5, which needs h5py: pip install 'micam[hdf5]' (or "
-            "pip install h5py)") from None
+            "write the path of a WAV or FLAC file instead)") from None
     try:
         return h5py.File(path, "r")
     except OSError as exc:
-        raise ImportSpecError(f"{where}: {path.name} is not a readable HDF5 file ({exc})"
-                              ) from None
+        raise ImportSpecError(f"{where}: {path.name} is not a readable HDF5 file ({exc}); "
+                              "write the path of one") from None
 
 
 def check_recording(base: Path, ref: FileRef, where: str, description: RigArrayDescription,
@@ -289,7 +291,8 @@ def check_recording(base: Path, ref: FileRef, where: str, description: RigArrayD
             info = sf.info(str(path))
         except (sf.LibsndfileError, RuntimeError) as exc:
             raise ImportSpecError(f"{where}: {entry.file!r} is not a sound file libsndfile "
-                                  f"reads (WAV, FLAC, RF64, ...): {exc}") from None
+                                  f"reads ({exc}); convert it to WAV or FLAC and write that "
+                                  "file's path") from None
         rate, frames, channels = float(info.samplerate), info.frames, info.channels
         fmt = f"{info.format} {info.subtype}"
     n = description.burst.n_samples
@@ -300,13 +303,16 @@ def check_recording(base: Path, ref: FileRef, where: str, description: RigArrayD
     if not last_column < channels <= MAX_CHANNELS:
         raise ImportSpecError(
             f"{where}: {entry.file!r} has {channels} channels; the description reads column "
-            f"{last_column} (columns count from 0)" if channels <= MAX_CHANNELS else
-            f"{where}: {entry.file!r} has {channels} channels, more than {MAX_CHANNELS}")
+            f"{last_column}: write the columns this file has (they count from 0)"
+            if channels <= MAX_CHANNELS else
+            f"{where}: {entry.file!r} has {channels} channels, more than {MAX_CHANNELS}; split "
+            "it into files of fewer channels and write those")
     if frames < entry.start_sample + n:
         raise ImportSpecError(
             f"{where}: {entry.file!r} has {frames} samples, fewer than start_sample "
-            f"{entry.start_sample} + the burst layout's {n}; check burst (silence_before_"
-            "samples, mls_order, silence_after_samples, extra_recorded_samples)")
+            f"{entry.start_sample} + the burst layout's {n}; write the layout the recorder "
+            "used in [burst] (silence_before_samples, mls_order, silence_after_samples, "
+            "extra_recorded_samples)")
     if isinstance(ref, str) and frames != n:
         raise ImportSpecError(
             f"{where}: {entry.file!r} has {frames} samples, the burst layout {n}; if the "
@@ -321,15 +327,17 @@ def _hdf5_info(path: Path, dataset: str, where: str) -> tuple[float, int, int, s
     with _hdf5(path, where) as f:
         if dataset not in f or not hasattr(f[dataset], "shape"):
             raise ImportSpecError(f"{where}: {path.name} has no dataset {dataset!r}; Acoular "
-                                  "writes its time data as 'time_data' (set dataset = ...)")
+                                  "writes its time data as 'time_data'; write the dataset's "
+                                  "name as dataset = '...'")
         ds = f[dataset]
         if ds.ndim != 2:
             raise ImportSpecError(f"{where}: {path.name}:{dataset} has shape {ds.shape}; "
-                                  "time data is (samples, channels)")
+                                  "write the name of a dataset of shape (samples, channels)")
         rate = ds.attrs.get("sample_freq", f.attrs.get("sample_freq"))
         if rate is None:
             raise ImportSpecError(f"{where}: {path.name}:{dataset} has no 'sample_freq' "
-                                  "attribute (Acoular's sample rate); add it")
+                                  "attribute (Acoular's sample rate); write the rate in Hz "
+                                  "into that attribute")
         return float(np.asarray(rate).ravel()[0]), int(ds.shape[0]), int(ds.shape[1]), \
             f"HDF5 {ds.dtype}"
 
@@ -339,16 +347,17 @@ def read_image(base: Path, relative: str, where: str, camera: CameraDescription)
     size."""
     path = inside(base, relative, where)
     if path.stat().st_size > MAX_IMAGE_BYTES:
-        raise ImportSpecError(f"{where}: {relative!r} is larger than {MAX_IMAGE_BYTES} bytes")
+        raise ImportSpecError(f"{where}: {relative!r} is larger than {MAX_IMAGE_BYTES} bytes; "
+                              "write the path of the camera's own image")
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if image is None:
-        raise ImportSpecError(f"{where}: {relative!r} is not an image OpenCV reads (PNG, JPEG, "
-                              "TIFF, ...)")
+        raise ImportSpecError(f"{where}: {relative!r} is not an image OpenCV reads; convert "
+                              "it to PNG and write that file's path")
     if image.dtype == np.uint16:
         image = np.rint(image / 257.0).astype(np.uint8)
     if image.dtype != np.uint8:
-        raise ImportSpecError(f"{where}: {relative!r} has {image.dtype} pixels; give 8- or "
-                              "16-bit images")
+        raise ImportSpecError(f"{where}: {relative!r} has {image.dtype} pixels; write the "
+                              "path of an 8- or 16-bit image")
     if image.ndim == 3 and image.shape[2] == 4:
         image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
     elif image.ndim == 3 and image.shape[2] == 1:
@@ -387,7 +396,9 @@ def description_of(spec: ImportSpec, base: Path) -> RigArrayDescription:
                 known = read_intrinsics(inside(base, c.intrinsics_file, where), c.name,
                                         (c.width, c.height), c.intrinsics_use, c.intrinsics_std)
             except IntrinsicsFileError as exc:
-                raise ImportSpecError(f"{where}: {exc}") from None
+                raise ImportSpecError(f"{where}: {exc} (write the path of another calibration, "
+                                      "or leave intrinsics_file out to calibrate the camera "
+                                      "from its images)") from None
         cameras.append(CameraDescription(name=c.name, width=c.width, height=c.height,
                                          intrinsics=known))
     fields = spec.model_dump(exclude={"cameras", "recordings", "session_id"})

@@ -125,7 +125,8 @@ def rig_problems(rig: RigDescription, where: str = "rig") -> list[str]:
     if nx == ny:
         return [f"{where}.corners_x, {where}.corners_y: a square grid ({nx} x {ny}) has no "
                 "side OpenCV can tell apart, so its corner order turns by quarter turns; "
-                "print a board with different counts (e.g. corners_x = 6, corners_y = 9)"]
+                "print a board with different counts and write them (e.g. corners_x = 6, "
+                "corners_y = 9)"]
     problems = []
     if rig.marker_square is not None:
         i, j = rig.marker_square
@@ -136,13 +137,14 @@ def rig_problems(rig: RigDescription, where: str = "rig") -> list[str]:
         elif (i, j) == (nx - 2 - i, ny - 2 - j):
             problems.append(
                 f"{where}.marker_square: square {[i, j]} is the board's centre, which a "
-                "half-turn keeps in place; put the dot in a square off the centre")
+                "half-turn keeps in place; put the dot in a square off the centre and write "
+                "that one")
     elif (nx + ny) % 2 == 0:
         problems.append(
             f"{where}.corners_x, {where}.corners_y: a {nx} x {ny} pattern has the same colours "
             "after a half-turn, so the corner order (and every speaker) would be ambiguous; "
-            "use a board with one even and one odd count (e.g. 6 x 9), or print a dot in one "
-            "square and give it as marker_square = [i, j]")
+            "use a board with one even and one odd count (write e.g. corners_x = 6, "
+            "corners_y = 9), or print a dot in one square and write marker_square = [i, j]")
     return problems
 
 
@@ -261,8 +263,8 @@ class KnownAir(ConfigModel):
         if self.speed_of_sound_m_s is not None:
             return (f"measured speed of sound {self.speed_of_sound_m_s:.2f} ± "
                     f"{self.speed_of_sound_std_m_s:.2f} m/s")
-        return (f"air temperature {self.temperature_c:.2f} ± {self.temperature_std_c:.2f} degC "
-                "(dry air)")
+        return (f"air temperature {self.temperature_c:.2f} ± {self.temperature_std_c:.2f} degC, "
+                "dry air")
 
 
 def air_problems(air: KnownAir, where: str = "air") -> list[str]:
@@ -270,11 +272,12 @@ def air_problems(air: KnownAir, where: str = "air") -> list[str]:
     has_t = air.temperature_c is not None
     has_c = air.speed_of_sound_m_s is not None
     if has_t and has_c:
-        return [f"{where}: both temperature_c and speed_of_sound_m_s are given; give the one "
-                "you measured (with its std)"]
+        return [f"{where}: both temperature_c and speed_of_sound_m_s are given; write only the "
+                "one you measured (with its std)"]
     if not (has_t or has_c):
-        return [f"{where}: give temperature_c = ... with temperature_std_c = ..., or "
-                "speed_of_sound_m_s = ... with speed_of_sound_std_m_s = ..."]
+        return [f"{where}: nothing measured; write temperature_c = ... with "
+                "temperature_std_c = ..., or speed_of_sound_m_s = ... with "
+                "speed_of_sound_std_m_s = ... (or leave [air] out)"]
     name, std = (("temperature", air.temperature_std_c) if has_t
                  else ("speed_of_sound", air.speed_of_sound_std_m_s))
     unit = "c" if has_t else "m_s"
@@ -316,8 +319,8 @@ class RigArrayDescription(ConfigModel):
         for g, entry in enumerate(self.channels):
             where = f"channels[{g}]"
             if entry.group in groups:
-                problems.append(f"{where}.group: {entry.group!r} is named twice; give each "
-                                "group one table listing all its columns")
+                problems.append(f"{where}.group: {entry.group!r} is named twice; write each "
+                                "group once, in one table with all its columns")
             groups.add(entry.group)
             if len(entry.columns) != len(entry.mic_ids):
                 problems.append(
@@ -325,16 +328,17 @@ class RigArrayDescription(ConfigModel):
                     "columns; write one microphone id per column, in the same order")
             for column in entry.columns:
                 if column < 0:
-                    problems.append(f"{where}.columns: column {column} is negative; columns "
-                                    "count from 0")
+                    problems.append(f"{where}.columns: column {column} is negative; write "
+                                    "columns counting from 0")
                 elif column in columns:
                     problems.append(f"{where}.columns: column {column} is already in "
-                                    f"{columns[column]}; each column records one microphone")
+                                    f"{columns[column]}; write each column once (it records one "
+                                    "microphone)")
                 columns[column] = where
             for mic in entry.mic_ids:
                 if mic in mic_ids:
                     problems.append(f"{where}.mic_ids: microphone {mic} is already in "
-                                    f"{mic_ids[mic]}; give every microphone one id")
+                                    f"{mic_ids[mic]}; write each microphone's id once")
                 mic_ids[mic] = where
         ref = self.reference
         if ref.pose_recordings_column in columns:
@@ -355,7 +359,8 @@ class RigArrayDescription(ConfigModel):
                             "0..0.1 m; write the distance in metres (2 mm = 0.002)")
         names = [c.name for c in self.cameras]
         for name in sorted({n for n in names if names.count(n) > 1}):
-            problems.append(f"cameras: {name!r} is named twice; give every camera its own name")
+            problems.append(f"cameras: {name!r} is named twice; write a name of its own for "
+                            "each camera")
         for i, camera in enumerate(self.cameras):
             if camera.intrinsics is not None:
                 problems += _intrinsics_problems(camera.intrinsics, f"cameras[{i}].intrinsics")
@@ -418,7 +423,12 @@ def problem_text(source: str, exc: ValidationError, root: type[ConfigModel]) -> 
     """`source is invalid:` then one indented line per problem (multi-line problems of the
     cross-field checks split into their own lines)."""
     lines = []
-    for line in describe_problems(exc, root):
+    errors = exc.errors()
+    for error, line in zip(errors, describe_problems(exc, root), strict=True):
+        loc = tuple(error["loc"])
+        if error["type"] == "too_short" and any(
+                tuple(e["loc"])[:len(loc)] == loc and len(e["loc"]) > len(loc) for e in errors):
+            continue  # pydantic's echo of an item refused above: the list is not too short
         _, _, rest = line.partition(": ")
         if _NAMES_ITS_FIELD.match(rest):
             lines += rest.split("\n")  # the cross-field checks name their own fields

@@ -436,12 +436,13 @@ def calibrate_images(
     board: Checkerboard,
     min_views: int = MIN_VIEWS,
     min_shared_views: int = MIN_SHARED_VIEWS,
+    known: dict[str, KnownIntrinsics] | None = None,
 ) -> CameraCalibration:
     """Calibrate cameras from images keyed by (camera, step) (see `calibrate_detections`)."""
     with ThreadPoolExecutor(default_workers()) as pool:  # OpenCV releases the lock
         found = list(pool.map(lambda image: _detect(image, board), images.values()))
     return calibrate_detections(dict(zip(images, found, strict=True)), cameras, board,
-                                min_views, min_shared_views)
+                                min_views, min_shared_views, known)
 
 
 def calibrate_detections(
