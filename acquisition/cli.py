@@ -13,6 +13,7 @@ from collections.abc import Sequence
 from .commands import (
     calibrate,
     capture,
+    config,
     daemon,
     daq,
     evaluate_imaging,
@@ -30,7 +31,7 @@ from .errors import UserError
 
 SUBCOMMANDS = (
     simulate, import_session, inspect, calibrate, study, image, evaluate_imaging, daq, daemon,
-    session,
+    config, session,
     capture, watch, sessions,
     worker,
 )

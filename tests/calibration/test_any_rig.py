@@ -116,3 +116,49 @@ def test_the_colour_convention_decides_the_frame(lab: dict[str, Path], tmp_path:
     wrong.write_text(toml)
     assert main(["import", str(wrong), "--out", str(tmp_path / "s")]) == 0
     assert main(["calibrate", str(tmp_path / "s"), "--out", str(tmp_path / "r.json")]) == 2
+
+
+@pytest.mark.parametrize(("document", "words"), [
+    ('{"mics": []}', "is not a micam truth file (microphones: Field required"),
+    ("not json", "is not JSON"),
+    ('{"microphones": [{"id": 0, "position_m": [0, 0, 0]}], "speed_of_sound_m_s": 343, '
+     '"cameras": [{"name": "camera", "K": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}]}',
+     "lacks microphones [1, 2, 3"),
+])
+def test_a_truth_of_another_shape_is_refused_before_any_work(
+        lab: dict[str, Path], tmp_path: Path, document: str, words: str,
+        capsys: pytest.CaptureFixture) -> None:
+    truth = tmp_path / "truth.json"
+    truth.write_text(document)
+    out = tmp_path / "r.json"
+    assert main(["calibrate", str(lab["imported"]), "--out", str(out), "--truth",
+                 str(truth)]) == 2
+    err = capsys.readouterr().err
+    assert words in err and "Traceback" not in err
+    assert not out.exists() and not (tmp_path / "r-report").exists()
+
+
+def test_known_quantities_from_the_command_line(lab: dict[str, Path], tmp_path: Path,
+                                                capsys: pytest.CaptureFixture) -> None:
+    import cv2
+
+    from sim.geometry import pinhole
+    from sim.sound import speed_of_sound
+
+    camera = pinhole("cam0")
+    fs = cv2.FileStorage(str(tmp_path / "camera.yaml"), cv2.FILE_STORAGE_WRITE)
+    fs.write("camera_matrix", camera.K)
+    fs.write("distortion_coefficients", camera.dist.reshape(1, -1))
+    fs.release()
+    result, _ = _calibrate(lab["imported"], tmp_path / "r.json", "--temperature", "30",
+                           "--temperature-std", "0.5", "--intrinsics",
+                           f"camera={tmp_path / 'camera.yaml'}", "--no-joint")
+    assert result["speed_of_sound_known_m_s"][0] == pytest.approx(speed_of_sound(30.0))
+    assert result["cameras"][0]["K"] == camera.K.tolist()  # fixed: used as given
+    assert any(n.startswith("Speed of sound") and "(given)" in n for n in result["notes"])
+    assert main(["calibrate", str(lab["imported"]), "--out", str(tmp_path / "x.json"),
+                 "--temperature", "30"]) == 2
+    assert "--temperature and --temperature-std go together" in capsys.readouterr().err
+    assert main(["calibrate", str(lab["imported"]), "--out", str(tmp_path / "x.json"),
+                 "--intrinsics", "cam9=x.yaml"]) == 2
+    assert "has no camera 'cam9'" in capsys.readouterr().err
