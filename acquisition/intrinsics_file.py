@@ -63,9 +63,10 @@ def read_intrinsics(path: Path, camera: str, size: tuple[int, int] | None,
             "resolution")
     std = std if std is not None else file_std
     try:
-        return KnownIntrinsics(use=use, camera_matrix=tuple(map(tuple, K)),
-                               distortion=tuple(_five_coefficients(dist, path)),
-                               std=None if std is None else tuple(std))
+        return KnownIntrinsics.model_validate({
+            "use": use, "camera_matrix": K.tolist(),
+            "distortion": _five_coefficients(dist, path).tolist(),
+            "std": None if std is None else list(std)})
     except ValueError as exc:
         raise IntrinsicsFileError(f"{path}: {exc}") from None
 

@@ -26,13 +26,13 @@ from __future__ import annotations
 
 import math
 import re
-from typing import Literal
+from typing import Final, Literal
 
 from pydantic import Field, ValidationError, model_validator
 
 from .config_model import ConfigModel, describe_problems
 
-DESCRIPTION_KIND = "rig-and-array"
+DESCRIPTION_KIND: Final = "rig-and-array"
 """The `kind` of a description stored as a session's capture (a capture configuration has
 no `kind`), so that a reader knows which of the two a session carries."""
 

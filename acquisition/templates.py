@@ -139,11 +139,11 @@ def _daemon(title: str, boards: list[tuple[str, str, int, int]], n_mics: int,
         *_RIG,
         "",
     ]
-    for c in cameras:
+    for camera in cameras:
         lines += [
             "[[hardware.cameras]]",
-            f'name = "{c}"',
-            f'device = "/dev/v4l/by-id/usb-CHANGE-ME-{c}-video-index0"   # ls /dev/v4l/by-id/',
+            f'name = "{camera}"',
+            f'device = "/dev/v4l/by-id/usb-CHANGE-ME-{camera}-video-index0"   # ls /dev/v4l/by-id/',
             "width = 1280",
             "height = 960",
             'fourcc = "MJPG"',

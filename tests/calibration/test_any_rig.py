@@ -83,7 +83,10 @@ def test_import_reaches_the_accuracy_of_a_native_session(lab: dict[str, Path]) -
     assert imported["latency_gauge_board"] == "board0"
 
 
-def test_no_hardware_value_is_needed_or_invented(lab: dict[str, Path], tmp_path: Path) -> None:
+def test_no_hardware_value_is_needed_or_invented(lab: dict[str, Path], tmp_path: Path,
+                                                 capsys: pytest.CaptureFixture) -> None:
+    assert main(["inspect", str(lab["imported"])]) == 0
+    assert "48 microphones in 8 clock/latency groups" in capsys.readouterr().out
     reader = SessionReader(lab["imported"])
     assert reader.status == "complete" and reader.verify() == []
     assert not _keys(reader.capture) & HARDWARE_KEYS
