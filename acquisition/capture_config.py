@@ -165,21 +165,23 @@ class CaptureConfig(ConfigModel):
         """What calibration knows of a session captured with this configuration.
 
         Args:
-            image_sizes: (width, height) of every camera's images (a capture configuration
-                names the cameras' devices, not their image sizes; the session's images do).
+            image_sizes: (width, height) of the cameras' images (a capture configuration names
+                the cameras' devices, not their image sizes; the session's images do). A
+                camera other than camera 0 without images is left out: there is nothing of it
+                to calibrate.
 
         Raises:
-            ValueError: a camera has no image size.
+            ValueError: camera 0 (the calibration's frame) has no image size.
         """
         groups: dict[str, list[tuple[int, int]]] = {}
         for j, c in enumerate(self.columns):
             if c.role == "mic":
                 groups.setdefault(c.board, []).append((j, int(c.mic_id or 0)))
         reference_column = [c.role for c in self.columns].index("reference")
-        missing = [c.name for c in self.cameras if c.name not in image_sizes]
-        if missing:
-            raise ValueError(f"no image of camera {', '.join(missing)}: its image size is "
-                             "unknown")
+        frame = self.cameras[0].name
+        if frame not in image_sizes:
+            raise ValueError(f"no image of camera {frame}, the calibration's frame: its image "
+                             "size is unknown; capture the poses with it")
         return RigArrayDescription(
             sample_rate_hz=self.sample_rate_hz,
             rig=self.rig,
@@ -195,7 +197,7 @@ class CaptureConfig(ConfigModel):
                               silence_after_samples=self.burst.post_samples),
             cameras=tuple(CameraDescription(name=c.name, width=image_sizes[c.name][0],
                                             height=image_sizes[c.name][1])
-                          for c in self.cameras),
+                          for c in self.cameras if c.name in image_sizes),
         )
 
     @classmethod
