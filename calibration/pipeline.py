@@ -39,7 +39,9 @@ import numpy as np
 from acquisition.rig_description import KnownIntrinsics
 
 from .bundle import (
+    FIXED,
     GROUP_TOF,
+    BundlePriors,
     BundleProblem,
     BundleSolution,
     BundleState,
@@ -84,6 +86,7 @@ from .speakers import (
 )
 from .speed_of_sound import SpeedOfSoundFit, fit_speed_of_sound
 from .times_of_flight import SessionTofs, measure_session_tofs
+from .tof import Weighting
 
 NOMINAL_SPEED_OF_SOUND_M_S = 343.0
 """Start value of c when nothing better is known (about 20 degC)."""
@@ -126,7 +129,9 @@ class CalibrationOptions:
         refine_poses: fit a rigid correction per rig pose, weighted by the camera's pose
             covariance.
         band_hz: the band the times of flight are estimated in (the speaker band).
-        phat: GCC-PHAT weighting of the correlations.
+        weighting: the correlations' spectral weighting (calibration.tof): "compact" (robust
+            to early reflections, the default), "matched" (maximum likelihood in free field)
+            or "phat".
         allow_interrupted: calibrate the completed poses of an interrupted session.
         joint: finish with the optical-acoustic bundle adjustment (method "micam" only); the
             camera-frozen solution is reported beside it.
@@ -134,10 +139,20 @@ class CalibrationOptions:
             calibration), in the session's microphone order: the solver then fits its rigid
             transform R_m, T_m into the camera-0 frame (paper IV-H), and each microphone's
             deviation from it if the prior has a deviation std. Method "micam" only.
-        speed_of_sound_prior: a known c and its standard deviation (m/s), from a measured air
-            temperature or speed of sound; it replaces the session description's `air`. The
-            camera-frozen solver holds its c to it (fixed if the std is 0) when the session
-            has no reference-microphone fit.
+        speaker_offsets: the joint fit estimates where each speaker's sound comes from on the
+            rig (its offset from the stated position, held to the rig's stated tolerance in
+            the board plane and to its acoustic-centre prior along the normal).
+        print_scale: the joint fit estimates the printed pattern's scale (held to the rig's
+            stated print tolerance).
+        mic_delay_std_s: the joint fit estimates each microphone's own delay (capsule and
+            channel group delay) with this prior standard deviation; None: no such unknown.
+        speed_of_sound_per_pose: the joint fit estimates c per pose (the air drifting),
+            consecutive poses' c held together by `speed_of_sound_step_m_s`.
+        speed_of_sound_step_m_s: standard deviation of c's change from pose to pose.
+        speed_of_sound_prior: (c, std) in m/s, a known speed of sound (a measured air
+            temperature or c); it replaces the session description's `air`. The joint fit
+            takes it as a prior on the session's mean c; the camera-frozen solver holds its c
+            to it (fixed if the std is 0) when the session has no reference-microphone fit.
         intrinsics: camera calibrations known from elsewhere, by camera name ("fixed" or a
             "prior"); they replace the session description's.
     """
@@ -147,10 +162,15 @@ class CalibrationOptions:
     speed_of_sound: Literal["reference", "solve"] = "reference"
     refine_poses: bool = False
     band_hz: tuple[float, float] = (300.0, 20_000.0)
-    phat: bool = False
+    weighting: Weighting = "compact"
     allow_interrupted: bool = False
     joint: bool = True
     prior: PriorGeometry | None = None
+    speaker_offsets: bool = True
+    print_scale: bool = True
+    mic_delay_std_s: float | None = 1e-6
+    speed_of_sound_per_pose: bool = True
+    speed_of_sound_step_m_s: float = 0.01
     speed_of_sound_prior: tuple[float, float] | None = None
     intrinsics: dict[str, KnownIntrinsics] | None = None
 
@@ -233,7 +253,7 @@ def measure(path: Path, options: CalibrationOptions | None = None,
         reference = _reference_position(cams, data)
     with _timed(timings, "times of flight", on_stage):
         tofs = measure_session_tofs(data, NOMINAL_SPEED_OF_SOUND_M_S, options.band_hz,
-                                    options.phat)
+                                    options.weighting)
     located = [data.pose_steps.index(p.step) for p in speakers.poses]
     reference_fit = None
     if reference is not None:
@@ -397,6 +417,29 @@ def _latency_layout(data: SessionData, options: CalibrationOptions) -> tuple[np.
         reference_board=boards.index(ref_board) if ref_board in boards else None))
 
 
+def bundle_priors(data: SessionData, options: CalibrationOptions) -> BundlePriors:
+    """The joint fit's priors from the rig's stated tolerances and the options: each
+    speaker's offset from its stated position (in the board plane: the build tolerance;
+    along the normal: the acoustic centre's expected offset and its spread), the print's
+    scale, each microphone's own delay and a known speed of sound."""
+    rig = data.rig
+    n = data.n_speakers
+    mean = np.zeros((n, 3))
+    std = np.zeros((n, 3))
+    if options.speaker_offsets:
+        mean[:, 2] = rig.acoustic_centre_m
+        std[:, :2] = rig.speaker_tolerance_m
+        std[:, 2] = np.hypot(rig.speaker_tolerance_m, rig.acoustic_centre_std_m)
+    return BundlePriors(
+        speaker_offset_mean_m=mean, speaker_offset_std_m=std,
+        print_scale_std=rig.print_scale_std if options.print_scale else FIXED,
+        mic_delay_std_s=(FIXED if options.mic_delay_std_s is None
+                         else options.mic_delay_std_s),
+        speed_of_sound=known_speed_of_sound(data, options),
+        speed_of_sound_step_m_s=options.speed_of_sound_step_m_s,
+    )
+
+
 def fit_joint(m: Measurements, frozen: MicrophoneSolution, options: CalibrationOptions,
               poses: np.ndarray | None = None, speakers: np.ndarray | None = None
               ) -> BundleSolution:
@@ -418,6 +461,10 @@ def fit_joint(m: Measurements, frozen: MicrophoneSolution, options: CalibrationO
     n_mic = len(data.mic_ids)
     board_column, n_latency = _latency_layout(data, options)
     latency_column = board_column[board_indices(data)[1]]
+    c_of_pose = None
+    if options.speed_of_sound_per_pose:
+        c_of_pose = np.full(len(board_poses), -1)
+        c_of_pose[pose_idx] = np.arange(pose_idx.size)
     problem = BundleProblem(
         board_points_m=m.cameras.board.object_points(),
         speakers_rig_m=data.speakers_rig_m,
@@ -430,6 +477,10 @@ def fit_joint(m: Measurements, frozen: MicrophoneSolution, options: CalibrationO
         reference_std_s=m.tofs.reference_std_s[rows][:, speaker_idx].ravel(),
         latency_column=latency_column[solved], n_latency=n_latency,
         camera_names=tuple(m.cameras.intrinsics),
+        reference_distance_m=data.reference_distances_m[np.tile(speaker_idx, pose_idx.size)],
+        tof_speed_of_sound_m_s=NOMINAL_SPEED_OF_SOUND_M_S,
+        speed_of_sound_of_pose=c_of_pose,
+        priors=bundle_priors(data, options),
     )  # fmt: skip
     sources = _rig_sources(data, m.speakers, pose_idx, speaker_idx).positions()
     if data.reference_column is not None:
@@ -446,7 +497,8 @@ def fit_joint(m: Measurements, frozen: MicrophoneSolution, options: CalibrationO
         intrinsics=intrinsics, extrinsics=extrinsics,
         poses=np.array([[*p.rig_to_cam0.rvec, *p.rig_to_cam0.tvec] for p in board_poses]),
         microphones_m=frozen.positions_m[solved], reference_m=reference,
-        speed_of_sound_m_s=frozen.speed_of_sound_m_s, latencies_s=latencies,
+        speeds_of_sound_m_s=np.array([frozen.speed_of_sound_m_s]), latencies_s=latencies,
+        speaker_offsets_m=problem.priors.speaker_offset_mean_m.copy(),
     )  # fmt: skip
     return fit_bundle(problem, start)
 
@@ -459,7 +511,8 @@ def joint_measurements(m: Measurements, bundle: BundleSolution, frozen: Micropho
     solved = np.flatnonzero(np.all(np.isfinite(frozen.positions_m), axis=1))
     poses = [RigPoseInCam0(p.step, p.camera, pose_estimate(bundle, k), p.rms_px)
              for k, p in enumerate(m.speakers.poses)]
-    located = [p.locate(data.speakers_rig_m) for p in poses]
+    rig_points = data.speakers_rig_m + bundle.state.speaker_offsets_m
+    located = [p.locate(rig_points) for p in poses]
     speakers = SpeakerPositions(poses, np.stack([x for x, _ in located]),
                                 np.stack([c for _, c in located]), m.speakers.unlocated)
     joint_m = replace(m, cameras=refined_cameras(m.cameras, bundle), speakers=speakers)
@@ -476,7 +529,7 @@ def joint_measurements(m: Measurements, bundle: BundleSolution, frozen: Micropho
     solution = MicrophoneSolution(
         positions_m=positions, covariance_m2=covariance,
         speed_of_sound_m_s=bundle.state.speed_of_sound_m_s,
-        speed_of_sound_std_m_s=float(bundle.std.speed_of_sound_m_s),
+        speed_of_sound_std_m_s=bundle.speed_of_sound_std_m_s,
         latency_s=np.append(bundle.state.latencies_s, 0.0)[board_column],
         latency_std_s=np.append(bundle.std.latencies_s, 0.0)[board_column],
         pose_corrections=None, pose_correction_std=None,

@@ -51,7 +51,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--intrinsics-use", choices=("fixed", "prior"), default="fixed",
                    help="use --intrinsics as given (default) or as a prior weighted by the "
                         "file's standard deviations (a micam result.json has them)")
-    p.add_argument("--phat", action="store_true", help="GCC-PHAT weighting of the correlations")
+    p.add_argument("--weighting", choices=("compact", "matched", "phat"), default="compact",
+                   help="spectral weighting of the TOF correlations: compact (default; robust "
+                        "to early reflections), matched (maximum likelihood in free field) "
+                        "or phat (GCC-PHAT)")
     p.add_argument("--allow-interrupted", action="store_true",
                    help="calibrate the completed poses of an interrupted session")
     p.add_argument("--truth", type=Path, default=None,
@@ -173,7 +176,7 @@ def run(args: argparse.Namespace) -> int:
     truth = _truth(args, data)
     options = CalibrationOptions(
         method=args.method, latency=args.latency, speed_of_sound=args.speed_of_sound,
-        refine_poses=args.refine_poses, phat=args.phat,
+        refine_poses=args.refine_poses, weighting=args.weighting,
         allow_interrupted=args.allow_interrupted, joint=not args.no_joint,
         prior=_prior(args), speed_of_sound_prior=_known_air(args),
         intrinsics=_known_intrinsics(args, data) or None)
