@@ -6,9 +6,9 @@ The foreign lab: 8 boards x 6 channels, one camera, the opposite colour conventi
 reference microphone on board 0 recorded only in the reference recordings, a known air
 temperature. Its calibration has no reference microphone on a stand (so c comes from the
 temperature in the camera-frozen solve, and the joint fit refines it), the native capture has
-one on every burst: the two reach the same accuracy (measured over seeds 1-5: import 0.11-0.16
-mm, native 0.09-0.15 mm mean microphone error with the joint fit at 36 sources; the native
-session's extra reference times of flight make it a little better).
+one on every burst: the two reach the same accuracy (measured over seeds 1-5: import 0.11-0.17
+mm, native 0.09-0.15 mm mean microphone error with the joint fit at 36 sources, import/native
+1.1-1.6; the native session's extra reference times of flight make it a little better).
 """
 
 from __future__ import annotations
