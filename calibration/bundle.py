@@ -171,6 +171,9 @@ class BundlePriors:
             the session's mean c; None: unknown.
         speed_of_sound_step_m_s: standard deviation of the change of c from one pose to the
             next, when c is fitted per pose (the air drifting).
+        intrinsics_mean, intrinsics_std: (n_camera, 9) intrinsics known from elsewhere and
+            their standard deviations (0: FIXED; NaN: nothing known, fitted freely); None:
+            every camera fitted freely.
     """
 
     speaker_offset_mean_m: np.ndarray
@@ -179,6 +182,8 @@ class BundlePriors:
     mic_delay_std_s: float = FIXED
     speed_of_sound: tuple[float, float] | None = None
     speed_of_sound_step_m_s: float = 0.01
+    intrinsics_mean: np.ndarray | None = None
+    intrinsics_std: np.ndarray | None = None
 
     @classmethod
     def none(cls, n_speaker: int) -> BundlePriors:
@@ -582,6 +587,14 @@ class _Priors:
             for a in range(3):
                 prior(offsets + 3 * j + a, float(mean[j, a]), float(std[j, a]))
         prior(layout.slices["print_scale"].start, 1.0, priors.print_scale_std)
+        if priors.intrinsics_mean is not None and priors.intrinsics_std is not None:
+            start = layout.slices["intrinsics"].start
+            for j, (mu, sd) in enumerate(zip(priors.intrinsics_mean.ravel(),
+                                             priors.intrinsics_std.ravel(), strict=True)):
+                if np.isfinite(sd):
+                    prior(start + j, float(mu), float(sd))
+        if not np.any(np.isfinite(problem.reference_tof_s) & (problem.reference_std_s > 0)):
+            free[layout.slices["reference"]] = False  # no data: the stand is not in the fit
         for m in range(layout.shapes["mic_delays"][0]):
             prior(layout.slices["mic_delays"].start + m, 0.0, priors.mic_delay_std_s)
         c = layout.slices["c"]
