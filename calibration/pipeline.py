@@ -828,7 +828,8 @@ def _responses(m: Measurements, bundle: BundleSolution,
     """Every microphone's response from the joint fit's geometry (calibration.responses)."""
     data = m.data
     chosen = evenly_spread([p.step for p in m.speakers.poses])
-    est = estimate_responses(data, flights(m, bundle, frozen, chosen),
+    est = estimate_responses(m.tofs, [m.located[k] for k in chosen],
+                             flights(m, bundle, frozen, chosen), data.fs,
                              data.reference_distances_m, bundle.state.speed_of_sound_m_s,
                              data.rig.speaker_diameter_m)
     return MicrophoneResponsesResult(
