@@ -133,6 +133,36 @@ def estimate_responses(tofs: SessionTofs, rows: list[int], flights: Flights, fs:
     return MicrophoneResponses(centres_hz.copy(), gain, phase, gain_std, phase_std, n)
 
 
+def dispersion_delays(tofs: SessionTofs, responses: MicrophoneResponses, fs: float,
+                      gate_s: float = GATE_S) -> np.ndarray:
+    """(P, S, M) what each microphone's dispersion did to each of its times of flight, to be
+    subtracted from them.
+
+    A capsule whose phase is not linear in frequency (a resonance, a filter) moves the peak of
+    a correlation by an amount that depends on that measurement's own spectrum, which the
+    speaker's directivity and the room change from source to source: no single delay per
+    microphone takes it out. To first order a phase perturbation psi(f) on the correlation
+    moves its peak by -sum_f w omega psi / sum_f w omega^2, w the correlation's magnitude. Here
+    psi is the microphone's measured phase less its best line through the origin (the line is
+    the microphone's delay, which the joint fit keeps as an unknown), and w is read from each
+    measurement's own impulse (gated around its peak), band by band.
+    """
+    f = responses.frequencies_hz
+    omega = 2 * np.pi * f
+    width = f * (10 ** 0.05 - 10 ** -0.05)  # the bands' widths: the integral's weights
+    phase = responses.phase_rad
+    delay = -np.sum(phase * omega * width, axis=1) / np.sum(omega**2 * width)  # LS line
+    psi = phase + omega * delay[:, None]  # (M, n_band): the microphones' dispersion
+    n_lag = tofs.impulses.shape[-1]
+    t = (np.arange(n_lag) - (n_lag - 1) / 2) * tofs.impulse_step / fs  # centred on the peak
+    kernel = _tukey(t / gate_s)[:, None] * np.exp(-2j * np.pi * np.outer(t, f))  # (n_lag, B)
+    out = np.zeros(tofs.tof_s.shape)
+    for p in range(tofs.impulses.shape[0]):
+        w = np.abs(tofs.impulses[p].astype(np.float64) @ kernel) * width  # (S, M, B)
+        out[p] = -np.sum(w * omega * psi, axis=-1) / np.sum(w * omega**2, axis=-1)
+    return out
+
+
 def _tukey(u: np.ndarray, flat: float = 0.5) -> np.ndarray:
     """A Tukey window over u in [-1, 1] (zero outside), cosine tapers over the outer
     (1 - flat) of each side."""
