@@ -11,7 +11,6 @@ from __future__ import annotations
 import copy
 import json
 import operator
-import re
 import uuid
 from collections.abc import Callable
 from datetime import UTC, datetime
@@ -22,8 +21,10 @@ import cv2
 import numpy as np
 import soundfile as sf
 
+from ..safe_names import is_name, is_step_id
 from ._atomic import PARTIAL_SUFFIX, fsync_dir, make_dirs, remove_partials, write_atomic
 from ._journal import JournalWriter, SessionState, journal_path, load_state, scan_journal
+from ._layout import attempt_dir
 from ._models import (
     SCHEMA_VERSION,
     ExitStatus,
@@ -47,20 +48,7 @@ MAX_CHANNELS = 1024  # libsndfile's limit for every container
 # Plain WAV sizes are 32-bit; larger recordings go to RF64 (the reader detects the container).
 WAV_MAX_DATA_BYTES = 0xFFFF_FFFF - 1024
 
-_STEP_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*(/[A-Za-z0-9][A-Za-z0-9_.-]*)?")
-_NAME_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
 _EXIT_STATUSES: tuple[ExitStatus, ...] = ("success", "aborted", "failed")
-
-
-def attempt_dir(step: str, attempt: int) -> str:
-    """The session-relative directory of an attempt: the step id made into a path.
-
-    "group/name" -> "groups/name-aN" (an "s" is appended to the group), "name" -> "name-aN".
-    The mapping is one-to-one, and no attempt directory can collide with a group folder (those
-    end in "s", attempt directories in "-a<digits>") or with journal.jsonl / manifest.json.
-    """
-    group, _, name = step.rpartition("/")
-    return f"{group}s/{name}-a{attempt}" if group else f"{name}-a{attempt}"
 
 
 def _utc_now() -> datetime:
@@ -79,7 +67,7 @@ def _json_copy(value: Any, what: str) -> Any:
 
 
 def _check_step_id(step: str) -> None:
-    if not isinstance(step, str) or not _STEP_RE.fullmatch(step):
+    if not is_step_id(step):
         raise SessionError(
             f"invalid step id {step!r}: use 'name' or 'group/name' made of letters, digits, "
             "'_', '.', '-' (e.g. 'refmic', 'reference/4', 'pose/0003')"
@@ -89,7 +77,7 @@ def _check_step_id(step: str) -> None:
 def _check_file_name(name: str, suffix: str) -> None:
     if (
         not isinstance(name, str)
-        or not _NAME_RE.fullmatch(name)
+        or not is_name(name)
         or not name.endswith(suffix)
         or name.endswith(PARTIAL_SUFFIX)
     ):
@@ -174,7 +162,7 @@ class SessionWriter:
             raise SessionError(f"capture must be a dict, got {type(capture).__name__}")
         capture = _json_copy(capture, "the capture configuration")
         session_id = session_id or f"{_utc_now():%Y-%m-%dT%H-%M-%SZ}_{uuid.uuid4().hex[:8]}"
-        if not isinstance(session_id, str) or not _NAME_RE.fullmatch(session_id):
+        if not is_name(session_id):
             raise SessionError(
                 f"invalid session id {session_id!r}: use letters, digits, '_', '.', '-'"
             )

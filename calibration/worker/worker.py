@@ -45,8 +45,10 @@ from acquisition.daemon.job_messages import (
     Progress,
     Ready,
     Reconnect,
+    Refused,
     WorkerError,
     encode,
+    version_problem,
 )
 from acquisition.daemon.keys import secure_client
 
@@ -183,11 +185,16 @@ class Worker:
         try:
             if len(frames) != 1:
                 raise ValueError(f"a daemon message is one frame; got {len(frames)}")
+            problem = version_problem(frames[0])
+            if problem is not None:
+                raise ValueError(problem)
             message = DAEMON_MESSAGE.validate_json(frames[0])
         except (ValidationError, ValueError) as exc:
             self._refuse(frames, exc)
             return
-        if isinstance(message, Job):
+        if isinstance(message, Refused):
+            log.error("the daemon refused a message of this worker: %s", message.reason)
+        elif isinstance(message, Job):
             self._start(message)
         elif isinstance(message, Reconnect):
             self._announce = True
