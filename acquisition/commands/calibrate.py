@@ -53,6 +53,7 @@ def _prior(args: argparse.Namespace):
         if args.prior_std_mm is not None:
             raise UserError("--prior-std-mm needs --prior")
         return None
+    from acquisition.session import SessionError
     from calibration.result import load_prior_positions
     from calibration.session_data import load_session
     from calibration.solver import PriorGeometry
@@ -64,15 +65,44 @@ def _prior(args: argparse.Namespace):
     try:
         data = load_session(args.session, args.allow_interrupted)
         positions = load_prior_positions(args.prior, data.mic_ids)
-    except ValueError as exc:
+    except (ValueError, SessionError) as exc:
         raise UserError(str(exc)) from None
     std = None if args.prior_std_mm is None else args.prior_std_mm / 1000.0
     return PriorGeometry(positions, std)
 
 
+def _truth(path: Path) -> dict | None:
+    """The simulated ground truth to compare with, if there is a readable one."""
+    if not path.is_file():
+        return None
+    try:
+        truth = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        print(f"micam: warning: {path} is not readable JSON ({exc}); no comparison with truth")
+        return None
+    return truth if isinstance(truth, dict) else None
+
+
+def _check_files(session: Path) -> None:
+    """Every file of the session against the journal's checksum, before any work (the
+    calibration remembers detections by checksum, so it might not read a damaged file)."""
+    from acquisition.session import SessionError, SessionReader
+
+    try:
+        problems = SessionReader(session).verify()
+    except SessionError as exc:
+        raise UserError(str(exc)) from None
+    if problems:
+        more = f" (and {len(problems) - 1} more: `micam inspect {session}`)" \
+            if len(problems) > 1 else ""
+        raise UserError(f"{session} is damaged: {problems[0]}{more}; restore the file from a "
+                        "copy of the session, nothing was calibrated")
+
+
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
+    from acquisition.session import SessionError
     from calibration.pipeline import CalibrationOptions, calibrate
     from calibration.report import summary_lines, write_report
     from calibration.result import write_acoular_xml
@@ -85,6 +115,7 @@ def run(args: argparse.Namespace) -> int:
     truth_path = args.truth or (args.session / "truth.json")
     if args.truth is not None and not truth_path.is_file():
         raise UserError(f"--truth {truth_path} is not a file")
+    _check_files(args.session)
     options = CalibrationOptions(
         method=args.method, latency=args.latency, speed_of_sound=args.speed_of_sound,
         refine_poses=args.refine_poses, phat=args.phat,
@@ -101,10 +132,12 @@ def run(args: argparse.Namespace) -> int:
             run_ = calibrate(args.session, options, on_stage)
         except ValueError as exc:  # CalibrationInputError and the cameras' own errors
             raise UserError(str(exc)) from None
+        except SessionError as exc:  # a damaged file: every read is checked against the journal
+            raise UserError(str(exc)) from None
         bar.n = len(stages)
         bar.refresh()
     run_.result.write(out)
-    truth = json.loads(truth_path.read_text()) if truth_path.is_file() else None
+    truth = _truth(truth_path)
     report = write_report(run_, args.report or out.parent / (out.stem + "-report"), truth)
     if args.acoular_xml is not None:
         write_acoular_xml(run_.result, args.acoular_xml)

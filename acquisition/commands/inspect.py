@@ -29,15 +29,28 @@ def _norm(v: list[float]) -> float:
     return sum(x * x for x in v) ** 0.5
 
 
+def _truth_line(path: Path) -> str:
+    """The ground truth in one line, or why it cannot be read (it is a file like any other)."""
+    try:
+        truth = json.loads(path.read_text())
+        dist = [_norm(_mean(p["speakers_m"])) for p in truth["poses"]]
+        return (f"{len(truth['microphones'])} microphones, c = "
+                f"{truth['speed_of_sound_m_s']:.2f} m/s ({truth['temperature_c']:.1f} degC), "
+                f"rig centre {min(dist):.2f}-{max(dist):.2f} m from camera 0")
+    except (OSError, ValueError, KeyError, TypeError, IndexError) as exc:
+        return f"{path.name} is not readable ({type(exc).__name__}: {exc})"
+
+
 def run(args: argparse.Namespace) -> int:
+    from acquisition.capture_config import CaptureConfig
     from acquisition.session import SessionError, SessionReader
 
     try:
         reader = SessionReader(args.session)
+        capture = CaptureConfig.of_session(reader.capture, args.session)
     except SessionError as exc:
         raise UserError(str(exc)) from None
     steps = reader.steps()
-    capture = reader.capture
     poses = [s for s in steps if s.startswith("pose/")]
     refs = [s for s in steps if s.startswith("reference/")]
     n_files = sum(len(r.files) for r in steps.values())
@@ -45,10 +58,9 @@ def run(args: argparse.Namespace) -> int:
     print(f"status    {reader.status}")
     print(f"steps     {len(refs)} reference recordings, "
           f"{'1' if 'refmic' in steps else 'no'} reference-microphone image set, "
-          f"{len(poses)} of {capture['n_poses']} poses")
-    print(f"channels  {len(capture['columns'])} at {capture['sample_rate_hz']:.0f} S/s on "
-          f"{len(capture['boards'])} boards; cameras "
-          f"{', '.join(c['name'] for c in capture['cameras'])}")
+          f"{len(poses)} of {capture.n_poses} poses")
+    print(f"channels  {len(capture.columns)} at {capture.sample_rate_hz:.0f} S/s on "
+          f"{len(capture.boards)} boards; cameras {', '.join(c.name for c in capture.cameras)}")
     print(f"files     {n_files} ({_megabytes(args.session):.0f} MB)")
     problems = reader.verify()
     print("checksums " + ("all intact" if not problems else f"{len(problems)} problems:"))
@@ -56,9 +68,5 @@ def run(args: argparse.Namespace) -> int:
         print(f"  - {problem}")
     truth_path = args.session / "truth.json"
     if truth_path.is_file():
-        truth = json.loads(truth_path.read_text())
-        dist = [_norm(_mean(p["speakers_m"])) for p in truth["poses"]]
-        print(f"truth     {len(truth['microphones'])} microphones, c = "
-              f"{truth['speed_of_sound_m_s']:.2f} m/s ({truth['temperature_c']:.1f} degC), "
-              f"rig centre {min(dist):.2f}-{max(dist):.2f} m from camera 0")
+        print(f"truth     {_truth_line(truth_path)}")
     return 0 if not problems else 1

@@ -9,6 +9,7 @@ ever overwritten.
 from __future__ import annotations
 
 import copy
+import io
 import json
 import operator
 import uuid
@@ -334,7 +335,11 @@ class SessionWriter:
         data = np.ascontiguousarray(codes)
 
         def fill(fh: BinaryIO) -> None:
-            sf.write(fh, data, rate, subtype="PCM_16", format=container)
+            # Encoded in memory first: libsndfile writing to a Python file would turn a full
+            # disk into an AssertionError of soundfile's; fh.write raises the OSError itself.
+            encoded = io.BytesIO()
+            sf.write(encoded, data, rate, subtype="PCM_16", format=container)
+            fh.write(encoded.getbuffer())
 
         return self._write_file(step, name, fill, "recording", full_meta)
 
@@ -403,8 +408,9 @@ class SessionWriter:
         except OSError as exc:
             self.close()
             raise SessionError(
-                f"cannot append to {journal.path} ({exc}); the writer is closed: fix the cause "
-                f"(disk full?), then SessionWriter.resume({str(self._path)!r})"
+                f"cannot append to {journal.path} ({exc}); the writer is closed and everything "
+                "journaled before is safe: fix the cause (disk full? read-only?), then resume "
+                "the session"
             ) from exc
         self._state.apply(record)
 
@@ -466,8 +472,9 @@ class SessionWriter:
             raise
         except (OSError, RuntimeError) as exc:  # RuntimeError: libsndfile's errors
             raise SessionError(
-                f"cannot write {target} ({exc}); nothing was journaled: fix the cause (disk "
-                f"full?), then abandon_step({step!r}) and capture the step again"
+                f"cannot write {target} ({exc}); nothing was journaled for it and every "
+                "completed step is safe: fix the cause (disk full? read-only?), then capture "
+                f"step {step} again"
             ) from exc
         self._append(
             FileWritten(
