@@ -15,18 +15,10 @@ from acquisition.cli import main
 from acquisition.session import SessionError, SessionReader
 
 
-@pytest.fixture(scope="module")
-def recorded(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    path = tmp_path_factory.mktemp("damaged") / "s"
-    assert main(["simulate", "--out", str(path), "--array", "scatter48", "--poses", "3",
-                 "--mls-order", "9", "--seed", "3", "--quiet"]) == 0
-    return path
-
-
 @pytest.fixture
-def session(recorded: Path, tmp_path: Path) -> Path:
+def session(small_session: Path, tmp_path: Path) -> Path:
     copy = tmp_path / "s"
-    shutil.copytree(recorded, copy)
+    shutil.copytree(small_session, copy)
     return copy
 
 

@@ -14,7 +14,6 @@ from pathlib import Path
 import pytest
 import zmq
 
-from acquisition.cli import main
 from acquisition.daemon.files import FileServer
 from acquisition.daemon.job_messages import (
     WORKER_MESSAGE,
@@ -33,12 +32,9 @@ from calibration.worker import Worker, WorkerSettings
 WAIT_S = 60.0
 
 
-@pytest.fixture(scope="module")
-def session(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    path = tmp_path_factory.mktemp("worker") / "s"
-    assert main(["simulate", "--out", str(path), "--array", "scatter48", "--poses", "3",
-                 "--mls-order", "9", "--seed", "3", "--quiet"]) == 0
-    return path
+@pytest.fixture
+def session(small_session: Path) -> Path:
+    return small_session
 
 
 class ScriptedDaemon:
@@ -144,3 +140,26 @@ def test_bad_jobs_get_clear_errors_and_the_worker_keeps_serving(
     assert done.job_id == good.job_id
     assert hashlib.sha256(frames[1]).hexdigest() == done.result_sha256
     assert len(json.loads(frames[1])["microphones"]) == 48
+
+
+def test_a_job_that_would_leave_the_cache_is_refused(daemon: ScriptedDaemon, session: Path,
+                                                     tmp_path: Path) -> None:
+    """A rogue daemon's job for session ".." must not make the worker write beside its cache."""
+    good = job_for_session(session, "final")
+    for session_id in ("..", ".", "a/../..", ""):
+        offer = json.loads(encode(Job(job_id=good.job_id, attempt=1, kind="final",
+                                      session_id=good.session_id, poses=good.poses,
+                                      journal=good.journal, files=good.files)))
+        offer["session_id"] = session_id
+        daemon.send(json.dumps(offer).encode())
+        failed, _ = daemon.receive(Failed)
+        assert not failed.retryable and "session_id" in failed.reason
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cache", "files", "jobs"]
+
+
+def test_daemon_messages_of_another_version_or_none_are_refused(daemon: ScriptedDaemon) -> None:
+    for message, words in (({"type": "heartbeat"}, "no protocol version"),
+                           ({"v": 2, "type": "heartbeat"}, "version 2 is not supported")):
+        daemon.send(json.dumps(message).encode())
+        error, _ = daemon.receive(WorkerError)
+        assert words in error.reason
