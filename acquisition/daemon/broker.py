@@ -323,6 +323,7 @@ class Broker:
                                f"session: {exc}")
             return f"rejected: {exc}"
         path = _calibration_dir(job) / RESULT_FILE
+        partial_path(path).unlink(missing_ok=True)  # a crash mid-write; this is its one writer
         try:
             write_atomic(path, lambda fh: fh.write(result))
         except SessionError:  # stored by an earlier attempt whose ack was lost: keep that one

@@ -249,7 +249,8 @@ class SessionIndex:
 
     def _save(self) -> None:
         with self._lock:
-            text = _IndexFile(entries=dict(self._entries)).model_dump_json().encode()
+            entries = dict(self._entries)  # frozen entries: serialised outside the lock
+        text = _IndexFile(entries=entries).model_dump_json().encode()
         path = self.file
         try:
             partial_path(path).unlink(missing_ok=True)

@@ -36,7 +36,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, ValidationError
 
 from ..safe_names import SafeName
-from ..session._atomic import fsync_dir, write_atomic
+from ..session._atomic import fsync_dir, remove_partials, write_atomic
 from .job_messages import JobFile, JobKind, JournalPrefix
 from .protocol import utc_now
 
@@ -87,7 +87,9 @@ class Outbox:
         self.unsaved: set[str] = set()  # jobs whose latest change is not on disk yet
 
     def load(self) -> list[JobRecord]:
-        """Read every job file; jobs leased before a restart become pending. Returns them."""
+        """Read every job file; jobs leased before a restart become pending. Returns them.
+        (A `.partial` file left by a crash is deleted: the daemon is the outbox's one writer.)"""
+        remove_partials(self.directory)
         requeued = []
         for path in sorted(self.directory.glob("*.json")):
             try:

@@ -1,10 +1,15 @@
-"""The daemon's sockets: a REP control socket answering every request, a PUB event socket.
+"""The daemon's sockets: a control socket answering every request, a PUB event socket.
 
 Every request gets exactly one reply, whatever it holds: a malformed, oversized, unknown or
 refused request gets an error reply and the daemon carries on. The reply is serialised inside
 the same guard as the answer, so even a reply that cannot be encoded (a lone UTF-16 surrogate
-somewhere in it) is replaced by an error reply: a REP socket that received must send, or it
-never answers again.
+somewhere in it) is replaced by an error reply.
+
+The control socket is a ROUTER that speaks REQ's envelope itself (the peer's identity, the
+routing frames up to an empty delimiter, the request), not a REP: a REP socket keeps a state
+machine that a failed send, or a peer speaking raw bytes (read as ZMTP 1.0 frames), can leave
+sending replies to nobody, so that the daemon goes deaf. A ROUTER reads and writes whole
+messages and has no such state; a REQ or a DEALER client works with it unchanged.
 
 Every socket gets its inbound size limit (`ZMQ_MAXMSGSIZE`, per frame) and queue length before
 `bind`: ZeroMQ copies the options into each listener at bind time, so a limit set after bind
@@ -42,6 +47,7 @@ log = logging.getLogger("micam.daemon")
 
 SUBSCRIPTION_LIMIT = 1024  # bytes: the largest frame a PUB socket accepts (a subscription)
 MAX_TURNS = 1000  # busy turns of one `serve` call before the loop gets control back
+MAX_ROUTING_FRAMES = 8  # REQ sends none (just the delimiter); a proxy chain adds one each
 CONTROL_QUEUE = 16  # frames queued per control connection (x the hard limit: its memory bound)
 UNENCODABLE_REPLY = (b'{"v": 1, "id": "", "ok": false, "result": null, "error": {"code": '
                      b'"internal", "message": "the reply could not be encoded"}}')
@@ -149,15 +155,17 @@ class ControlServer:
         try:
             if sockets.curve is not None:
                 self._curve = CurveServer(self._context, sockets.curve)
-            self._rep = self.bind(zmq.REP, sockets.control,
-                                  control_hard_limit(sockets.max_message_bytes), CONTROL_QUEUE)
+            self._control = self.bind(zmq.ROUTER, sockets.control,
+                                      control_hard_limit(sockets.max_message_bytes),
+                                      CONTROL_QUEUE)
+            self._control.router_mandatory = 1  # a vanished client is an error we can log
             # A PUB socket receives only subscriptions (a flag byte and a topic).
             self._pub = self.bind(zmq.PUB, sockets.events, SUBSCRIPTION_LIMIT)
         except BaseException:
             self.close()
             raise
         self._poller = zmq.Poller()
-        self._poller.register(self._rep, zmq.POLLIN)
+        self._poller.register(self._control, zmq.POLLIN)
         self._watched: dict[zmq.Socket, Callable[[], None]] = {}
 
     def bind(self, kind: int, endpoint: str, max_frame_bytes: int,
@@ -206,24 +214,30 @@ class ControlServer:
             ready = dict(self._poller.poll(timeout_ms))
             if not ready:
                 return
-            if self._rep in ready:
-                self._reply_to(self._rep.recv_multipart())
+            if self._control in ready:
+                self._reply_to(self._control.recv_multipart())
             for sock, on_readable in self._watched.items():
                 if sock in ready:
                     on_readable()
             timeout_ms = 0
 
-    def _reply_to(self, frames: list[bytes]) -> None:
-        """Answer one received request: always exactly one send, whatever went wrong."""
+    def _reply_to(self, message: list[bytes]) -> None:
+        """Answer one received request: exactly one reply to its sender, whatever went wrong."""
+        identity, *rest = message
+        delimiter = rest.index(b"") + 1 if b"" in rest else 0  # a DEALER may send none
+        envelope, frames = rest[:delimiter], rest[delimiter:]
+        if len(envelope) > MAX_ROUTING_FRAMES:
+            log.warning("dropped a request with %d routing frames", len(envelope))
+            return
         try:
             payload = encode_reply(self._answer(frames))
         except Exception:  # _answer guards itself; this is the last line of defence
             log.exception("internal error while answering a request")
             payload = UNENCODABLE_REPLY
         try:
-            self._rep.send(payload)
-        except zmq.ZMQError as exc:
-            log.error("cannot send a reply: %s", exc)
+            self._control.send_multipart([identity, *envelope, payload], zmq.NOBLOCK)
+        except zmq.ZMQError as exc:  # the client went away, or does not read its replies
+            log.info("cannot send a reply: %s", exc)
 
     def _answer(self, frames: list[bytes]) -> Reply:
         request_id = _request_id(frames)
@@ -251,7 +265,7 @@ class ControlServer:
         return event
 
     def close(self) -> None:
-        for name in ("_rep", "_pub"):
+        for name in ("_control", "_pub"):
             sock = getattr(self, name, None)
             if sock is not None:
                 sock.close(linger=0)

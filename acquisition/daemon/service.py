@@ -56,6 +56,10 @@ from .translog import TransitionLog
 log = logging.getLogger("micam.daemon")
 
 SIGTERM_REASON = "the daemon was stopped (SIGTERM)"
+RECONCILE_LIMIT = 20
+"""At start-up, the newest complete sessions without a calibration or a job get their final
+job again (a full outbox lost it before a restart); at most this many, so that a root of
+sessions copied in does not flood the workers or hold up the loop."""
 
 
 class Daemon:
@@ -201,12 +205,16 @@ class Daemon:
         days = self.config.workers.keep_finished_days
         since = time.time_ns() - int(days * 86400e9)
         queued = {j.session_id for j in self.broker.outbox.jobs.values() if j.kind == "final"}
-        for session in self.index.completed_since(since):
-            if session.name not in queued and not (session / CALIBRATION_DIR
-                                                   / RESULT_FILE).exists():
-                log.warning("session %s is complete but has no calibration and no job; queueing "
-                            "its final job again", session.name)
-                self._submit_final(session)
+        owed = [s for s in reversed(self.index.completed_since(since))
+                if s.name not in queued and not (s / CALIBRATION_DIR / RESULT_FILE).exists()]
+        for session in owed[:RECONCILE_LIMIT]:
+            log.warning("session %s is complete but has no calibration and no job; queueing "
+                        "its final job again", session.name)
+            self._submit_final(session)
+        if len(owed) > RECONCILE_LIMIT:
+            log.warning("%d more complete sessions of the last %g days have no calibration "
+                        "and no job; they are not queued by themselves",
+                        len(owed) - RECONCILE_LIMIT, days)
         left = self.index.newest_interrupted()
         if left is None or self.run is not None or self.terminating:
             return

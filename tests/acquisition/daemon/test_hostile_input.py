@@ -7,6 +7,7 @@ fuzzing found, each pinned down as a case.
 
 from __future__ import annotations
 
+import socket
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -107,3 +108,18 @@ def test_every_socket_drops_oversized_frames_before_buffering_them(tmp_path: Pat
         context.destroy(linger=0)
         process.kill()
     assert grown < 32 * 2**20, f"the daemon's peak memory grew by {grown / 2**20:.0f} MiB"
+
+
+def test_raw_bytes_into_the_control_socket_file_do_not_deafen_the_daemon(
+        daemon: ThreadDaemon) -> None:
+    """Found by test_fuzz: bytes below ZeroMQ's framing (read as ZMTP 1.0 frames) used to
+    leave a REP control socket sending its replies to nobody."""
+    digits = b'{"v": 1, "command": "ping", "id": ' + b"9" * 5000 + b"}"
+    raw_bytes = digits + b"[" * 4000 + b"]" * 4000 + digits
+    path = daemon.config.sockets.control.removeprefix("ipc://")
+    with daemon.client(timeout_s=5.0) as client:
+        for _ in range(3):
+            with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as raw:
+                raw.connect(path)
+                raw.sendall(raw_bytes)
+            assert client.status().state == "idle"

@@ -246,3 +246,21 @@ def test_finished_jobs_are_pruned_from_the_outbox(tmp_path: Path) -> None:
     finally:
         running.stop()
     assert sorted(p.name for p in outbox.iterdir()) == ["new.final.json", "waiting.final.json"]
+
+
+def test_a_job_file_half_written_when_the_daemon_died_does_not_block_the_job(
+        tmp_path: Path) -> None:
+    outbox = tmp_path / "sessions.outbox"
+    outbox.mkdir()
+    record = _record(tmp_path)
+    (outbox / "s1.final.json").write_text(json.dumps(record))
+    (outbox / "s1.final.json.partial").write_text('{"job_id": "s1.fi')  # SIGKILL mid-write
+    running = ThreadDaemon(small_config(tmp_path))
+    worker = _jobs(running)
+    try:
+        worker.send({"v": 1, "type": "ready", "worker": "w"})
+        job, _ = worker.receive("job", timeout_s=10.0)
+        assert job["job_id"] == "s1.final" and job["attempt"] == 1
+    finally:
+        worker.close()
+        running.stop()
