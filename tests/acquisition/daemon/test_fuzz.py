@@ -9,8 +9,8 @@ the control and files sockets must also answer the message itself whenever it fi
 size limit. Meanwhile the test keeps a capture going (a `capture` whenever the daemon waits
 for one), and at the end the session must be complete and intact.
 
-The default run is bounded (MICAM_FUZZ_EXAMPLES, default 150, about 15 s); the long run is
-`MICAM_LONG_TESTS=1` (3000 examples, a few minutes), see docs/security.md.
+The default run is bounded (MICAM_FUZZ_EXAMPLES, default 150, a few seconds); the long run is
+`MICAM_LONG_TESTS=1` (20 000 examples, a few minutes), see docs/security.md.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ from acquisition.session import SessionReader
 from .helpers import ThreadDaemon, capture_all, small_config
 
 LONG = os.environ.get("MICAM_LONG_TESTS") == "1"
-EXAMPLES = int(os.environ.get("MICAM_FUZZ_EXAMPLES", "3000" if LONG else "150"))
+EXAMPLES = int(os.environ.get("MICAM_FUZZ_EXAMPLES", "20000" if LONG else "150"))
 REPLY_WAIT_MS = 10_000  # an answer the daemon owes: served between files, well within this
 NO_REPLY_WAIT_MS = 20  # a message that needs no answer: collect one if it comes at once
 WAITING = {"references", "reference_microphone", "waiting_for_pose"}
