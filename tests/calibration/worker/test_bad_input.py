@@ -87,11 +87,14 @@ class ScriptedDaemon:
 
 
 @pytest.fixture
-def daemon(tmp_path: Path) -> Iterator[ScriptedDaemon]:
+def daemon(tmp_path: Path, request: pytest.FixtureRequest) -> Iterator[ScriptedDaemon]:
+    """A worker and the scripted daemon it talks to; `indirect` parametrisation sets the
+    worker's daemon_timeout_s (default 10 s)."""
     scripted = ScriptedDaemon(tmp_path)
     worker = Worker(WorkerSettings(jobs=f"ipc://{tmp_path}/jobs", files=f"ipc://{tmp_path}/files",
                                    name="w", cache=tmp_path / "cache", heartbeat_interval_s=0.1,
-                                   joint=False))
+                                   joint=False,
+                                   daemon_timeout_s=getattr(request, "param", 10.0)))
     thread = threading.Thread(target=worker.run, daemon=True)
     thread.start()
     try:
@@ -163,3 +166,20 @@ def test_daemon_messages_of_another_version_or_none_are_refused(daemon: Scripted
         daemon.send(json.dumps(message).encode())
         error, _ = daemon.receive(WorkerError)
         assert words in error.reason
+
+
+@pytest.mark.parametrize("daemon", [1.0], indirect=True)  # it reconnects after 1 s of silence
+def test_an_oversized_frame_from_the_daemon_is_dropped_unread(daemon: ScriptedDaemon) -> None:
+    """The worker's sockets refuse frames above their limit before reading them (a rogue
+    daemon cannot make it buffer gigabytes); it carries on once reconnected."""
+    daemon.send(b"\xff" * (32 * 2**20))
+    deadline = time.monotonic() + WAIT_S
+    answers: list[object] = []
+    while time.monotonic() < deadline and not answers:
+        daemon.send(b'{"v": 1, "type": "nonsense"}')  # to its identity, once it is back
+        while daemon.jobs.poll(100):
+            daemon.worker, *frames = daemon.jobs.recv_multipart()
+            message = WORKER_MESSAGE.validate_json(frames[0])
+            if isinstance(message, WorkerError):
+                answers.append(message)
+    assert answers and "nonsense" in answers[0].reason  # the first answer is to the small one
