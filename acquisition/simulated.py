@@ -64,7 +64,8 @@ def prepare_simulated_capture(out: Path, options: SimulationOptions | None,
             raise SessionError(f"cannot write {out / TRUTH_FILE} ({exc}); the new session was "
                                "removed again (it held no recording): fix the cause (disk "
                                "full? read-only?) and start again") from None
-    return sim, CaptureSequencer(sim.config, sim.group, sim.cameras, sim.operator, writer)
+    return sim, CaptureSequencer(sim.config, sim.group, sim.cameras, sim.operator, writer,
+                                 air_sensor=sim.air_sensor)
 
 
 def record_simulated_session(out: Path, options: SimulationOptions,

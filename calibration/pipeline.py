@@ -16,7 +16,10 @@ Choices made here, and why (see docs/calibration.md for the figures behind them)
   sees the same camera scale as the speaker positions (so c absorbs a checkerboard or focal
   length scale error, as the paper intends) and is far more precise than the same c fitted
   inside the solver, where it trades off against every microphone's range. The solver's own c
-  is still computed and reported beside it. (The joint fit, on by default, fits c itself:
+  is still computed and reported beside it. Without that fit (no reference microphone on its
+  stand in the pose recordings, or no image of it) a known c (`speed_of_sound_prior`, or the
+  session description's measured air) weights the solver's c; with neither, c is solved. The
+  result says which (`speed_of_sound_from`). (The joint fit, on by default, fits c itself:
   there the cameras' scale is corrected by the times of flight instead of absorbed by c.)
 - joint fit: on by default because, against the simulated truth, it removes the common depth
   offset a frozen camera's focal-length error leaves in the array (0.38 -> 0.01 mm mean error
@@ -32,9 +35,15 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
+from scipy.spatial.transform import Rotation
+
+from acquisition.rig_description import KnownIntrinsics
 
 from .bundle import (
+    FIXED,
     GROUP_TOF,
+    N_INTRINSICS,
+    BundlePriors,
     BundleProblem,
     BundleSolution,
     BundleState,
@@ -44,15 +53,28 @@ from .bundle import (
     pose_estimate,
     refined_cameras,
 )
-from .cameras import CameraCalibration, calibrate_session
+from .cameras import CameraCalibration, Checkerboard, calibrate_session
+from .plausibility import (
+    AIR_RANGE_M_S,
+    FitFigures,
+    acoustic_problems,
+    optical_problems,
+    raise_if_implausible,
+    turned_rig,
+)
+from .responses import Flights, estimate_responses, evenly_spread
 from .result import (
     CalibrationResult,
     CameraFrozenResult,
     CameraResult,
     JointFitResult,
+    MicrophoneResponse,
+    MicrophoneResponsesResult,
     MicrophoneResult,
     PoseResult,
     ResidualStats,
+    RigFitResult,
+    SpeedOfSoundFrom,
     SpeedOfSoundReference,
     TofQuality,
     TransformResult,
@@ -76,8 +98,9 @@ from .speakers import (
     reference_microphone_position,
     speaker_positions,
 )
-from .speed_of_sound import SpeedOfSoundFit, fit_speed_of_sound
+from .speed_of_sound import SpeedOfSoundFit, fit_speed_of_sound_robust
 from .times_of_flight import SessionTofs, measure_session_tofs
+from .tof import Weighting
 
 NOMINAL_SPEED_OF_SOUND_M_S = 343.0
 """Start value of c when nothing better is known (about 20 degC)."""
@@ -89,10 +112,11 @@ JOINT_NOTE = (
     "frame, the checkerboard's printed scale, latency 0 for the reference microphone's board."
 )
 CONFOUND_NOTE = (
-    "The speed of sound and the camera's metric scale are confounded: scaling every source "
-    "position and c by the same factor leaves every time of flight unchanged, so c is "
-    "'scaled' c (paper IV-G). An error in the checkerboard's printed size or in the focal "
-    "length moves c, not the microphones."
+    "The speed of sound and the metric scale are confounded: scaling every length and c by "
+    "one factor leaves every time of flight unchanged. The joint fit takes the scale from the "
+    "absolute references it is given (the print's stated scale and tolerance, the speakers' "
+    "stated positions and tolerance, a measured air state); with none of them measured well, "
+    "c is the paper's 'scaled' c (IV-G)."
 )
 
 
@@ -109,7 +133,9 @@ class CalibrationOptions:
         refine_poses: fit a rigid correction per rig pose, weighted by the camera's pose
             covariance.
         band_hz: the band the times of flight are estimated in (the speaker band).
-        phat: GCC-PHAT weighting of the correlations.
+        weighting: the correlations' spectral weighting (calibration.tof): "compact" (robust
+            to early reflections, the default), "matched" (maximum likelihood in free field)
+            or "phat".
         allow_interrupted: calibrate the completed poses of an interrupted session.
         joint: finish with the optical-acoustic bundle adjustment (method "micam" only); the
             camera-frozen solution is reported beside it.
@@ -117,6 +143,25 @@ class CalibrationOptions:
             calibration), in the session's microphone order: the solver then fits its rigid
             transform R_m, T_m into the camera-0 frame (paper IV-H), and each microphone's
             deviation from it if the prior has a deviation std. Method "micam" only.
+        speaker_offsets: the joint fit estimates where each speaker's sound comes from on the
+            rig (its offset from the stated position, held to the rig's stated tolerance in
+            the board plane and to its acoustic-centre prior along the normal).
+        print_scale: the joint fit estimates the printed pattern's scale (held to the rig's
+            stated print tolerance).
+        mic_delay_std_s: the joint fit estimates each microphone's own delay (capsule and
+            channel group delay) with this prior standard deviation; None: no such unknown.
+        speed_of_sound_per_pose: the joint fit estimates c per pose (the air drifting),
+            consecutive poses' c held together by `speed_of_sound_step_m_s`.
+        speed_of_sound_step_m_s: standard deviation of c's change from pose to pose.
+        speed_of_sound_prior: (c, std) in m/s, a known speed of sound (a measured air
+            temperature or c); it replaces the session description's `air` and the session's
+            air-sensor readings. The joint fit takes it as a prior on the session's mean c;
+            the camera-frozen solver holds its c to it (fixed if the std is 0) when the
+            session has no reference-microphone fit.
+        intrinsics: camera calibrations known from elsewhere, by camera name ("fixed" or a
+            "prior"); they replace the session description's.
+        responses: estimate every microphone's complex response against frequency after the
+            joint fit (calibration.responses).
     """
 
     method: Literal["micam", "paper"] = "micam"
@@ -124,16 +169,26 @@ class CalibrationOptions:
     speed_of_sound: Literal["reference", "solve"] = "reference"
     refine_poses: bool = False
     band_hz: tuple[float, float] = (300.0, 20_000.0)
-    phat: bool = False
+    weighting: Weighting = "compact"
     allow_interrupted: bool = False
     joint: bool = True
     prior: PriorGeometry | None = None
+    speaker_offsets: bool = True
+    print_scale: bool = True
+    mic_delay_std_s: float | None = 1e-6
+    speed_of_sound_per_pose: bool = True
+    speed_of_sound_step_m_s: float = 0.01
+    speed_of_sound_prior: tuple[float, float] | None = None
+    intrinsics: dict[str, KnownIntrinsics] | None = None
+    responses: bool = True
 
 
 @dataclass
 class Measurements:
     """Everything the solver works from: the session, the cameras, the speaker positions,
-    the times of flight and the reference-microphone fit of c."""
+    the times of flight, the reference-microphone fit of c and (`air`) the (c, std) in m/s
+    that the session's air-sensor readings imply (their mean c; the std is the sensor's
+    stated accuracy, systematic, so not reduced by the number of readings)."""
 
     data: SessionData
     cameras: CameraCalibration
@@ -143,6 +198,8 @@ class Measurements:
     reference: ReferenceMicrophonePosition | None
     reference_fit: SpeedOfSoundFit | None
     timings_s: dict[str, float] = field(default_factory=dict)
+    air: tuple[float, float] | None = None
+    notes: list[str] = field(default_factory=list)
 
 
 @dataclass
@@ -201,20 +258,45 @@ def measure(path: Path, options: CalibrationOptions | None = None,
     with _timed(timings, "load", on_stage):
         data = load_session(path, options.allow_interrupted)
     with _timed(timings, "cameras", on_stage):
-        cams = calibrate_session(data.reader)
+        cams = calibrate_session(data.reader, Checkerboard.of_rig(data.rig),
+                                 list(data.camera_names), known_intrinsics(data, options))
     with _timed(timings, "speakers", on_stage):
         speakers = speaker_positions(cams, data.speakers_rig_m, data.pose_steps)
         reference = _reference_position(cams, data)
     with _timed(timings, "times of flight", on_stage):
         tofs = measure_session_tofs(data, NOMINAL_SPEED_OF_SOUND_M_S, options.band_hz,
-                                    options.phat)
+                                    options.weighting)
     located = [data.pose_steps.index(p.step) for p in speakers.poses]
-    reference_fit = None
-    if reference is not None:
-        distances = np.linalg.norm(speakers.positions_m - reference.position_m, axis=2)
-        reference_fit = fit_speed_of_sound(distances.ravel(),
-                                           tofs.reference_tof_s[located].ravel())
-    return Measurements(data, cams, speakers, located, tofs, reference, reference_fit, timings)
+    reference_fit, notes = _reference_fit(speakers, reference, tofs.reference_tof_s[located])
+    return Measurements(data, cams, speakers, located, tofs, reference, reference_fit, timings,
+                        _air(data), notes)
+
+
+def _reference_fit(speakers: SpeakerPositions, reference: ReferenceMicrophonePosition | None,
+                   tofs_s: np.ndarray) -> tuple[SpeedOfSoundFit | None, list[str]]:
+    """The paper's IV-G fit of c (robust), or None with a note when it is not air's."""
+    if reference is None:
+        return None, []
+    distances = np.linalg.norm(speakers.positions_m - reference.position_m, axis=2)
+    try:
+        fit = fit_speed_of_sound_robust(distances.ravel(), tofs_s.ravel())
+    except ValueError:
+        fit = None
+    lo, hi = AIR_RANGE_M_S
+    if fit is None or not lo <= fit.speed_of_sound_m_s <= hi:
+        found = "no fit" if fit is None else f"{fit.speed_of_sound_m_s:.1f} m/s"
+        return None, [f"the reference microphone on its stand gave no speed of sound that air "
+                      f"can have ({found}): not used; does every speaker face it?"]
+    return fit, []
+
+
+def _air(data: SessionData) -> tuple[float, float] | None:
+    """(c, std) from the air sensor's readings of the session, None without any."""
+    readings = list(data.air_readings().values())
+    if not readings:
+        return None
+    implied = np.array([r.speed_of_sound() for r in readings])
+    return float(np.mean(implied[:, 0])), float(np.mean(implied[:, 1]))
 
 
 def calibrate(path: Path, options: CalibrationOptions | None = None,
@@ -222,35 +304,129 @@ def calibrate(path: Path, options: CalibrationOptions | None = None,
     """Calibrate the session at `path`. `on_stage` is told the name of each stage as it starts.
 
     Raises CalibrationInputError (or the cameras' and speakers' own errors, all ValueError)
-    with a message that says what is missing.
+    with a message that says what is missing; ImplausibleCalibrationError (a
+    CalibrationInputError) when the result's own figures say its model is wrong
+    (calibration.plausibility), naming the likely cause.
     """
     options = options or CalibrationOptions()
     m = measure(path, options, on_stage)
     timings = dict(m.timings_s)
     with _timed(timings, "solver", on_stage):
         solution = solve(m, options)
+    _check_plausible(m, options, _solution_figures(m, solution, options), frozen=True)
     if not (options.joint and options.method == "micam"):
         return CalibrationRun(_assemble(m, solution, options, timings), m, solution)
     with _timed(timings, "joint fit", on_stage):
         bundle = fit_joint(m, solution, options)
         joint_m, joint_solution = joint_measurements(m, bundle, solution, options)
+    names = list(m.cameras.intrinsics)
+    _check_plausible(m, options, replace(
+        _solution_figures(m, joint_solution, options),
+        corner_rms_px={n: float(bundle.corner_rms_px[i]) for i, n in enumerate(names)}))
+    responses = None
+    if options.responses:
+        with _timed(timings, "responses", on_stage):
+            responses = _responses(m, bundle, solution)
     result = _assemble(joint_m, joint_solution, options, timings)
     result = result.model_copy(update={
-        "camera_frozen": _frozen_summary(m, solution),
-        "joint_fit": _joint_summary(m, bundle),
+        "microphones": _with_delays(result.microphones, bundle, solution),
+        "camera_frozen": _frozen_summary(m, solution, options),
+        "speed_of_sound_from": "joint_fit",
+        "joint_fit": _joint_summary(m, bundle, options),
+        "rig": _rig_summary(m, bundle),
+        "microphone_responses": responses,
         "notes": [*result.notes, JOINT_NOTE],
     })
     return CalibrationRun(result, joint_m, joint_solution, solution, bundle)
 
 
+def _solution_figures(m: Measurements, sol: MicrophoneSolution,
+                      options: CalibrationOptions) -> FitFigures:
+    return FitFigures(sol.speed_of_sound_m_s, sol.speed_of_sound_std_m_s, sol.residuals_s,
+                      sol.outliers, {}, known_speed_of_sound(m, options))
+
+
+def _check_plausible(m: Measurements, options: CalibrationOptions, fig: FitFigures,
+                     frozen: bool = False) -> None:
+    """Raise ImplausibleCalibrationError if the solution's figures say its model is wrong
+    (`frozen`: the camera-frozen solution, whose c is held and whose residuals still carry
+    the cameras' errors: only grossly misfitting times of flight count); when the times of
+    flight fit with the rig turned by 180 degrees, say so."""
+    acoustic = acoustic_problems(fig, frozen)
+    problems = acoustic + ([] if frozen else optical_problems(fig))
+    cause = _turned_rig_fits(m, options) if acoustic else None
+    raise_if_implausible(problems, cause)
+
+
+def _turned_rig_fits(m: Measurements, options: CalibrationOptions) -> str | None:
+    """The likely cause when the camera-frozen solver fits the session with the rig's
+    pattern origin at the opposite corner (speakers 1-4, 2-3, 5-6 swapped), else None."""
+    data = m.data
+    rig = data.rig
+    turned = turned_rig(data.speakers_rig_m, rig.corners_x, rig.corners_y, rig.square_m)
+    rig_t = rig.model_copy(update={"speakers_m": tuple(tuple(float(v) for v in p)
+                                                       for p in turned)})
+    data_t = replace(data, description=data.description.model_copy(update={"rig": rig_t}))
+    speakers = speaker_positions(m.cameras, data_t.speakers_rig_m, data.pose_steps)
+    fit = None
+    if m.reference is not None and data.reference_column is not None:
+        fit, _ = _reference_fit(speakers, m.reference, m.tofs.reference_tof_s[m.located])
+    m_t = replace(m, data=data_t, speakers=speakers, reference_fit=fit)
+    try:
+        sol = solve(m_t, options)
+    except ValueError:
+        return None
+    if acoustic_problems(_solution_figures(m_t, sol, options), frozen=True):
+        return None
+    return ("the times of flight fit with the rig turned by 180 degrees in its plane (speakers "
+            "1-4, 2-3 and 5-6 swapped): the checkerboard's origin is at the other end of the "
+            "pattern from where the description puts it, i.e. its colour convention "
+            "(rig.origin_square: the colour of the square at the origin) or its corner order "
+            "is the opposite one; correct the rig description and calibrate again")
+
+
 def _reference_position(cams: CameraCalibration,
                         data: SessionData) -> ReferenceMicrophonePosition | None:
-    if "refmic" not in data.reader.steps():
+    """The reference microphone on its stand, when the pose recordings hold it and the
+    session has its image (and the rig its reference mark); otherwise None."""
+    mark = data.rig.reference_mark_m
+    if data.reference_column is None or mark is None or "refmic" not in data.reader.steps():
         return None
     try:
-        return reference_microphone_position(cams, np.array(data.config.rig.reference_mark_m))
+        return reference_microphone_position(cams, np.array(mark))
     except SpeakerLocationError:
         return None
+
+
+def known_intrinsics(data: SessionData,
+                     options: CalibrationOptions) -> dict[str, KnownIntrinsics]:
+    """The cameras' known intrinsics: the session description's, replaced by the options'."""
+    known = {c.name: c.intrinsics for c in data.description.cameras if c.intrinsics is not None}
+    return {**known, **(options.intrinsics or {})}
+
+
+def speed_of_sound_plan(m: Measurements, options: CalibrationOptions
+                        ) -> tuple[SpeedOfSoundFrom, float, float | None]:
+    """Where the camera-frozen solver's c comes from, its start value and its prior std
+    (None: fixed at the reference-microphone fit, or solved with the solver's default)."""
+    if m.reference_fit is not None and options.speed_of_sound == "reference":
+        return "reference_microphone", m.reference_fit.speed_of_sound_m_s, None
+    known = known_speed_of_sound(m, options)
+    if known is not None:
+        return "known", known[0], known[1]
+    c0 = (m.reference_fit.speed_of_sound_m_s if m.reference_fit is not None
+          else NOMINAL_SPEED_OF_SOUND_M_S)
+    return "solved", c0, None
+
+
+def known_speed_of_sound(m: Measurements,
+                         options: CalibrationOptions) -> tuple[float, float] | None:
+    """The known (c, std) in m/s: the options', else the session description's air (a
+    reading someone wrote down), else the session's air-sensor readings."""
+    if options.speed_of_sound_prior is not None:
+        return options.speed_of_sound_prior
+    air = m.data.description.air
+    return m.air if air is None else air.speed_of_sound_prior()
 
 
 def _rig_sources(data: SessionData, speakers: SpeakerPositions, pose_idx: np.ndarray,
@@ -286,14 +462,13 @@ def solve(m: Measurements, options: CalibrationOptions,
     tof = m.tofs.tof_s[rows][:, spk_idx].reshape(-1, n_mic)
     std = m.tofs.std_s[rows][:, spk_idx].reshape(-1, n_mic)
     sources = _rig_sources(data, m.speakers, pose_idx, spk_idx)
-    c_known = m.reference_fit is not None and options.speed_of_sound == "reference"
-    c0 = (m.reference_fit.speed_of_sound_m_s if m.reference_fit is not None
-          else NOMINAL_SPEED_OF_SOUND_M_S)
+    source, c0, c_std = speed_of_sound_plan(m, options)
     boards, board_of_mic = board_indices(data)
-    ref_board = data.config.reference.board
+    ref_board = data.reference_group
     solver_options = SolverOptions(
         speed_of_sound_m_s=c0,
-        fit_speed_of_sound=not c_known,
+        fit_speed_of_sound=source == "solved" or bool(c_std),
+        speed_of_sound_prior_std_m_s=c_std if source == "known" else 1.0,
         latency=options.latency,
         reference_board=boards.index(ref_board) if ref_board in boards else None,
         refine_poses=options.refine_poses,
@@ -317,10 +492,59 @@ def _latency_layout(data: SessionData, options: CalibrationOptions) -> tuple[np.
     """Latency column of every array board (-1: the gauge board, when it records array
     microphones too) and the number of latency unknowns, for the latency model of `options`."""
     boards, _ = board_indices(data)
-    ref_board = data.config.reference.board
+    ref_board = data.reference_group
     return latency_columns(len(boards), SolverOptions(
         latency=options.latency,
         reference_board=boards.index(ref_board) if ref_board in boards else None))
+
+
+def bundle_priors(m: Measurements, options: CalibrationOptions) -> BundlePriors:
+    """The joint fit's priors from the rig's stated tolerances and the options: each
+    speaker's offset from its stated position (in the board plane: the build tolerance;
+    along the normal: the acoustic centre's expected offset and its spread), the print's
+    scale, each microphone's own delay, a known speed of sound (the option's, else the
+    session description's air, else the session's air-sensor readings) and the cameras'
+    known intrinsics (fixed, or a prior with their std)."""
+    data = m.data
+    rig = data.rig
+    n = data.n_speakers
+    mean = np.zeros((n, 3))
+    std = np.zeros((n, 3))
+    if options.speaker_offsets:
+        mean[:, 2] = rig.acoustic_centre_m
+        std[:, :2] = rig.speaker_tolerance_m
+        std[:, 2] = np.hypot(rig.speaker_tolerance_m, rig.acoustic_centre_std_m)
+    return BundlePriors(
+        speaker_offset_mean_m=mean, speaker_offset_std_m=std,
+        print_scale_std=rig.print_scale_std if options.print_scale else FIXED,
+        mic_delay_std_s=(FIXED if options.mic_delay_std_s is None
+                         else options.mic_delay_std_s),
+        speed_of_sound=known_speed_of_sound(m, options),
+        speed_of_sound_step_m_s=options.speed_of_sound_step_m_s,
+        **_intrinsics_priors(m, options),
+    )
+
+
+def _intrinsics_priors(m: Measurements, options: CalibrationOptions) -> dict[str, np.ndarray]:
+    """intrinsics_mean / intrinsics_std of `BundlePriors` from the known intrinsics (none:
+    every camera fitted freely)."""
+    known = known_intrinsics(m.data, options)
+    names = list(m.cameras.intrinsics)
+    if not any(n in known for n in names):
+        return {}
+    mean = np.zeros((len(names), N_INTRINSICS))
+    std = np.full((len(names), N_INTRINSICS), np.nan)
+    for i, name in enumerate(names):
+        k = known.get(name)
+        if k is None:
+            continue
+        K = np.array(k.camera_matrix)
+        mean[i] = [K[0, 0], K[1, 1], K[0, 2], K[1, 2], *k.distortion]
+        if k.use == "fixed":
+            std[i] = FIXED
+        elif k.std is not None:
+            std[i] = k.std
+    return {"intrinsics_mean": mean, "intrinsics_std": std}
 
 
 def fit_joint(m: Measurements, frozen: MicrophoneSolution, options: CalibrationOptions,
@@ -344,6 +568,11 @@ def fit_joint(m: Measurements, frozen: MicrophoneSolution, options: CalibrationO
     n_mic = len(data.mic_ids)
     board_column, n_latency = _latency_layout(data, options)
     latency_column = board_column[board_indices(data)[1]]
+    c_of_pose = None
+    if options.speed_of_sound_per_pose:
+        c_of_pose = np.full(len(board_poses), -1)
+        c_of_pose[pose_idx] = np.arange(pose_idx.size)
+    priors = bundle_priors(m, options)
     problem = BundleProblem(
         board_points_m=m.cameras.board.object_points(),
         speakers_rig_m=data.speakers_rig_m,
@@ -356,10 +585,19 @@ def fit_joint(m: Measurements, frozen: MicrophoneSolution, options: CalibrationO
         reference_std_s=m.tofs.reference_std_s[rows][:, speaker_idx].ravel(),
         latency_column=latency_column[solved], n_latency=n_latency,
         camera_names=tuple(m.cameras.intrinsics),
+        reference_distance_m=data.reference_distances_m[np.tile(speaker_idx, pose_idx.size)],
+        tof_speed_of_sound_m_s=NOMINAL_SPEED_OF_SOUND_M_S,
+        speed_of_sound_of_pose=c_of_pose,
+        priors=priors,
     )  # fmt: skip
     sources = _rig_sources(data, m.speakers, pose_idx, speaker_idx).positions()
-    reference = multilaterate(sources, frozen.speed_of_sound_m_s
-                              * problem.reference_tof_s[:, None])[0]
+    if data.reference_column is not None:
+        reference = multilaterate(sources, frozen.speed_of_sound_m_s
+                                  * problem.reference_tof_s[:, None])[0]
+    else:
+        # Not recorded on the poses: no time of flight reaches the reference unknown, which
+        # stays at this start (the camera) and is reported nowhere.
+        reference = np.zeros(3)
     latencies = np.zeros(n_latency)
     latencies[board_column[board_column >= 0]] = frozen.latency_s[board_column >= 0]
     intrinsics, extrinsics = camera_start(m.cameras)
@@ -367,7 +605,8 @@ def fit_joint(m: Measurements, frozen: MicrophoneSolution, options: CalibrationO
         intrinsics=intrinsics, extrinsics=extrinsics,
         poses=np.array([[*p.rig_to_cam0.rvec, *p.rig_to_cam0.tvec] for p in board_poses]),
         microphones_m=frozen.positions_m[solved], reference_m=reference,
-        speed_of_sound_m_s=frozen.speed_of_sound_m_s, latencies_s=latencies,
+        speeds_of_sound_m_s=np.array([frozen.speed_of_sound_m_s]), latencies_s=latencies,
+        speaker_offsets_m=priors.speaker_offset_mean_m.copy(),
     )  # fmt: skip
     return fit_bundle(problem, start)
 
@@ -380,7 +619,8 @@ def joint_measurements(m: Measurements, bundle: BundleSolution, frozen: Micropho
     solved = np.flatnonzero(np.all(np.isfinite(frozen.positions_m), axis=1))
     poses = [RigPoseInCam0(p.step, p.camera, pose_estimate(bundle, k), p.rms_px)
              for k, p in enumerate(m.speakers.poses)]
-    located = [p.locate(data.speakers_rig_m) for p in poses]
+    rig_points = data.speakers_rig_m + bundle.state.speaker_offsets_m
+    located = [p.locate(rig_points) for p in poses]
     speakers = SpeakerPositions(poses, np.stack([x for x, _ in located]),
                                 np.stack([c for _, c in located]), m.speakers.unlocated)
     joint_m = replace(m, cameras=refined_cameras(m.cameras, bundle), speakers=speakers)
@@ -397,7 +637,7 @@ def joint_measurements(m: Measurements, bundle: BundleSolution, frozen: Micropho
     solution = MicrophoneSolution(
         positions_m=positions, covariance_m2=covariance,
         speed_of_sound_m_s=bundle.state.speed_of_sound_m_s,
-        speed_of_sound_std_m_s=float(bundle.std.speed_of_sound_m_s),
+        speed_of_sound_std_m_s=bundle.speed_of_sound_std_m_s,
         latency_s=np.append(bundle.state.latencies_s, 0.0)[board_column],
         latency_std_s=np.append(bundle.std.latencies_s, 0.0)[board_column],
         pose_corrections=None, pose_correction_std=None,
@@ -432,6 +672,13 @@ def _assemble(m: Measurements, sol: MicrophoneSolution, options: CalibrationOpti
     notes += [f"camera {name} not calibrated: {why}" for name, why in cams.uncalibrated.items()]
     notes += [f"{step}: the board was not found in any calibrated camera; pose skipped"
               for step in speakers.unlocated]
+    source, c0, c_std = speed_of_sound_plan(m, options)
+    notes.append(_speed_of_sound_note(m, options, source, c0, c_std))
+    notes += [f"camera {name}: intrinsics given as {known.use}"
+              + ("" if known.use == "fixed" or known.std is not None
+                 else "; without their std the joint fit refines them freely")
+              for name, known in known_intrinsics(data, options).items()]
+    notes += m.notes
     ref_entry = None
     if reference_fit is not None and reference is not None:
         ref_entry = SpeedOfSoundReference(
@@ -448,6 +695,8 @@ def _assemble(m: Measurements, sol: MicrophoneSolution, options: CalibrationOpti
                                 or reference_fit is None
                                 else reference_fit.speed_of_sound_std_m_s),
         speed_of_sound_reference=ref_entry,
+        speed_of_sound_from=source,
+        speed_of_sound_known_m_s=known_speed_of_sound(m, options),
         latency_s=_per_board(boards, sol.latency_s),
         latency_std_s=_per_board(boards, sol.latency_std_s),
         cameras=[_camera_result(cams, name) for name in cams.intrinsics],
@@ -462,8 +711,27 @@ def _assemble(m: Measurements, sol: MicrophoneSolution, options: CalibrationOpti
             median_predicted_std_s=float(np.median(tofs.std_s[located]))),
         timings_s=dict(timings),
         notes=notes,
-        latency_gauge_board=data.config.reference.board,
+        latency_gauge_board=data.reference_group,
     )
+
+
+def _speed_of_sound_note(m: Measurements, options: CalibrationOptions, source: str, c0: float,
+                         c_std: float | None) -> str:
+    """Where the camera-frozen solver's c came from, for a person."""
+    if source == "reference_microphone":
+        return ("Speed of sound (camera frozen): fixed at the reference-microphone fit (paper "
+                "IV-G, the reference microphone on its stand in every pose recording).")
+    why = ("the pose recordings do not hold the reference microphone"
+           if m.data.reference_column is None else
+           "the session has no located image of the reference microphone on its stand"
+           if m.reference is None else "--speed-of-sound solve")
+    if source == "known":
+        given = ("given" if options.speed_of_sound_prior is not None
+                 else m.data.description.air.source())  # type: ignore[union-attr]
+        return (f"Speed of sound (camera frozen): held to the known {c0:.3f} ± {c_std:.3f} m/s "
+                f"({given}), because {why}.")
+    return (f"Speed of sound (camera frozen): solved from the times of flight (no known c), "
+            f"because {why}; give a measured air temperature or c to constrain it.")
 
 
 def _microphone_results(data: SessionData, sol: MicrophoneSolution) -> list[MicrophoneResult]:
@@ -481,12 +749,14 @@ def _microphone_results(data: SessionData, sol: MicrophoneSolution) -> list[Micr
     return mics
 
 
-def _frozen_summary(m: Measurements, sol: MicrophoneSolution) -> CameraFrozenResult:
+def _frozen_summary(m: Measurements, sol: MicrophoneSolution,
+                    options: CalibrationOptions) -> CameraFrozenResult:
     """The camera-frozen solution, for the result beside the joint one."""
     boards, _ = board_indices(m.data)
     intr = m.cameras.intrinsics
     return CameraFrozenResult(
         microphones=_microphone_results(m.data, sol),
+        speed_of_sound_from=speed_of_sound_plan(m, options)[0],
         speed_of_sound_m_s=sol.speed_of_sound_m_s,
         speed_of_sound_std_m_s=(sol.speed_of_sound_std_m_s if m.reference_fit is None
                                 else m.reference_fit.speed_of_sound_std_m_s),
@@ -497,10 +767,81 @@ def _frozen_summary(m: Measurements, sol: MicrophoneSolution) -> CameraFrozenRes
     )
 
 
-def _joint_summary(m: Measurements, bundle: BundleSolution) -> JointFitResult:
+def _with_delays(mics: list[MicrophoneResult], bundle: BundleSolution,
+                 frozen: MicrophoneSolution) -> list[MicrophoneResult]:
+    """The microphones with their own delays, where the joint fit estimated them."""
+    if not bundle.std.mic_delays_s.any():
+        return mics
+    solved = np.flatnonzero(np.all(np.isfinite(frozen.positions_m), axis=1))
+    out = list(mics)
+    for i, m in enumerate(solved):
+        out[m] = mics[m].model_copy(update={
+            "delay_s": float(bundle.state.mic_delays_s[i]),
+            "delay_std_s": float(bundle.std.mic_delays_s[i])})
+    return out
+
+
+def flights(m: Measurements, bundle: BundleSolution, frozen: MicrophoneSolution,
+            pose_indices: list[int]) -> Flights:
+    """The joint fit's modelled flights from the chosen located poses' sources to every
+    microphone it placed (NaN for the others): for estimating responses."""
+    data = m.data
+    solved = np.flatnonzero(np.all(np.isfinite(frozen.positions_m), axis=1))
+    s = bundle.state
+    points = data.speakers_rig_m + s.speaker_offsets_m
+    board_column, _ = _latency_layout(data, CalibrationOptions())
+    mic_latency = np.append(s.latencies_s, 0.0)[board_column[board_indices(data)[1]]][solved]
+    n_mic = len(data.mic_ids)
+    shape = (len(pose_indices), data.n_speakers, n_mic)
+    delay, distance, sin_axis = (np.full(shape, np.nan) for _ in range(3))
+    d_ref = data.reference_distances_m[:, None]  # per speaker
+    for row, k in enumerate(pose_indices):
+        R = Rotation.from_rotvec(s.poses[k, :3]).as_matrix()
+        sources = points @ R.T + s.poses[k, 3:]
+        diff = s.microphones_m[None] - sources[:, None]
+        dist = np.linalg.norm(diff, axis=2)
+        c = s.speeds_of_sound_m_s[k] if s.speeds_of_sound_m_s.size > 1 else s.speed_of_sound_m_s
+        delay[row][:, solved] = (dist - d_ref) / c + mic_latency
+        distance[row][:, solved] = dist
+        sin_axis[row][:, solved] = np.linalg.norm(np.cross(diff / dist[..., None], R[:, 2]),
+                                                  axis=2)
+    steps = tuple(m.speakers.poses[k].step for k in pose_indices)
+    return Flights(steps, delay, distance, sin_axis)
+
+
+def _responses(m: Measurements, bundle: BundleSolution,
+               frozen: MicrophoneSolution) -> MicrophoneResponsesResult:
+    """Every microphone's response from the joint fit's geometry (calibration.responses)."""
+    data = m.data
+    chosen = evenly_spread([p.step for p in m.speakers.poses])
+    est = estimate_responses(data, flights(m, bundle, frozen, chosen),
+                             data.reference_distances_m, bundle.state.speed_of_sound_m_s,
+                             data.rig.speaker_diameter_m)
+    return MicrophoneResponsesResult(
+        frequencies_hz=est.frequencies_hz.tolist(), n_sources=est.n_sources,
+        microphones=[MicrophoneResponse(
+            id=int(mic_id), gain=est.gain[i].tolist(), phase_rad=est.phase_rad[i].tolist(),
+            gain_std=est.gain_std[i].tolist(), phase_std_rad=est.phase_std_rad[i].tolist())
+            for i, mic_id in enumerate(data.mic_ids) if np.all(np.isfinite(est.gain[i]))])
+
+
+def _rig_summary(m: Measurements, bundle: BundleSolution) -> RigFitResult:
+    """The rig as the joint fit found it: speaker positions and print scale."""
+    offsets = bundle.state.speaker_offsets_m
+    std = bundle.std.speaker_offsets_m
+    return RigFitResult(
+        speakers_rig_m=[_vec(p) for p in m.data.speakers_rig_m + offsets],
+        speakers_rig_std_m=[_vec(s) for s in std], offsets_m=[_vec(o) for o in offsets],
+        print_scale=bundle.state.print_scale, print_scale_std=float(bundle.std.print_scale))
+
+
+def _joint_summary(m: Measurements, bundle: BundleSolution,
+                   options: CalibrationOptions) -> JointFitResult:
     """The joint fit's noise estimates, outliers and convergence, for the result."""
     names = list(m.cameras.intrinsics)
     view_camera = board_views(m.cameras, _bundle_steps(m)[0])[0]
+    per_pose = bundle.state.speeds_of_sound_m_s.size > 1
+    on_stand = m.data.reference_column is not None
     return JointFitResult(
         sigmas=bundle.sigmas,
         corner_outliers={n: int(bundle.corner_outliers[view_camera == i].sum())
@@ -509,14 +850,16 @@ def _joint_summary(m: Measurements, bundle: BundleSolution) -> JointFitResult:
         reference_tof_outliers=int(bundle.reference_outliers.sum()),
         chi2_per_dof=bundle.chi2_per_dof,
         iterations=bundle.iterations,
-        reference_microphone_m=_vec(bundle.state.reference_m),
-        reference_microphone_std_m=_vec(bundle.std.reference_m),
+        reference_microphone_m=(_vec(bundle.state.reference_m) if on_stand else None),
+        reference_microphone_std_m=(_vec(bundle.std.reference_m) if on_stand else None),
+        speed_of_sound_per_pose_m_s=(bundle.state.speeds_of_sound_m_s.tolist() if per_pose
+                                     else None),
+        speed_of_sound_per_pose_std_m_s=(bundle.std.speeds_of_sound_m_s.tolist() if per_pose
+                                         else None),
     )
 
 
 def _camera_result(cams: CameraCalibration, name: str) -> CameraResult:
-    from scipy.spatial.transform import Rotation
-
     intr = cams.intrinsics[name]
     ext = cams.cam_from_cam0[name]
     missed = [m.step for m in cams.missed if m.camera == name]
@@ -541,6 +884,6 @@ def _pose_result(data: SessionData, speakers: SpeakerPositions, i: int) -> PoseR
 
 
 __all__ = [
-    "CalibrationInputError", "CalibrationOptions", "CalibrationRun", "Measurements", "calibrate",
-    "measure", "solve",
+    "CalibrationInputError", "CalibrationOptions", "CalibrationRun",
+    "Measurements", "calibrate", "measure", "solve",
 ]

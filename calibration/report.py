@@ -74,6 +74,7 @@ def _markdown(run: CalibrationRun, truth: dict | None) -> str:
                    f"residual RMS {1e3 * ref.residual_rms_m:.2f} mm")
     out.append(f"- used by the solver: {r.speed_of_sound_m_s:.3f} ± "
                f"{r.speed_of_sound_std_m_s:.3f} m/s")
+    out += [f"- {n}" for n in r.notes if n.startswith("Speed of sound")]
     out += ["", "## Cameras", "", "| camera | fx px | fy px | cx px | cy px | RMS px | views |",
             "|---|---|---|---|---|---|---|"]
     for c in r.cameras:

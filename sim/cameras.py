@@ -15,7 +15,8 @@ from .world import World
 
 
 class SimulatedCamera:
-    """Renders what camera `model` sees of the rig at the world's current pose.
+    """Renders what camera `model` sees of the rig (as built: the world's `physical_rig`) at the
+    world's current pose.
 
     `fail_next_grabs` makes the next grabs time out, as a camera that returns no frame does.
     The sensor noise of a frame is keyed by the set-up and the frame's number in it
@@ -48,7 +49,7 @@ class SimulatedCamera:
         rng = np.random.default_rng([self.world.seed, 3, self.index, *key])
         w = self.world
         image = render_rig_image(
-            self.model, w.rig, w.rig_pose if w.rig_in_view else None, rng,
+            self.model, w.physical_rig, w.rig_pose if w.rig_in_view else None, rng,
             noise_grey=w.noise.image_noise_grey * w.noise.scale,
             blur_sigma_px=w.noise.image_blur_px,
         )
