@@ -726,8 +726,9 @@ def _speed_of_sound_note(m: Measurements, options: CalibrationOptions, source: s
            "the session has no located image of the reference microphone on its stand"
            if m.reference is None else "--speed-of-sound solve")
     if source == "known":
+        air = m.data.description.air
         given = ("given" if options.speed_of_sound_prior is not None
-                 else m.data.description.air.source())  # type: ignore[union-attr]
+                 else air.source() if air is not None else "the session's air sensor")
         return (f"Speed of sound (camera frozen): held to the known {c0:.3f} ± {c_std:.3f} m/s "
                 f"({given}), because {why}.")
     return (f"Speed of sound (camera frozen): solved from the times of flight (no known c), "
