@@ -230,7 +230,10 @@ def test_pipeline_joint_fit_beats_the_frozen_camera_against_the_truth(session: P
     assert joint["mean_mic_error_m"] < 0.2 * frozen["mean_mic_error_m"]
     assert joint["max_focal_error_rel"] < 3e-4
     assert abs(joint["speed_of_sound_error_m_s"]) < 0.02
-    assert joint["max_latency_error_s"] < 0.1e-6
+    # The worst of the three boards' latencies: 0.06-0.20 us over seeds 5-8 before the noise
+    # was keyed by set-up (#14), 0.08-0.25 us after; 0.1 us passed seed 5 by luck. A broken
+    # latency fit is off by microseconds (the latencies are 1-5 us).
+    assert joint["max_latency_error_s"] < 0.3e-6
     cams = {c.name: c for c in run.result.cameras}
     assert set(cams) >= {"cam0", "cam1"}  # a side camera shares views: stereo refined too
     assert all(c.intrinsics_std is not None and c.intrinsics_std[0] > 0 for c in cams.values())
