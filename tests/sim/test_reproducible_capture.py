@@ -19,12 +19,14 @@ def _checksums(session: Path) -> dict[str, dict[str, str]]:
             for step, record in SessionReader(session).steps().items()}
 
 
+@pytest.mark.parametrize("lab", ["ideal", "realistic"])  # the realistic lab's ambient noise too
 def test_a_resumed_capture_records_what_an_uninterrupted_one_does(
-        tmp_path: Path, small_options: SimulationOptions) -> None:
-    record_simulated_session(tmp_path / "whole", small_options)
+        tmp_path: Path, small_options: SimulationOptions, lab: str) -> None:
+    options = small_options.model_copy(update={"lab": lab})
+    record_simulated_session(tmp_path / "whole", options)
 
     cut = tmp_path / "cut"
-    sim, sequencer = prepare_simulated_capture(cut, small_options)
+    sim, sequencer = prepare_simulated_capture(cut, options)
 
     def fail_the_next_pose(progress) -> None:
         if progress.step == "pose/0000":
