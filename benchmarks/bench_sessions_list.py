@@ -31,6 +31,7 @@ import time
 from pathlib import Path
 
 import zmq
+from _figures import report
 
 from acquisition.daemon.protocol import Reply
 from acquisition.simulated import record_simulated_session
@@ -165,11 +166,7 @@ def main() -> None:
         "restart_index_s": round(restart_s, 2),
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version()},
     }
-    for key, value in figures.items():
-        print(f"{key:36s} {value}")
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(figures, indent=2) + "\n")
-    print(f"written to {args.out}")
+    report(figures, args.out, 36)
 
 
 if __name__ == "__main__":

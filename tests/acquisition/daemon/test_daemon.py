@@ -26,13 +26,6 @@ REFERENCE_STEPS = 7  # six speakers and the reference-microphone image
 
 
 @pytest.fixture
-def daemon(tmp_path: Path) -> Iterator[ThreadDaemon]:
-    running = ThreadDaemon(small_config(tmp_path))
-    yield running
-    running.stop()
-
-
-@pytest.fixture
 def client(daemon: ThreadDaemon) -> Iterator[DaemonClient]:
     with daemon.client() as c:
         yield c

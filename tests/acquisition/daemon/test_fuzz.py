@@ -18,10 +18,8 @@ from __future__ import annotations
 import json
 import os
 import socket
-from collections.abc import Iterator
 from pathlib import Path
 
-import pytest
 import zmq
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -32,7 +30,7 @@ from acquisition.daemon.protocol import Reply
 from acquisition.daemon.server import control_hard_limit
 from acquisition.session import SessionReader
 
-from .helpers import ThreadDaemon, capture_all, small_config
+from .helpers import ThreadDaemon, capture_all
 
 LONG = os.environ.get("MICAM_LONG_TESTS") == "1"
 EXAMPLES = int(os.environ.get("MICAM_FUZZ_EXAMPLES", "20000" if LONG else "150"))
@@ -149,13 +147,6 @@ class Target:
 
     def close(self) -> None:
         self.context.destroy(linger=0)
-
-
-@pytest.fixture
-def daemon(tmp_path: Path) -> Iterator[ThreadDaemon]:
-    running = ThreadDaemon(small_config(tmp_path))
-    yield running
-    running.stop()
 
 
 def test_random_input_at_every_socket_during_a_capture(daemon: ThreadDaemon) -> None:

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import socket
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -19,7 +18,7 @@ from acquisition.daemon.endpoints import beside
 from acquisition.daemon.server import Refusal, parse_request
 from acquisition.session import SessionReader
 
-from .helpers import DaemonProcess, ThreadDaemon, capture_all, small_config, write_toml
+from .helpers import DaemonProcess, ThreadDaemon, capture_all, write_toml
 
 SURROGATE_ID = b'{"v": 1, "command": "ping", "id": "\\ud800"}'
 
@@ -36,13 +35,6 @@ def test_requests_that_break_a_parser_are_refused_as_bad_requests(raw: bytes, wo
     with pytest.raises(Refusal) as caught:
         parse_request([raw], 1 << 20)
     assert caught.value.code == "bad_request" and words in caught.value.message
-
-
-@pytest.fixture
-def daemon(tmp_path: Path) -> Iterator[ThreadDaemon]:
-    running = ThreadDaemon(small_config(tmp_path))
-    yield running
-    running.stop()
 
 
 def test_a_reply_that_cannot_be_encoded_becomes_an_error_reply(daemon: ThreadDaemon) -> None:
