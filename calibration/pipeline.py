@@ -104,6 +104,12 @@ from .tof import Weighting
 
 NOMINAL_SPEED_OF_SOUND_M_S = 343.0
 """Start value of c when nothing better is known (about 20 degC)."""
+OFF_AXIS_STD_M = 1e-3
+"""Prior standard deviation of b, how far the speakers' acoustic centre moves forward off
+axis (calibration.bundle): a small driver's centre moves with frequency by tenths of a
+millimetre per octave, and what a correlation sees of it off axis by a fraction of that
+(85 um in the simulated lab); 1 mm leaves it to the data without letting it trade freely
+against the latencies when the poses are few."""
 
 JOINT_NOTE = (
     "Final fit: the optical-acoustic bundle adjustment (cameras, board poses, microphones, c "
@@ -145,7 +151,8 @@ class CalibrationOptions:
             deviation from it if the prior has a deviation std. Method "micam" only.
         speaker_offsets: the joint fit estimates where each speaker's sound comes from on the
             rig (its offset from the stated position, held to the rig's stated tolerance in
-            the board plane and to its acoustic-centre prior along the normal).
+            the board plane and to its acoustic-centre prior along the normal, and how far
+            the acoustic centre moves forward off axis).
         print_scale: the joint fit estimates the printed pattern's scale (held to the rig's
             stated print tolerance).
         mic_delay_std_s: the joint fit estimates each microphone's own delay (capsule and
@@ -162,6 +169,8 @@ class CalibrationOptions:
             "prior"); they replace the session description's.
         responses: estimate every microphone's complex response against frequency after the
             joint fit (calibration.responses).
+        air_sensor: use the session's air-sensor readings as the known speed of sound (when
+            neither the options nor the description give one).
     """
 
     method: Literal["micam", "paper"] = "micam"
@@ -181,6 +190,7 @@ class CalibrationOptions:
     speed_of_sound_prior: tuple[float, float] | None = None
     intrinsics: dict[str, KnownIntrinsics] | None = None
     responses: bool = True
+    air_sensor: bool = True
 
 
 @dataclass
@@ -426,7 +436,9 @@ def known_speed_of_sound(m: Measurements,
     if options.speed_of_sound_prior is not None:
         return options.speed_of_sound_prior
     air = m.data.description.air
-    return m.air if air is None else air.speed_of_sound_prior()
+    if air is not None:
+        return air.speed_of_sound_prior()
+    return m.air if options.air_sensor else None
 
 
 def _rig_sources(data: SessionData, speakers: SpeakerPositions, pose_idx: np.ndarray,
@@ -517,6 +529,7 @@ def bundle_priors(m: Measurements, options: CalibrationOptions) -> BundlePriors:
     return BundlePriors(
         speaker_offset_mean_m=mean, speaker_offset_std_m=std,
         print_scale_std=rig.print_scale_std if options.print_scale else FIXED,
+        off_axis_std_m=OFF_AXIS_STD_M if options.speaker_offsets else FIXED,
         mic_delay_std_s=(FIXED if options.mic_delay_std_s is None
                          else options.mic_delay_std_s),
         speed_of_sound=known_speed_of_sound(m, options),
@@ -815,7 +828,8 @@ def _responses(m: Measurements, bundle: BundleSolution,
     """Every microphone's response from the joint fit's geometry (calibration.responses)."""
     data = m.data
     chosen = evenly_spread([p.step for p in m.speakers.poses])
-    est = estimate_responses(data, flights(m, bundle, frozen, chosen),
+    est = estimate_responses(m.tofs, [m.located[k] for k in chosen],
+                             flights(m, bundle, frozen, chosen), data.fs,
                              data.reference_distances_m, bundle.state.speed_of_sound_m_s,
                              data.rig.speaker_diameter_m)
     return MicrophoneResponsesResult(
@@ -833,7 +847,9 @@ def _rig_summary(m: Measurements, bundle: BundleSolution) -> RigFitResult:
     return RigFitResult(
         speakers_rig_m=[_vec(p) for p in m.data.speakers_rig_m + offsets],
         speakers_rig_std_m=[_vec(s) for s in std], offsets_m=[_vec(o) for o in offsets],
-        print_scale=bundle.state.print_scale, print_scale_std=float(bundle.std.print_scale))
+        print_scale=bundle.state.print_scale, print_scale_std=float(bundle.std.print_scale),
+        acoustic_centre_off_axis_m=bundle.state.off_axis_m,
+        acoustic_centre_off_axis_std_m=float(bundle.std.off_axis_m))
 
 
 def _joint_summary(m: Measurements, bundle: BundleSolution,

@@ -119,6 +119,10 @@ class RigFitResult(_Model):
     offsets_m: list[Vector3] = Field(description="fitted minus stated position, rig frame")
     print_scale: float
     print_scale_std: float
+    acoustic_centre_off_axis_m: float = Field(
+        default=0.0, description="b: off axis at angle theta the speakers' acoustic centre "
+        "sits b (1 - cos theta) further out along the rig's normal")
+    acoustic_centre_off_axis_std_m: float = 0.0
 
 
 class JointFitResult(_Model):
