@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from sim.capture import SimulationOptions
@@ -11,3 +13,15 @@ from sim.capture import SimulationOptions
 def small_options() -> SimulationOptions:
     """A quick capture: one camera, 48 microphones, short bursts, two poses."""
     return SimulationOptions(array="scatter48", poses=2, mls_order=9, seed=3)
+
+
+@pytest.fixture(scope="session")
+def small_session(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A complete simulated session (48 microphones, 3 poses, short bursts: enough to calibrate),
+    recorded once per test run. Read it; copy it before changing it."""
+    from acquisition.cli import main
+
+    path = tmp_path_factory.mktemp("small-session") / "s"
+    assert main(["simulate", "--out", str(path), "--array", "scatter48", "--poses", "3",
+                 "--mls-order", "9", "--seed", "3", "--quiet"]) == 0
+    return path
