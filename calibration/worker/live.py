@@ -8,8 +8,9 @@ what accuracy the poses taken predict, and where one more pose would help most.
   the cameras' source-position noise. It ignores the errors the microphones share (c, the
   camera's scale), so it is what the joint final fit approaches, not a guarantee;
 - suggestion: of a grid of rig positions in camera 0's view (azimuth, elevation, distance
-  around the distances used so far, rig facing the camera), the one whose speakers lower the
-  predicted mean error most. The operator can stop when the prediction meets the target.
+  around the distances used so far, rig facing the camera; positions where the board would
+  leave camera 0's image are skipped), the one whose speakers lower the predicted mean error
+  most. The operator can stop when the prediction meets the target.
   It carries the board's outline and the speakers at that pose projected into camera 0's
   image, so that a page can draw where to hold the rig;
 - poses taken: where the rig's centre was at each pose used (distance, azimuth, elevation from
@@ -118,6 +119,7 @@ def _best_pose(m: Measurements,
     centroid = m.data.speakers_rig_m.mean(axis=0)
     rig = m.data.speakers_rig_m - centroid
     outline = _board_outline_rig(m) - centroid
+    camera = m.cameras.intrinsics[m.cameras.reference_camera]
     best: PoseSuggestion | None = None
     for az in AZIMUTHS_DEG:
         for el in ELEVATIONS_DEG:
@@ -127,12 +129,15 @@ def _best_pose(m: Measurements,
             facing = Rotation.align_vectors([-direction], [[0.0, 0.0, 1.0]])[0]
             for d in distances:
                 speakers = d * direction + facing.apply(rig)
+                board = _pixels(m, d * direction + facing.apply(outline))
+                if not all(0 <= u <= camera.width and 0 <= v <= camera.height
+                           for u, v in board):
+                    continue  # the board would leave camera 0's view
                 value = predicted(speakers)
                 if best is None or value < best.predicted_accuracy_m:
                     best = PoseSuggestion(
                         distance_m=float(d), direction=_vec(direction), azimuth_deg=az,
-                        elevation_deg=el, predicted_accuracy_m=value,
-                        outline_px=_pixels(m, d * direction + facing.apply(outline)),
+                        elevation_deg=el, predicted_accuracy_m=value, outline_px=board,
                         speakers_px=_pixels(m, speakers))
     return best
 
