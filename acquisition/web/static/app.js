@@ -382,6 +382,7 @@ function renderSessions() {
 async function showReport(id) {
   const box = $("report");
   box.classList.remove("hidden");
+  delete box.dataset.calibrated;
   box.replaceChildren(el("p", {}, `reading ${id}…`));
   const reply = await fetch(`/api/sessions/${encodeURIComponent(id)}/report`);
   const r = await reply.json();
