@@ -38,7 +38,7 @@ def test_killing_the_page_never_disturbs_a_capture(stack: Stack) -> None:
         for n in range(total):
             number = client.request("capture")["number"]
             if n == total - 2:  # the last pose but one: kill the page while it is captured
-                client.wait_until(lambda s: s.state == "capturing" or (
+                client.wait_until(lambda s, number=number: s.state == "capturing" or (
                     s.last_capture is not None and s.last_capture.number >= number), 30,
                     interval_s=0.01)
                 killed_during = client.status().state
