@@ -291,17 +291,18 @@ def detect_corners(image: np.ndarray, board: Checkerboard) -> np.ndarray | None:
 def _find_corners(grey: np.ndarray, board: Checkerboard) -> np.ndarray | None:
     """Approximate corners (n, 2) in OpenCV's order at full resolution, or None.
 
-    cv2.checkChessboard (the detector's own fast check, about 10 ms at full size) rejects
-    most images without a board; then `_DETECTION_TIERS` are tried in turn, cheapest first.
+    cv2.checkChessboard (the detector's own fast check) rejects most images without a board:
+    at half size first (about 1 ms), at full size (about 9 ms) only when that fails (it
+    misses 2-4 % of the boards the detector then finds); then `_DETECTION_TIERS` are tried
+    in turn, cheapest first.
     """
-    if not cv2.checkChessboard(grey, board.pattern_size):
+    half = cv2.resize(grey, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
+    if not (cv2.checkChessboard(half, board.pattern_size)
+            or cv2.checkChessboard(grey, board.pattern_size)):
         return None
     for detector, scale in _DETECTION_TIERS:
-        small = (
-            grey
-            if scale == 1.0
-            else cv2.resize(grey, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
-        )
+        small = grey if scale == 1.0 else half if scale == 0.5 else cv2.resize(
+            grey, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
         if detector == "classic":
             found, corners = cv2.findChessboardCorners(
                 small, board.pattern_size, flags=_CLASSIC_FLAGS

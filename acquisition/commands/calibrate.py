@@ -216,8 +216,8 @@ def run(args: argparse.Namespace) -> int:
         allow_interrupted=args.allow_interrupted, joint=not args.no_joint,
         prior=_prior(args), speed_of_sound_prior=_known_air(args),
         intrinsics=_known_intrinsics(args, data) or None)
-    stages = ["load", "cameras", "speakers", "times of flight", "solver", "joint fit",
-              "responses"]
+    stages = ["load", "cameras", "speakers", "times of flight", "solver", "dispersion",
+              "joint fit", "responses"]
     with tqdm(total=len(stages), unit="stage", desc="calibrate") as bar:
         def on_stage(name: str) -> None:
             bar.set_postfix_str(name)
