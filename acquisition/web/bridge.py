@@ -21,7 +21,7 @@ import json
 import logging
 import time
 from collections import deque
-from typing import Any
+from typing import Any, cast
 
 import zmq
 import zmq.asyncio
@@ -151,7 +151,8 @@ class Bridge:
         """Receive every event for ever; reconnect after the daemon could not be reached."""
         while True:
             try:
-                sock = await asyncio.to_thread(self.client.event_socket, True, self._context)
+                sock = cast(zmq.asyncio.Socket, await asyncio.to_thread(
+                    self.client.event_socket, True, self._context))
             except DaemonError as exc:
                 self._disconnected(str(exc))
                 await asyncio.sleep(self.poll_s)
