@@ -17,6 +17,8 @@ $(STAMP): pyproject.toml
 
 # The whole loop: the daemon on the simulated world, a calibration worker, a 20-pose capture
 # scripted through the micam commands, live and final calibration, a report against the truth.
+# It stays headless; it prints the `micam web` command that shows it live in a browser (the
+# operator's page, docs/operator.md).
 demo: $(STAMP)
 	$(BIN)/python -m acquisition.demo_loop --out $(DEMO_DIR) --poses 20
 

@@ -48,3 +48,13 @@ class Camera(Protocol):
 
     def close(self) -> None:
         """Release the device."""
+
+
+@runtime_checkable
+class PreviewSource(Protocol):
+    """A camera that offers a cheaper look than `grab` for a live preview (optional: the
+    daemon grabs a frame from a camera without it and shrinks it)."""
+
+    def preview(self, max_width: int, timeout_s: float = 2.0) -> Frame:
+        """A frame at most `max_width` pixels wide, showing what `grab` would now see; it is
+        not a frame of the capture (it neither counts as one nor changes what one records)."""

@@ -25,6 +25,7 @@ from .commands import (
     simulate,
     study,
     watch,
+    web,
     worker,
 )
 from .errors import UserError
@@ -32,7 +33,7 @@ from .errors import UserError
 SUBCOMMANDS = (
     simulate, import_session, inspect, calibrate, study, image, evaluate_imaging, daq, daemon,
     config, session,
-    capture, watch, sessions,
+    capture, watch, sessions, web,
     worker,
 )
 

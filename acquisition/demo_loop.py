@@ -69,6 +69,11 @@ class Loop:
     def client(self, timeout_s: float = 10.0) -> DaemonClient:
         return DaemonClient(self.control, timeout_s=timeout_s)
 
+    @property
+    def daemon_pid(self) -> int:
+        """The daemon's process id (it is started first)."""
+        return self._procs[0].pid
+
     def _start(self, name: str, *args: str) -> subprocess.Popen:
         log = (self.root / f"{name}.log").open("w")
         proc = subprocess.Popen([sys.executable, "-m", "acquisition.cli", *args],
@@ -204,6 +209,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="longest wait for the final result, seconds")
     args = parser.parse_args(argv)
     with Loop(args.out, args.poses, mls_order=args.mls_order) as loop, loop.client() as client:
+        print(f"to watch it in a browser, run in another terminal: {sys.executable} -m "
+              f"acquisition.cli web --control {loop.control}   (then open "
+              "http://127.0.0.1:8765/; docs/operator.md)", flush=True)
         stream = client.subscribe()
         try:
             session, _ = scripted_capture(loop, args.poses)

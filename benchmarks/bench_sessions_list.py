@@ -85,7 +85,7 @@ class Daemon:
         sock.connect(self.endpoint)
         try:
             t0 = time.perf_counter()
-            sock.send(json.dumps({"v": 1, "command": command}).encode())
+            sock.send(json.dumps({"v": 2, "command": command}).encode())
             if not sock.poll(60_000):
                 raise RuntimeError(f"no reply to {command}")
             raw = sock.recv()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -21,6 +22,10 @@ class SimulatedCamera:
     `fail_next_grabs` makes the next grabs time out, as a camera that returns no frame does.
     The sensor noise of a frame is keyed by the set-up and the frame's number in it
     (sim.setups), so a resumed capture renders what an uninterrupted one does.
+
+    `preview` renders the same view at a smaller size, once per set-up (the simulated rig does
+    not move between set-ups, so every look at it is the same picture), with noise of its own
+    key: previews cost a render per set-up and change nothing a capture records.
     """
 
     def __init__(self, model: CameraModel, world: World, index: int,
@@ -30,6 +35,7 @@ class SimulatedCamera:
         self.index = index
         self.setups = setups or Setups()
         self.fail_next_grabs = 0
+        self._preview: tuple[tuple, np.ndarray] | None = None
 
     @property
     def name(self) -> str:
@@ -54,6 +60,26 @@ class SimulatedCamera:
             blur_sigma_px=w.noise.image_blur_px,
         )
         return Frame(image=image, timestamp_s=time.monotonic(), camera=self.name)
+
+    def preview(self, max_width: int, timeout_s: float = 2.0) -> Frame:
+        if self.fail_next_grabs > 0:
+            raise CameraTimeoutError(
+                f"camera {self.name} ({self.device_id}) returned no frame within {timeout_s} s")
+        w = self.world
+        scale = min(1.0, max_width / self.model.width)
+        key = (self.setups.current(), w.rig_in_view, scale)
+        if self._preview is None or self._preview[0] != key:
+            K = self.model.K.copy()
+            K[:2] *= scale
+            small = replace(self.model, width=round(self.model.width * scale),
+                            height=round(self.model.height * scale), K=K)
+            rng = np.random.default_rng([w.seed, 5, self.index, *key[0]])
+            image = render_rig_image(
+                small, w.physical_rig, w.rig_pose if w.rig_in_view else None, rng,
+                noise_grey=w.noise.image_noise_grey * w.noise.scale,
+                blur_sigma_px=w.noise.image_blur_px * scale)
+            self._preview = (key, image)
+        return Frame(image=self._preview[1], timestamp_s=time.monotonic(), camera=self.name)
 
     def close(self) -> None:
         """Nothing to release."""

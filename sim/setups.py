@@ -35,6 +35,11 @@ class Setups:
             self._scans = 0
             self._frames.clear()
 
+    def current(self) -> Key:
+        """The current set-up's key (counting nothing)."""
+        with self._lock:
+            return self._key
+
     def next_scan(self) -> Key:
         """The key of the scan that starts now: (set-up..., scan number within it)."""
         with self._lock:

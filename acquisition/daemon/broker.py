@@ -27,6 +27,7 @@ reads waiting messages, `tick` does the timed work.
 from __future__ import annotations
 
 import hashlib
+import json
 import logging
 import time
 from collections.abc import Callable
@@ -76,6 +77,9 @@ log = logging.getLogger("micam.daemon")
 CALIBRATION_DIR = "calibration"
 RESULT_FILE = "result.json"
 LIVE_FILE = "live.json"
+LIVE_HISTORY_FILE = "live_history.jsonl"
+"""One line per live update (poses, predicted accuracy, mean uncertainty, c): how the live
+calibration improved, for a page drawing it against poses. Derived data, appended unsynced."""
 MAX_MESSAGES_PER_TURN = 100
 FLUSH_INTERVAL_S = 1.0  # how often records kept in memory are offered to the disk again
 PRUNE_INTERVAL_S = 3600.0
@@ -301,8 +305,14 @@ class Broker:
             self._requeue(job, f"worker {worker.name} sent a live update that does not describe "
                                f"the session: {exc}")
             return f"rejected: {exc}"
-        text = message.update.model_dump_json(indent=1).encode()
-        _replace(_calibration_dir(job) / LIVE_FILE, text)
+        update = message.update
+        directory = _calibration_dir(job)
+        _replace(directory / LIVE_FILE, update.model_dump_json(indent=1).encode())
+        with (directory / LIVE_HISTORY_FILE).open("a") as history:
+            history.write(json.dumps({
+                "poses": update.poses, "predicted_accuracy_m": update.predicted_accuracy_m,
+                "mean_uncertainty_m": update.mean_uncertainty_m,
+                "speed_of_sound_m_s": update.speed_of_sound_m_s}) + "\n")
         self._publish(LiveCalibrationEvent, session_id=job.session_id, job_id=job.job_id,
                       update=message.update)
         self._job_event(job, "done", worker=worker.name)

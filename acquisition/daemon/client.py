@@ -23,7 +23,15 @@ from pydantic import ValidationError
 from ..errors import UserError
 from .endpoints import default_control
 from .keys import secure_client
-from .protocol import EVENT_ADAPTER, PROTOCOL_VERSION, Event, Reply, StatusResult
+from .protocol import (
+    EVENT_ADAPTER,
+    EVENT_TOPICS,
+    PREVIEW_TOPIC,
+    PROTOCOL_VERSION,
+    Event,
+    Reply,
+    StatusResult,
+)
 
 
 class DaemonError(UserError):
@@ -75,12 +83,17 @@ class DaemonClient:
     def close(self) -> None:
         self._context.destroy(linger=0)
 
-    def _socket(self, kind: int, endpoint: str) -> zmq.Socket:
-        sock = self._context.socket(kind)
+    def _socket(self, kind: int, endpoint: str, context: zmq.Context | None = None,
+                topics: tuple[str, ...] = ()) -> zmq.Socket:
+        """A socket of `context` (default this client's) connected to `endpoint`, CURVE when
+        keys were given, subscribed to `topics` (a SUB socket)."""
+        sock = (context or self._context).socket(kind)
         sock.linger = 0
         server_key, client_key = self._keys
         if server_key is not None and client_key is not None:
             secure_client(sock, server_key, client_key)
+        for topic in topics:
+            sock.subscribe(topic.encode())
         sock.connect(endpoint)
         return sock
 
@@ -115,12 +128,20 @@ class DaemonClient:
     def status(self) -> StatusResult:
         return StatusResult.model_validate(self.request("status"))
 
-    def subscribe(self) -> EventStream:
-        """Subscribe to every event (the endpoint comes from `status` unless given)."""
-        endpoint = self.events or _reachable(self.status().events_endpoint, self.control)
-        sock = self._socket(zmq.SUB, endpoint)
-        sock.subscribe(b"")
-        return EventStream(sock)
+    def events_endpoint(self) -> str:
+        """The event socket: as given, else as the daemon's `status` reports it."""
+        return self.events or _reachable(self.status().events_endpoint, self.control)
+
+    def subscribe(self, previews: bool = False) -> EventStream:
+        """Subscribe to every event, camera previews only if `previews` (they are large)."""
+        return EventStream(self.event_socket(previews))
+
+    def event_socket(self, previews: bool = False,
+                     context: zmq.Context | None = None) -> zmq.Socket:
+        """A SUB socket (of `context`, default this client's) on the daemon's events,
+        subscribed to every topic, `preview` only if `previews`."""
+        topics = tuple(t for t in EVENT_TOPICS if previews or t != PREVIEW_TOPIC)
+        return self._socket(zmq.SUB, self.events_endpoint(), context, topics)
 
     def wait_until(self, done: Callable[[StatusResult], bool], timeout_s: float,
                    on_event: Callable[[Event], None] | None = None,

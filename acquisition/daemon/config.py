@@ -187,6 +187,14 @@ class HandsFreeConfig(ConfigModel):
     check_interval_s: float = Field(default=0.25, gt=0, le=5)
 
 
+class PreviewConfig(ConfigModel):
+    """Camera previews (`preview` events) while a client asks for them (`micam web`)."""
+
+    fps: float = Field(default=2.0, gt=0, le=10, description="previews per second and camera")
+    width: int = Field(default=480, ge=64, le=1280, description="width of a preview, pixels")
+    jpeg_quality: int = Field(default=70, ge=10, le=95)
+
+
 class SimulationConfig(SimulationOptions):
     """The simulated world the daemon runs on without hardware (unknown keys refused)."""
 
@@ -209,6 +217,7 @@ class DaemonConfig(BaseSettings):
     quality: QualityConfig = QualityConfig()
     hands_free: HandsFreeConfig = HandsFreeConfig()
     workers: WorkersConfig = WorkersConfig()
+    previews: PreviewConfig = PreviewConfig()
     poll_interval_s: float = Field(default=0.1, gt=0, le=1.0,
                                    description="longest wait of the service loop")
     resume_at_start: Literal["offer", "auto"] = Field(

@@ -74,7 +74,7 @@ class FileServer:
                                       reason=f"offset {fetch.offset} is past the end ({size})"))]
         length = min(fetch.length, size - fetch.offset)
         try:
-            fd = _open_inside(Path(job.session_path), fetch.path)
+            fd = open_inside(Path(job.session_path), fetch.path)
         except OSError as exc:
             return [encode(FetchError(path=fetch.path, reason=f"cannot open it: {exc}"))]
         try:
@@ -84,7 +84,7 @@ class FileServer:
         return [encode(Chunk(path=fetch.path, offset=fetch.offset)), data]
 
 
-def _open_inside(session: Path, relative: str) -> int:
+def open_inside(session: Path, relative: str) -> int:
     """A read-only descriptor of `session/relative`, refusing (OSError) a path that resolves
     outside the session directory or ends in a symbolic link."""
     path = session / relative

@@ -1,4 +1,5 @@
-"""The calibration hand-off on the wire: jobs, heartbeats, results and file chunks (version 1).
+"""The calibration hand-off on the wire: jobs, heartbeats, results and file chunks (version 2:
+the live update gained the suggestion's outline in camera 0's image and the poses taken).
 
 Two sockets, both bound by the daemon (ROUTER) and connected to by each worker (DEALER):
 
@@ -27,7 +28,7 @@ from pydantic import BaseModel, ConfigDict, Field, TypeAdapter
 
 from ..safe_names import SafeName, SafeRelativePath
 
-JOB_PROTOCOL_VERSION = 1
+JOB_PROTOCOL_VERSION = 2
 
 JobKind = Literal["live", "final"]
 """live: the calibration so far, after a pose (fast, no joint fit); final: the full calibration
@@ -45,7 +46,7 @@ PersonName = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[^\x00
 class _Msg(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    v: Literal[1] = JOB_PROTOCOL_VERSION
+    v: Literal[2] = JOB_PROTOCOL_VERSION
 
 
 class JobFile(_Msg):
@@ -71,6 +72,9 @@ class LiveMicrophone(_Msg):
     std_m: tuple[float, float, float]
 
 
+Pixel = tuple[float, float]
+
+
 class PoseSuggestion(_Msg):
     """Where one more rig pose would lower the predicted mean error most (camera-0 frame)."""
 
@@ -79,6 +83,20 @@ class PoseSuggestion(_Msg):
     azimuth_deg: float = Field(description="positive to the camera's right")
     elevation_deg: float = Field(description="positive upwards")
     predicted_accuracy_m: float = Field(description="predicted mean error with that pose added")
+    outline_px: list[Pixel] = Field(
+        default=[], max_length=4,
+        description="the board's four outer corners at that pose in camera 0's image, pixels")
+    speakers_px: list[Pixel] = Field(
+        default=[], max_length=64, description="the rig's speakers there, pixels of camera 0")
+
+
+class PoseTaken(_Msg):
+    """A pose the live calibration used: where the rig's centre was, from camera 0."""
+
+    step: SafeRelativePath
+    distance_m: float
+    azimuth_deg: float = Field(description="positive to the camera's right")
+    elevation_deg: float = Field(description="positive upwards")
 
 
 class LiveUpdate(_Msg):
@@ -93,6 +111,10 @@ class LiveUpdate(_Msg):
         description="mean E|error| the Cramer-Rao bound predicts from these poses")
     speed_of_sound_m_s: float
     suggestion: PoseSuggestion | None = None
+    image_size: tuple[int, int] | None = Field(
+        default=None, description="camera 0's image (width, height), pixels: the frame of the "
+                                  "suggestion's pixels")
+    poses_taken: list[PoseTaken] = Field(default=[], max_length=10_000)
 
 
 # -- worker -> daemon, jobs socket -------------------------------------------------------------

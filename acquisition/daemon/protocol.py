@@ -9,18 +9,28 @@ Events (PUB/SUB): two frames, the event type as topic (so a subscriber may filte
 missed something; the `status` reply carries the last `seq` as a snapshot point.
 
 docs/protocol.md documents every message; `json_schemas()` generates their JSON Schemas.
+
+Version 2 added what an operator's page needs (`micam web`): `describe` (which column is which
+microphone, the cameras, the rig, the quality thresholds), `previews` (camera previews as
+`preview` events while a client asks for them), `session.report` and `session.file` (a
+session's quality and calibration files), per-channel flags in `levels`, and the poses each
+camera has seen in `progress` and `status`. Both ends refuse a message of another version.
 """
 
 from __future__ import annotations
 
 from datetime import UTC, datetime
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, get_args
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter
 
+from ..safe_names import SafeName, SafeRelativePath
 from .job_messages import LiveUpdate, job_schemas
 
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2
+CAMERA_MIN_VIEWS = 4
+"""Board views a camera needs to be calibrated (calibration.cameras.MIN_VIEWS; a test keeps
+the two equal): a camera with fewer is left out of the calibration."""
 
 ErrorCode = Literal[
     "bad_request",  # not JSON, not an object, a field missing or of the wrong type
@@ -53,8 +63,26 @@ class SessionStartArgs(_Message):
         description="id of an interrupted session to continue, or 'last' for the newest one")
 
 
+class PreviewsArgs(_Message):
+    seconds: float = Field(
+        default=10.0, ge=0.0, le=60.0,
+        description="publish `preview` events for this long from now (0: stop); ask again "
+                    "before it runs out to keep them coming")
+
+
+class SessionFileArgs(_Message):
+    session: SafeName = Field(description="the session's id")
+    path: SafeRelativePath = Field(
+        description="a file under the session's calibration/ directory, e.g. "
+                    "calibration/result.json")
+
+
+class SessionReportArgs(_Message):
+    session: SafeName = Field(description="the session's id")
+
+
 class _Request(_Message):
-    v: Literal[1] = PROTOCOL_VERSION
+    v: Literal[2] = PROTOCOL_VERSION
     id: str = Field(default="", max_length=64, description="echoed in the reply")
 
 
@@ -71,6 +99,34 @@ class StatusRequest(_Request):
 class SessionsListRequest(_Request):
     command: Literal["sessions.list"] = "sessions.list"
     args: NoArgs = NoArgs()
+
+
+class DescribeRequest(_Request):
+    """What the daemon captures with: columns, cameras, rig, quality thresholds."""
+
+    command: Literal["describe"] = "describe"
+    args: NoArgs = NoArgs()
+
+
+class PreviewsRequest(_Request):
+    """Ask for camera previews (`preview` events) for the next `seconds`."""
+
+    command: Literal["previews"] = "previews"
+    args: PreviewsArgs = PreviewsArgs()
+
+
+class SessionReportRequest(_Request):
+    """A session's summary, its poses' quality and the files of its calibration."""
+
+    command: Literal["session.report"] = "session.report"
+    args: SessionReportArgs
+
+
+class SessionFileRequest(_Request):
+    """One file of a session's calibration directory (result, live update, report, figures)."""
+
+    command: Literal["session.file"] = "session.file"
+    args: SessionFileArgs
 
 
 class SessionStartRequest(_Request):
@@ -118,17 +174,19 @@ class RedoRequest(_Request):
     args: NoArgs = NoArgs()
 
 
+_REQUESTS = (PingRequest, StatusRequest, SessionsListRequest, DescribeRequest, PreviewsRequest,
+             SessionReportRequest, SessionFileRequest, SessionStartRequest, SessionStopRequest,
+             SessionPauseRequest, SessionResumeRequest, SessionAbortRequest, CaptureRequest,
+             RedoRequest)
 Request = Annotated[
-    PingRequest | StatusRequest | SessionsListRequest | SessionStartRequest | SessionStopRequest
+    PingRequest | StatusRequest | SessionsListRequest | DescribeRequest | PreviewsRequest
+    | SessionReportRequest | SessionFileRequest | SessionStartRequest | SessionStopRequest
     | SessionPauseRequest | SessionResumeRequest | SessionAbortRequest | CaptureRequest
     | RedoRequest,
     Field(discriminator="command"),
 ]
 REQUEST_TYPES: dict[str, type[_Request]] = {
-    t.model_fields["command"].default: t
-    for t in (PingRequest, StatusRequest, SessionsListRequest, SessionStartRequest,
-              SessionStopRequest, SessionPauseRequest, SessionResumeRequest, SessionAbortRequest,
-              CaptureRequest, RedoRequest)
+    t.model_fields["command"].default: t for t in _REQUESTS
 }
 COMMANDS = tuple(REQUEST_TYPES)
 
@@ -152,7 +210,7 @@ class ErrorInfo(_Message):
 
 
 class Reply(_Message):
-    v: Literal[1] = PROTOCOL_VERSION
+    v: Literal[2] = PROTOCOL_VERSION
     id: str = ""
     ok: bool
     result: dict[str, Any] | None = None
@@ -195,6 +253,21 @@ class CalibrationStatus(_Message):
     failed: int = 0
 
 
+class CameraPoses(_Message):
+    """How many completed poses of the open session a camera found the board in."""
+
+    camera: str
+    poses_seen: int = Field(ge=0)
+
+
+class PoseOutline(_Message):
+    """Where the board was in camera 0's image at a completed pose: its four outermost inner
+    corners, as fractions of the image's width and height (0..1, x right, y down)."""
+
+    step: str
+    outline: list[tuple[float, float]] = Field(max_length=4)
+
+
 class StatusResult(_Message):
     """The `status` reply: a snapshot of everything `watch` shows."""
 
@@ -213,6 +286,14 @@ class StatusResult(_Message):
     resumable: str | None = Field(
         default=None, description="the newest interrupted session, which `session.start` "
                                   "with `resume` continues (offered while idle)")
+    cameras: list[CameraPoses] = Field(
+        default=[], description="the open session: completed poses with the board found, by "
+                                "camera")
+    coverage: list[PoseOutline] = Field(
+        default=[], description="the open session: the board in camera 0's image at each "
+                                "completed pose (the most recent MAX_COVERAGE)")
+    previews_until_s: float = Field(
+        default=0.0, description="seconds from now during which previews are published")
 
 
 class SessionsResult(_Message):
@@ -224,6 +305,79 @@ class SessionsResult(_Message):
                                   "indexed yet: the list may lack some")
 
 
+class ColumnInfo(_Message):
+    """One column of every recording: its board and input, and what it records."""
+
+    column: int
+    board: str
+    channel: int
+    role: Literal["mic", "reference"]
+    mic_id: int | None = None
+
+
+class RigInfo(_Message):
+    """The calibration rig, as a page draws it (rig frame, metres)."""
+
+    corners_x: int
+    corners_y: int
+    square_m: float
+    speakers_m: list[tuple[float, float, float]]
+
+
+class QualityInfo(_Message):
+    """The thresholds the daemon's quality checks use (docs/protocol.md, Quality checks)."""
+
+    clip_fraction: float
+    min_level_dbfs: float
+    min_snr_db: float
+    min_channel_snr_db: float
+
+
+class DescribeResult(_Message):
+    """The `describe` reply: what a client needs to name and draw what the events carry."""
+
+    simulated: bool
+    columns: list[ColumnInfo]
+    cameras: list[str]
+    rig: RigInfo
+    n_poses: int = Field(description="poses of a session started without `poses`")
+    max_poses: int | None = Field(default=None, description="the most a session may ask for")
+    quality: QualityInfo
+    camera_min_views: int = Field(
+        description="board views a camera needs to be calibrated (fewer: it is left out)")
+    live_min_poses: int = Field(description="the first pose after which a live calibration "
+                                            "runs (with live calibration on)")
+    live: bool
+    preview_fps: float
+    preview_width: int
+
+
+class CalibrationFile(_Message):
+    path: str = Field(description="relative to the session directory")
+    bytes: int
+
+
+class PoseQuality(_Message):
+    """A completed step's quality.json, in short."""
+
+    step: str
+    checkerboard_found: dict[str, bool] = {}
+    warnings: list[str] = []
+
+
+class SessionReportResult(_Message):
+    session: SessionSummary
+    steps: list[PoseQuality]
+    files: list[CalibrationFile] = Field(description="the files of calibration/ (at most "
+                                                     "MAX_REPORT_FILES)")
+
+
+class SessionFileResult(_Message):
+    path: str
+    bytes: int
+    content_b64: str = Field(description="the file's bytes, base64")
+
+
 class CaptureResult(_Message):
     number: int = Field(description="wait until status.last_capture.number reaches it")
     step: str
@@ -233,7 +387,7 @@ class CaptureResult(_Message):
 
 
 class _Event(_Message):
-    v: Literal[1] = PROTOCOL_VERSION
+    v: Literal[2] = PROTOCOL_VERSION
     seq: int = Field(ge=0)
     time_utc: datetime
     session_id: str | None = None
@@ -256,16 +410,39 @@ class InstructionEvent(_Event):
 
 
 class ProgressEvent(_Event):
+    """After every completed step: the counts, and for a pose the board's place in camera 0."""
+
     type: Literal["progress"] = "progress"
     steps_done: int
     steps_total: int
     poses_done: int
     n_poses: int
     step: str
+    cameras: list[CameraPoses] = []
+    outline: PoseOutline | None = None
+
+
+class PreviewEvent(_Event):
+    """A downscaled JPEG of a camera's view, the board's corners drawn on it when found.
+    `step` is the step whose image it is, or None for a look while waiting."""
+
+    type: Literal["preview"] = "preview"
+    camera: str
+    step: str | None = None
+    found: bool
+    width: int
+    height: int
+    source_width: int
+    source_height: int
+    jpeg_b64: str
 
 
 class LevelsEvent(_Event):
-    """Per-channel levels of one recording (dBFS: 0 = full scale of the channel's range)."""
+    """Per-channel levels of one recording (dBFS: 0 = full scale of the channel's range), one
+    value per column (`describe` names them). `listening`: the columns that should hear the
+    speaker (the reference microphone, or every microphone); `dead_channels`: microphones below
+    `min_channel_snr_db` at a pose; `low_snr_channels`: listening columns below `min_snr_db`
+    that are not dead."""
 
     type: Literal["levels"] = "levels"
     step: str
@@ -274,6 +451,9 @@ class LevelsEvent(_Event):
     peak_dbfs: list[float]
     snr_db: list[float]
     clipped_channels: list[int]
+    listening: list[int] = []
+    dead_channels: list[int] = []
+    low_snr_channels: list[int] = []
 
 
 class CheckerboardEvent(_Event):
@@ -351,10 +531,16 @@ class CalibrationEvent(_Event):
 Event = Annotated[
     StateEvent | InstructionEvent | ProgressEvent | LevelsEvent | CheckerboardEvent
     | WarningEvent | ErrorEvent | CaptureEvent | WorkerEvent | JobEvent | LiveCalibrationEvent
-    | CalibrationEvent,
+    | CalibrationEvent | PreviewEvent,
     Field(discriminator="type"),
 ]
 EVENT_ADAPTER: TypeAdapter[Event] = TypeAdapter(Event)
+EVENT_TOPICS: tuple[str, ...] = tuple(
+    t.model_fields["type"].default for t in get_args(get_args(Event)[0]))
+"""Every event type, each the topic of its events (a subscriber may choose among them)."""
+PREVIEW_TOPIC = "preview"
+"""Previews are large (kilobytes each, a few a second): clients that do not draw them leave
+this topic out of their subscription (`DaemonClient.subscribe`), and the publisher drops them."""
 REQUEST_ADAPTER: TypeAdapter[Request] = TypeAdapter(Request)
 
 
@@ -371,5 +557,8 @@ def json_schemas() -> dict[str, dict]:
         "status-result": StatusResult.model_json_schema(),
         "sessions-result": SessionsResult.model_json_schema(),
         "capture-result": CaptureResult.model_json_schema(),
+        "describe-result": DescribeResult.model_json_schema(),
+        "session-report-result": SessionReportResult.model_json_schema(),
+        "session-file-result": SessionFileResult.model_json_schema(),
         **job_schemas(),
     }

@@ -68,6 +68,22 @@ def measure(codes: np.ndarray, pre_samples: int, burst_samples: int,
                   snr_db=snr, clipped=clipped)
 
 
+def dead_channels(levels: Levels, mics: Sequence[int], config: QualityConfig) -> list[int]:
+    """The microphone columns that hear no burst (SNR below `min_channel_snr_db`)."""
+    if levels.snr_db is None:
+        return []
+    return [m for m in mics if levels.snr_db[m] < config.min_channel_snr_db]
+
+
+def low_snr_channels(levels: Levels, listening: Sequence[int], dead: Sequence[int],
+                     config: QualityConfig) -> list[int]:
+    """The listening columns below `min_snr_db` that are not dead (for the operator's eye: the
+    check itself judges the median)."""
+    if levels.snr_db is None:
+        return []
+    return [j for j in listening if levels.snr_db[j] < config.min_snr_db and j not in dead]
+
+
 def judge_recording(levels: Levels, listening: Sequence[int], mics: Sequence[int],
                     check_dead: bool, config: QualityConfig) -> list[Failure]:
     """The checks a recording fails. `listening`: the columns that should hear the speaker;
@@ -88,7 +104,7 @@ def judge_recording(levels: Levels, listening: Sequence[int], mics: Sequence[int
             failures.append(Failure("snr", config.snr,
                                     f"SNR {snr:.1f} dB is below {config.min_snr_db} dB: noise in "
                                     "the room, or the speaker too far away"))
-        dead = [m for m in mics if levels.snr_db[m] < config.min_channel_snr_db]
+        dead = dead_channels(levels, mics, config)
         if check_dead and config.dead_channels != "ignore" and dead:
             failures.append(Failure("dead_channels", config.dead_channels,
                                     f"channel(s) {dead} hear no burst (SNR below "
@@ -112,6 +128,16 @@ def checkerboard_corners(image: np.ndarray, corners: tuple[int, int]) -> np.ndar
     flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
     found, points = cv2.findChessboardCorners(grey, corners, flags=flags)
     return points.reshape(-1, 2) / scale if found else None
+
+
+def board_outline(corners: np.ndarray, pattern: tuple[int, int], width: int,
+                  height: int) -> list[tuple[float, float]]:
+    """The four outermost of `corners` (as `checkerboard_corners` returns them, row after row
+    of `pattern[0]`) as fractions of the image's `width` and `height`, in order round the
+    board."""
+    per_row = pattern[0]
+    quad = corners[[0, per_row - 1, len(corners) - 1, len(corners) - per_row]]
+    return [(round(float(x) / width, 4), round(float(y) / height, 4)) for x, y in quad]
 
 
 def judge_images(found: Mapping[str, bool], config: QualityConfig) -> list[Failure]:

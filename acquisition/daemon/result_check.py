@@ -27,6 +27,9 @@ SPEED_OF_SOUND_RANGE_M_S = (250.0, 450.0)
 """Air from -40 to 60 degC (306-366 m/s), with a margin for humidity and other gases."""
 MAX_DISTANCE_M = 50.0
 """No microphone of a calibrated array is this far from camera 0."""
+MAX_PIXEL = 1e6
+"""No pixel coordinate, distance or angle of a live update is larger (an image is never a
+million pixels wide)."""
 
 
 class ResultRejected(ValueError):
@@ -100,6 +103,17 @@ def check_live(update: LiveUpdate, facts: SessionFacts) -> None:
     _check_microphones(((m.id, m.position_m, m.std_m, None) for m in update.microphones),
                        facts, every=False)
     _check_speed(update.speed_of_sound_m_s)
+    foreign = {p.step for p in update.poses_taken} - facts.poses
+    if foreign:
+        raise ResultRejected(f"it uses poses the session did not complete: {sorted(foreign)}")
+    numbers = [x for p in update.poses_taken
+               for x in (p.distance_m, p.azimuth_deg, p.elevation_deg)]
+    if update.suggestion is not None:
+        numbers += [x for px in (*update.suggestion.outline_px, *update.suggestion.speakers_px)
+                    for x in px]
+    if not all(math.isfinite(x) and abs(x) <= MAX_PIXEL for x in numbers):
+        raise ResultRejected("its poses or its suggestion hold numbers that are not finite or "
+                             f"beyond {MAX_PIXEL:g}")
 
 
 def _check_microphones(mics: Iterable[tuple[Any, Any, Any, Any]], facts: SessionFacts,

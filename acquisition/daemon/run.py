@@ -11,7 +11,9 @@ the sequencer then journals the attempt as abandoned and the daemon decides what
 
 from __future__ import annotations
 
+import json
 import time
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, Protocol
@@ -25,22 +27,37 @@ from ..capture_config import CaptureConfig
 from ..operator import Instruction, InstructionKind
 from ..sequencer import CaptureSequencer, Progress, plan_steps
 from ..session import SessionWriter
+from ..session._layout import attempt_dir
 from .config import DaemonConfig
 from .hardware import Hardware
+from .previews import Previews
 from .protocol import (
+    CameraPoses,
     CaptureEvent,
     CheckerboardEvent,
     ErrorEvent,
     InstructionEvent,
     LastCapture,
     LevelsEvent,
+    PoseOutline,
     ProgressEvent,
     WarningEvent,
 )
-from .quality import Failure, checkerboard_corners, judge_images, judge_recording, measure
+from .quality import (
+    Failure,
+    board_outline,
+    checkerboard_corners,
+    dead_channels,
+    judge_images,
+    judge_recording,
+    low_snr_channels,
+    measure,
+)
 from .states import WAITING_STATE_FOR, State, StateMachine
 
 QUALITY_FILE = "quality.json"
+MAX_COVERAGE = 1000
+"""The most pose outlines `status` carries (the most recent ones)."""
 
 
 class SessionEnding(Exception):
@@ -73,6 +90,7 @@ class Host(Protocol):
     """What a run needs from the daemon: its sockets, its events and its state machine."""
 
     machine: StateMachine
+    previews: Previews
 
     def service(self, timeout_s: float) -> None: ...
 
@@ -87,6 +105,7 @@ class _Attempt:
 
     step: str
     found: dict[str, bool] = field(default_factory=dict)
+    outlines: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
     files: dict[str, dict[str, Any]] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
 
@@ -136,6 +155,35 @@ class SessionRun:
         self._retries_left = config.quality.auto_retries
         self._attempt: _Attempt | None = None
         self._still = _Stillness()
+        self.camera_poses: Counter[str] = Counter()
+        self.coverage: list[PoseOutline] = []
+        self._count_completed_poses()
+
+    def _count_completed_poses(self) -> None:
+        """The board views and camera-0 outlines of the poses completed before this run (a
+        resumed session), from their quality.json."""
+        for step, attempt in self.completed().items():
+            if not step.startswith("pose/"):
+                continue
+            try:
+                quality = json.loads((self.path / attempt_dir(step, attempt)
+                                      / QUALITY_FILE).read_bytes())
+                found = {str(k): bool(v) for k, v in quality["checkerboard_found"].items()}
+                outline = quality.get("board_outline", {}).get(self.capture.cameras[0].name)
+                pose = PoseOutline(step=step, outline=outline) if outline else None
+            except (OSError, ValueError, KeyError, TypeError, AttributeError):
+                continue  # a quality.json of another version: it only counts for the display
+            self._count_pose(found, pose)
+
+    def _count_pose(self, found: dict[str, bool], outline: PoseOutline | None) -> None:
+        self.camera_poses.update(name for name, ok in found.items() if ok)
+        if outline is not None:
+            self.coverage = [*self.coverage[-(MAX_COVERAGE - 1):], outline]
+
+    def cameras_seen(self) -> list[CameraPoses]:
+        """Completed poses with the board found, by camera (every camera, in order)."""
+        return [CameraPoses(camera=c.name, poses_seen=self.camera_poses[c.name])
+                for c in self.capture.cameras]
 
     # -- what the daemon asks ---------------------------------------------------------------
 
@@ -258,9 +306,15 @@ class SessionRun:
         attempt = self._current(step)
         camera = name.removesuffix(".png")
         rig = self.capture.rig
-        found = checkerboard_corners(image, (rig.corners_x, rig.corners_y)) is not None
+        pattern = (rig.corners_x, rig.corners_y)
+        corners = checkerboard_corners(image, pattern)
+        found = corners is not None
         attempt.found[camera] = found
+        if corners is not None:
+            attempt.outlines[camera] = board_outline(corners, pattern, image.shape[1],
+                                                     image.shape[0])
         self.host.publish(CheckerboardEvent, step=step, camera=camera, found=found)
+        self.host.previews.show(camera, image, corners, step)
         if len(attempt.found) == len(self.hardware.cameras):
             self._apply(judge_images(attempt.found, self.config.quality), step)
         self._checkpoint()
@@ -274,22 +328,30 @@ class SessionRun:
                    "snr_db": _rounded(levels.snr_db) if levels.snr_db is not None else [],
                    "clipped_channels": levels.clipped}
         attempt.files[name] = summary
-        self.host.publish(LevelsEvent, step=step, file=name, **summary)
         kind = self.instruction.kind if self.instruction else None
         reference = kind is InstructionKind.REFERENCE_AT_SPEAKER
-        self._apply(judge_recording(levels, self._reference if reference else self._mics,
-                                    self._mics, check_dead=not reference,
-                                    config=self.config.quality), step)
+        listening = self._reference if reference else self._mics
+        quality = self.config.quality
+        dead = [] if reference else dead_channels(levels, self._mics, quality)
+        self.host.publish(LevelsEvent, step=step, file=name, **summary, listening=listening,
+                          dead_channels=dead,
+                          low_snr_channels=low_snr_channels(levels, listening, dead, quality))
+        self._apply(judge_recording(levels, listening, self._mics, check_dead=not reference,
+                                    config=quality), step)
         self._checkpoint()
 
     def before_end(self, step: str) -> None:
         attempt = self._current(step)
         self.writer.write_json(step, QUALITY_FILE, {
-            "checkerboard_found": attempt.found, "recordings": attempt.files,
-            "warnings": attempt.warnings})
+            "checkerboard_found": attempt.found, "board_outline": attempt.outlines,
+            "recordings": attempt.files, "warnings": attempt.warnings})
 
     def after_end(self, step: str) -> None:
         attempt = self._current(step)
+        if step.startswith("pose/"):
+            outline = attempt.outlines.get(self.capture.cameras[0].name)
+            self._count_pose(attempt.found,
+                             PoseOutline(step=step, outline=outline) if outline else None)
         self.host.publish(CaptureEvent, step=step, outcome="complete",
                           reason="; ".join(attempt.warnings))
         self.last_capture = LastCapture(number=self.captures_requested, step=step,
@@ -326,9 +388,13 @@ class SessionRun:
 
     def _on_progress(self, progress: Progress) -> None:
         done = self.completed()
+        last = self.coverage[-1] if self.coverage else None
         self.host.publish(ProgressEvent, steps_done=progress.done, steps_total=progress.total,
                           poses_done=sum(s.startswith("pose/") for s in done),
-                          n_poses=self.capture.n_poses, step=progress.step)
+                          n_poses=self.capture.n_poses, step=progress.step,
+                          cameras=self.cameras_seen(),
+                          outline=last if last is not None and last.step == progress.step
+                          else None)
 
     def _failed(self, exc: Exception) -> None:
         """After an abandoned attempt: retry by itself, or wait for the operator's capture."""

@@ -49,7 +49,7 @@ SUBSCRIPTION_LIMIT = 1024  # bytes: the largest frame a PUB socket accepts (a su
 MAX_TURNS = 1000  # busy turns of one `serve` call before the loop gets control back
 MAX_ROUTING_FRAMES = 8  # REQ sends none (just the delimiter); a proxy chain adds one each
 CONTROL_QUEUE = 16  # frames queued per control connection (x the hard limit: its memory bound)
-UNENCODABLE_REPLY = (b'{"v": 1, "id": "", "ok": false, "result": null, "error": {"code": '
+UNENCODABLE_REPLY = (b'{"v": 2, "id": "", "ok": false, "result": null, "error": {"code": '
                      b'"internal", "message": "the reply could not be encoded"}}')
 """The reply of last resort, when not even an error reply can be encoded (never seen)."""
 

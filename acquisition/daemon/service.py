@@ -38,17 +38,28 @@ from .hardware import Hardware
 from .index import SessionIndex, summarize
 from .jobs import job_for_session
 from .outbox import Outbox
+from .previews import Previews
 from .protocol import (
+    CAMERA_MIN_VIEWS,
     PROTOCOL_VERSION,
     CaptureResult,
+    ColumnInfo,
+    DescribeResult,
     ErrorEvent,
+    QualityInfo,
     Request,
+    RigInfo,
+    SessionFileArgs,
+    SessionReportArgs,
+    SessionReportResult,
     SessionStartArgs,
+    SessionSummary,
     StateEvent,
     StatusResult,
 )
 from .run import SessionEnding, SessionRun
 from .server import ControlServer, Refusal
+from .session_files import session_dir, session_file, session_report
 from .states import WAITING_STATES, State, StateMachine, Transition, WrongState, check_allowed
 from .systemd import Watchdog, sd_notify
 from .translog import TransitionLog
@@ -80,6 +91,10 @@ class Daemon:
             "ping": lambda _: {"pong": True, "protocol": PROTOCOL_VERSION},
             "status": lambda _: self.status(),
             "sessions.list": lambda _: self.list_sessions(),
+            "describe": lambda _: self.describe(),
+            "previews": lambda r: {"seconds": self.previews.request(r.args.seconds)},
+            "session.report": lambda r: self._report(r.args),
+            "session.file": lambda r: self._file(r.args),
             "session.start": lambda r: self._start(r.args),
             "session.stop": lambda _: self._stop(),
             "session.abort": lambda _: self._abort(),
@@ -88,6 +103,10 @@ class Daemon:
             "capture": lambda _: self._capture(),
             "redo": lambda _: self._redo(),
         }
+        rig = hardware.config.rig
+        self.previews = Previews(config.previews, hardware.cameras,
+                                 (rig.corners_x, rig.corners_y), self.publish,
+                                 config.camera_timeout_s)
         self.index = SessionIndex(self.session_root,
                                   busy=lambda: self.machine.state is State.CAPTURING)
         self.server = ControlServer(config.sockets, self._handle)
@@ -158,6 +177,7 @@ class Daemon:
         _guarded("the broker's timed work", self.broker.tick)
         if self.run is not None:
             _guarded("hands-free", self.run.hands_free_tick)
+        _guarded("the previews", self.previews.tick, self.machine.state is State.CAPTURING)
         if not self._reconciled and self.index.complete:
             self._reconciled = True
             _guarded("the start-up checks", self._after_first_scan)
@@ -290,7 +310,54 @@ class Daemon:
             paused=bool(run and run.paused), hands_free=self.config.hands_free.enabled,
             events_endpoint=self.server.events_endpoint,
             last_event_seq=self.server.last_event_seq, calibration=self.broker.status(),
-            resumable=None if run else self.index.newest_interrupted())
+            resumable=None if run else self.index.newest_interrupted(),
+            cameras=run.cameras_seen() if run else [], coverage=run.coverage if run else [],
+            previews_until_s=self.previews.remaining_s)
+
+    def describe(self) -> DescribeResult:
+        """What the daemon captures with, for clients that name and draw what events carry."""
+        capture = self.hardware.config
+        quality = self.config.quality
+        return DescribeResult(
+            simulated=self.hardware.simulated,
+            columns=[ColumnInfo(column=j, board=c.board, channel=c.channel, role=c.role,
+                                mic_id=c.mic_id) for j, c in enumerate(capture.columns)],
+            cameras=[c.name for c in capture.cameras],
+            rig=RigInfo(corners_x=capture.rig.corners_x, corners_y=capture.rig.corners_y,
+                        square_m=capture.rig.square_m,
+                        speakers_m=[tuple(p) for p in capture.rig.speakers_m]),
+            n_poses=capture.n_poses, max_poses=self.hardware.max_poses,
+            quality=QualityInfo(clip_fraction=quality.clip_fraction,
+                                min_level_dbfs=quality.min_level_dbfs,
+                                min_snr_db=quality.min_snr_db,
+                                min_channel_snr_db=quality.min_channel_snr_db),
+            camera_min_views=CAMERA_MIN_VIEWS, live_min_poses=self.config.workers.live_min_poses,
+            live=self.config.workers.live, preview_fps=self.config.previews.fps,
+            preview_width=self.config.previews.width)
+
+    def _summary_of(self, session_id: str) -> SessionSummary:
+        """The summary of a session: the open one as `status` has it, else the index's."""
+        current = self.status().session
+        if current is not None and current.id == session_id:
+            return current
+        for entry in self.index.listing().sessions:
+            if entry["id"] == session_id:
+                return SessionSummary.model_validate(entry)
+        raise SessionError(f"session {session_id} is not in the daemon's index (yet)")
+
+    def _report(self, args: SessionReportArgs) -> SessionReportResult:
+        try:
+            path = session_dir(self.session_root, args.session)
+            return session_report(path, self._summary_of(args.session))
+        except SessionError as exc:
+            raise Refusal("session_error", str(exc)) from None
+
+    def _file(self, args: SessionFileArgs) -> dict[str, Any]:
+        try:
+            return session_file(session_dir(self.session_root, args.session),
+                                args.path).model_dump()
+        except (SessionError, ValueError) as exc:
+            raise Refusal("session_error", str(exc)) from None
 
     def list_sessions(self) -> dict[str, Any]:
         """The indexed sessions (the open one as `status` describes it); no journal is read."""

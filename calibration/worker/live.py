@@ -8,18 +8,29 @@ what accuracy the poses taken predict, and where one more pose would help most.
   the cameras' source-position noise. It ignores the errors the microphones share (c, the
   camera's scale), so it is what the joint final fit approaches, not a guarantee;
 - suggestion: of a grid of rig positions in camera 0's view (azimuth, elevation, distance
-  around the distances used so far, rig facing the camera), the one whose speakers lower the
-  predicted mean error most. The operator can stop when the prediction meets the target.
+  around the distances used so far, rig facing the camera; positions where the board would
+  leave camera 0's image are skipped), the one whose speakers lower the predicted mean error
+  most. The operator can stop when the prediction meets the target.
+  It carries the board's outline and the speakers at that pose projected into camera 0's
+  image, so that a page can draw where to hold the rig;
+- poses taken: where the rig's centre was at each pose used (distance, azimuth, elevation from
+  camera 0), the coverage so far.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 
+import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from acquisition.daemon.job_messages import LiveMicrophone, LiveUpdate, PoseSuggestion
+from acquisition.daemon.job_messages import (
+    LiveMicrophone,
+    LiveUpdate,
+    PoseSuggestion,
+    PoseTaken,
+)
 
 from ..crlb import expected_error_norm, mic_position_crlb
 from ..pipeline import Measurements
@@ -50,11 +61,51 @@ def live_update(session_id: str, m: Measurements, sol: MicrophoneSolution) -> Li
         bound = mic_position_crlb(mics, points, c, timing_std, source_std)
         return float(expected_error_norm(bound).mean())
 
+    camera = m.cameras.intrinsics[m.cameras.reference_camera]
     return LiveUpdate(
         session_id=session_id, poses=len(m.located), microphones=microphones,
         mean_uncertainty_m=float(expected_error_norm(sol.covariance_m2[valid]).mean()),
         predicted_accuracy_m=predicted(), speed_of_sound_m_s=c,
-        suggestion=_best_pose(m, predicted))
+        suggestion=_best_pose(m, predicted), image_size=(camera.width, camera.height),
+        poses_taken=_poses_taken(m))
+
+
+def _angles(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Distance (m), azimuth (deg, right positive) and elevation (deg, up positive) of points
+    (n, 3) in the camera-0 frame: the inverse of the suggestion's `direction`."""
+    distance = np.linalg.norm(points, axis=1)
+    azimuth = np.degrees(np.arctan2(points[:, 0], points[:, 2]))
+    elevation = np.degrees(np.arcsin(np.clip(-points[:, 1] / distance, -1.0, 1.0)))
+    return distance, azimuth, elevation
+
+
+def _poses_taken(m: Measurements) -> list[PoseTaken]:
+    """Where the rig's centre (its speakers' centroid) was at every located pose."""
+    centres = m.speakers.positions_m.mean(axis=1)
+    if len(centres) == 0:
+        return []
+    distance, azimuth, elevation = _angles(centres)
+    return [PoseTaken(step=step, distance_m=float(d), azimuth_deg=float(a),
+                      elevation_deg=float(e))
+            for step, d, a, e in zip(m.speakers.steps, distance, azimuth, elevation,
+                                     strict=True)]
+
+
+def _board_outline_rig(m: Measurements) -> np.ndarray:
+    """The checkerboard's outer corners in the rig frame (4, 3): the inner-corner grid grown by
+    one square on every side, in order round the board."""
+    board = m.cameras.board
+    s = board.square_m
+    x1, y1 = board.corners_x * s, board.corners_y * s
+    return np.array([[-s, -s, 0.0], [x1, -s, 0.0], [x1, y1, 0.0], [-s, y1, 0.0]])
+
+
+def _pixels(m: Measurements, points_cam0: np.ndarray) -> list[tuple[float, float]]:
+    """Points (n, 3) of the camera-0 frame projected into camera 0's image, pixels."""
+    camera = m.cameras.intrinsics[m.cameras.reference_camera]
+    px, _ = cv2.projectPoints(np.ascontiguousarray(points_cam0, dtype=np.float64),
+                              np.zeros(3), np.zeros(3), camera.K, camera.dist)
+    return [(float(u), float(v)) for u, v in px.reshape(-1, 2)]
 
 
 def _best_pose(m: Measurements,
@@ -65,7 +116,10 @@ def _best_pose(m: Measurements,
         return None
     used = np.linalg.norm(centres, axis=1)
     distances = np.unique(np.round([used.min() * 0.9, np.median(used), used.max() * 1.1], 2))
-    rig = m.data.speakers_rig_m - m.data.speakers_rig_m.mean(axis=0)
+    centroid = m.data.speakers_rig_m.mean(axis=0)
+    rig = m.data.speakers_rig_m - centroid
+    outline = _board_outline_rig(m) - centroid
+    camera = m.cameras.intrinsics[m.cameras.reference_camera]
     best: PoseSuggestion | None = None
     for az in AZIMUTHS_DEG:
         for el in ELEVATIONS_DEG:
@@ -75,11 +129,16 @@ def _best_pose(m: Measurements,
             facing = Rotation.align_vectors([-direction], [[0.0, 0.0, 1.0]])[0]
             for d in distances:
                 speakers = d * direction + facing.apply(rig)
+                board = _pixels(m, d * direction + facing.apply(outline))
+                if not all(0 <= u <= camera.width and 0 <= v <= camera.height
+                           for u, v in board):
+                    continue  # the board would leave camera 0's view
                 value = predicted(speakers)
                 if best is None or value < best.predicted_accuracy_m:
-                    best = PoseSuggestion(distance_m=float(d), direction=_vec(direction),
-                                          azimuth_deg=az, elevation_deg=el,
-                                          predicted_accuracy_m=value)
+                    best = PoseSuggestion(
+                        distance_m=float(d), direction=_vec(direction), azimuth_deg=az,
+                        elevation_deg=el, predicted_accuracy_m=value, outline_px=board,
+                        speakers_px=_pixels(m, speakers))
     return best
 
 

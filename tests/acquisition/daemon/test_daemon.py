@@ -41,10 +41,10 @@ def _refused(client: DaemonClient, command: str, code: str, **args) -> str:
 def test_bad_input_gets_clear_errors_and_the_daemon_keeps_serving(client: DaemonClient) -> None:
     cases = [
         ([b"\x00garbage"], "bad_request", "not UTF-8 JSON"),
-        ([b'{"v": 1, "command": "status"}', b"extra"], "bad_request", "2 frames"),
-        ([b'{"v": 1, "command": "status", "pad": "' + b"x" * 100_000 + b'"}'], "too_large",
+        ([b'{"v": 2, "command": "status"}', b"extra"], "bad_request", "2 frames"),
+        ([b'{"v": 2, "command": "status", "pad": "' + b"x" * 100_000 + b'"}'], "too_large",
          "65536"),
-        ([b'{"v": 1, "command": "selfdestruct"}'], "unknown_command", "selfdestruct"),
+        ([b'{"v": 2, "command": "selfdestruct"}'], "unknown_command", "selfdestruct"),
         ([b'{"v": 7, "command": "status"}'], "unsupported_version", "version 7"),
     ]
     for frames, code, words in cases:

@@ -71,7 +71,7 @@ def encoded(draw: st.DrawFn, documents: st.SearchStrategy) -> bytes:
 def _nested(n: int, kind: str) -> bytes:
     if kind == "list":
         return b"[" * n + b"]" * n
-    return b'{"v": 1, "command": "ping", "args": ' + b'{"a": ' * n + b"1" + b"}" * (n + 1)
+    return b'{"v": 2, "command": "ping", "args": ' + b'{"a": ' * n + b"1" + b"}" * (n + 1)
 
 
 frames = st.one_of(
@@ -81,7 +81,7 @@ frames = st.one_of(
     encoded(json_values),
     st.builds(_nested, st.integers(1, 60_000), st.sampled_from(["list", "object"])),
     st.integers(4000, 6000).map(
-        lambda n: b'{"v": 1, "command": "ping", "id": ' + b"9" * n + b"}"),
+        lambda n: b'{"v": 2, "command": "ping", "id": ' + b"9" * n + b"}"),
     st.sampled_from(SIZES).map(lambda n: b"x" * n),
 )
 messages = st.lists(frames, min_size=1, max_size=3)

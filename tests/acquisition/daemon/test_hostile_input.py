@@ -20,15 +20,15 @@ from acquisition.session import SessionReader
 
 from .helpers import DaemonProcess, ThreadDaemon, capture_all, write_toml
 
-SURROGATE_ID = b'{"v": 1, "command": "ping", "id": "\\ud800"}'
+SURROGATE_ID = b'{"v": 2, "command": "ping", "id": "\\ud800"}'
 
 
 @pytest.mark.parametrize(
     ("raw", "words"),
     [(b"[" * 100_000 + b"]" * 100_000, "nested too deeply"),
-     (b'{"v": 1, "command": "ping", "args": ' + b'{"a": ' * 5000 + b"1" + b"}" * 5001,
+     (b'{"v": 2, "command": "ping", "args": ' + b'{"a": ' * 5000 + b"1" + b"}" * 5001,
       "nested too deeply"),
-     (b'{"v": 1, "command": "ping", "id": ' + b"9" * 5000 + b"}", "digits"),
+     (b'{"v": 2, "command": "ping", "id": ' + b"9" * 5000 + b"}", "digits"),
      (SURROGATE_ID, "id: ")],
 )
 def test_requests_that_break_a_parser_are_refused_as_bad_requests(raw: bytes, words: str) -> None:
@@ -43,7 +43,7 @@ def test_a_reply_that_cannot_be_encoded_becomes_an_error_reply(daemon: ThreadDae
     handlers = daemon.daemon._handlers
     handlers["ping"] = lambda _: {"text": "\ud800"}
     with daemon.client() as client:
-        reply = client.exchange([b'{"v": 1, "id": "abc", "command": "ping"}'])
+        reply = client.exchange([b'{"v": 2, "id": "abc", "command": "ping"}'])
         assert not reply.ok and reply.error.code == "internal" and reply.id == "abc"
         assert "could not be encoded" in reply.error.message
         assert client.status().state == "idle"
@@ -106,7 +106,7 @@ def test_raw_bytes_into_the_control_socket_file_do_not_deafen_the_daemon(
         daemon: ThreadDaemon) -> None:
     """Found by test_fuzz: bytes below ZeroMQ's framing (read as ZMTP 1.0 frames) used to
     leave a REP control socket sending its replies to nobody."""
-    digits = b'{"v": 1, "command": "ping", "id": ' + b"9" * 5000 + b"}"
+    digits = b'{"v": 2, "command": "ping", "id": ' + b"9" * 5000 + b"}"
     raw_bytes = digits + b"[" * 4000 + b"]" * 4000 + digits
     path = daemon.config.sockets.control.removeprefix("ipc://")
     with daemon.client(timeout_s=5.0) as client:

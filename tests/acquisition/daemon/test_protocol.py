@@ -26,11 +26,11 @@ def _frames(obj) -> list[bytes]:
 
 
 def test_valid_request_is_typed() -> None:
-    request = parse_request(_frames({"v": 1, "id": "a", "command": "session.start",
+    request = parse_request(_frames({"v": 2, "id": "a", "command": "session.start",
                                      "args": {"poses": 4}}), LIMIT)
     assert isinstance(request, SessionStartRequest)
     assert request.args.poses == 4 and request.id == "a"
-    assert isinstance(parse_request(_frames({"v": 1, "command": "capture"}), LIMIT),
+    assert isinstance(parse_request(_frames({"v": 2, "command": "capture"}), LIMIT),
                       CaptureRequest)
 
 
@@ -43,15 +43,15 @@ def test_valid_request_is_typed() -> None:
         ([b"{}", b"{}"], "bad_request", "2 frames"),
         ([b" " * (LIMIT + 1)], "too_large", f"limit is {LIMIT}"),
         (_frames({"command": "status"}), "bad_request", "v: Field required"),
-        (_frames({"v": 2, "command": "status"}), "unsupported_version", "version 2"),
-        (_frames({"v": 1, "command": "launch"}), "unknown_command", "'launch'"),
-        (_frames({"v": 1, "command": "session.start", "args": {"poses": 0}}), "bad_request",
+        (_frames({"v": 3, "command": "status"}), "unsupported_version", "version 3"),
+        (_frames({"v": 2, "command": "launch"}), "unknown_command", "'launch'"),
+        (_frames({"v": 2, "command": "session.start", "args": {"poses": 0}}), "bad_request",
          "args.poses"),
-        (_frames({"v": 1, "command": "session.start", "args": {"resume": "../x"}}),
+        (_frames({"v": 2, "command": "session.start", "args": {"resume": "../x"}}),
          "bad_request", "args.resume"),
-        (_frames({"v": 1, "command": "capture", "args": {"now": True}}), "bad_request",
+        (_frames({"v": 2, "command": "capture", "args": {"now": True}}), "bad_request",
          "args.now"),
-        (_frames({"v": 1, "command": "status", "id": "x" * 65}), "bad_request", "id"),
+        (_frames({"v": 2, "command": "status", "id": "x" * 65}), "bad_request", "id"),
     ],
 )
 def test_bad_requests_are_refused_clearly(frames, code, words) -> None:
@@ -63,7 +63,7 @@ def test_bad_requests_are_refused_clearly(frames, code, words) -> None:
 
 def test_unknown_command_lists_the_commands() -> None:
     with pytest.raises(Refusal) as caught:
-        parse_request(_frames({"v": 1, "command": "nope"}), LIMIT)
+        parse_request(_frames({"v": 2, "command": "nope"}), LIMIT)
     assert all(c in caught.value.message for c in COMMANDS)
 
 

@@ -74,7 +74,7 @@ def test_a_journal_pointing_outside_its_session_is_refused(
         daemon: ThreadDaemon, session_id: str, path: str) -> None:
     _forged_journal(daemon, "s1", session_id, path)
     with daemon.client() as client:
-        reply = client.exchange([json.dumps({"v": 1, "command": "session.start",
+        reply = client.exchange([json.dumps({"v": 2, "command": "session.start",
                                              "args": {"resume": "s1"}}).encode()])
         assert not reply.ok and reply.error.code == "session_error"
         assert "journal.jsonl" in reply.error.message
@@ -107,7 +107,7 @@ def test_planted_job_files_are_ignored_and_the_daemon_keeps_serving(tmp_path: Pa
     running = ThreadDaemon(small_config(tmp_path))
     worker = _jobs(running)
     try:
-        worker.send({"v": 1, "type": "ready", "worker": "w"})
+        worker.send({"v": 2, "type": "ready", "worker": "w"})
         with pytest.raises(AssertionError, match="no 'job' message"):
             worker.receive("job", timeout_s=1.0)
         with running.client() as client:
@@ -137,7 +137,7 @@ def test_the_file_server_does_not_follow_a_link_out_of_the_session(tmp_path: Pat
     dealer = context.socket(zmq.DEALER)
     dealer.connect(f"ipc://{tmp_path}/files")
     try:
-        dealer.send_json({"v": 1, "type": "fetch", "job_id": "s1.final",
+        dealer.send_json({"v": 2, "type": "fetch", "job_id": "s1.final",
                           "path": "refmic-a1/cam0.png", "offset": 0, "length": 15})
         assert router.poll(10_000)
         FileServer(router, {"s1.final": job}.get).serve()
@@ -167,7 +167,7 @@ def _result(session: Path, **changes: object) -> dict:
 
 
 def _done(worker: FakeWorker, job: dict, result: bytes) -> dict:
-    worker.send({"v": 1, "type": "done", "job_id": job["job_id"], "attempt": job["attempt"],
+    worker.send({"v": 2, "type": "done", "job_id": job["job_id"], "attempt": job["attempt"],
                  "result_sha256": hashlib.sha256(result).hexdigest()}, result)
     return worker.receive("ack")[0]
 
@@ -180,7 +180,7 @@ def test_forged_results_are_refused_and_a_stored_one_keeps_its_checksum(
         wait_state(client, "idle")
     worker = _jobs(daemon)
     try:
-        worker.send({"v": 1, "type": "ready", "worker": "rogue"})
+        worker.send({"v": 2, "type": "ready", "worker": "rogue"})
         job, _ = worker.receive("job")
         truth = _result(session)
         one_mic = {**truth, "microphones": truth["microphones"][:1], "speed_of_sound_m_s": 1.0}
@@ -212,9 +212,9 @@ def test_workers_of_another_protocol_version_are_told_why(daemon: ThreadDaemon) 
     worker = _jobs(daemon)
     files = FakeWorker(beside(daemon.config.sockets.control, "files"))
     try:
-        worker.send({"v": 2, "type": "ready", "worker": "future"})
+        worker.send({"v": 3, "type": "ready", "worker": "future"})
         refused, _ = worker.receive("refused", timeout_s=5.0)
-        assert "version 2" in refused["reason"]
+        assert "version 3" in refused["reason"]
         worker.send({"type": "ready", "worker": "unversioned"})  # not taken as version 1
         refused, _ = worker.receive("refused", timeout_s=5.0)
         assert "no protocol version" in refused["reason"]
@@ -258,7 +258,7 @@ def test_a_job_file_half_written_when_the_daemon_died_does_not_block_the_job(
     running = ThreadDaemon(small_config(tmp_path))
     worker = _jobs(running)
     try:
-        worker.send({"v": 1, "type": "ready", "worker": "w"})
+        worker.send({"v": 2, "type": "ready", "worker": "w"})
         job, _ = worker.receive("job", timeout_s=10.0)
         assert job["job_id"] == "s1.final" and job["attempt"] == 1
     finally:

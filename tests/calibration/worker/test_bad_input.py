@@ -117,7 +117,7 @@ def test_bad_jobs_get_clear_errors_and_the_worker_keeps_serving(
     error, _ = daemon.receive(WorkerError)
     assert "malformed message from the daemon" in error.reason
 
-    daemon.send(json.dumps({"v": 1, "type": "job", "job_id": "x.final", "attempt": 1}).encode())
+    daemon.send(json.dumps({"v": 2, "type": "job", "job_id": "x.final", "attempt": 1}).encode())
     failed, _ = daemon.receive(Failed)
     assert failed.job_id == "x.final" and not failed.retryable
     assert "malformed" in failed.reason and "files" in failed.reason
@@ -162,7 +162,7 @@ def test_a_job_that_would_leave_the_cache_is_refused(daemon: ScriptedDaemon, ses
 
 def test_daemon_messages_of_another_version_or_none_are_refused(daemon: ScriptedDaemon) -> None:
     for message, words in (({"type": "heartbeat"}, "no protocol version"),
-                           ({"v": 2, "type": "heartbeat"}, "version 2 is not supported")):
+                           ({"v": 3, "type": "heartbeat"}, "version 3 is not supported")):
         daemon.send(json.dumps(message).encode())
         error, _ = daemon.receive(WorkerError)
         assert words in error.reason
@@ -176,7 +176,7 @@ def test_an_oversized_frame_from_the_daemon_is_dropped_unread(daemon: ScriptedDa
     deadline = time.monotonic() + WAIT_S
     answers: list[object] = []
     while time.monotonic() < deadline and not answers:
-        daemon.send(b'{"v": 1, "type": "nonsense"}')  # to its identity, once it is back
+        daemon.send(b'{"v": 2, "type": "nonsense"}')  # to its identity, once it is back
         while daemon.jobs.poll(100):
             daemon.worker, *frames = daemon.jobs.recv_multipart()
             message = WORKER_MESSAGE.validate_json(frames[0])

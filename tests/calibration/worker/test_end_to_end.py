@@ -32,7 +32,7 @@ def _final_job(root: Path) -> JobRecord:
 def _stored_once(session: Path, job: JobRecord) -> None:
     """One result beside the session, the one the outbox records."""
     assert sorted(p.name for p in (session / "calibration").iterdir()) in (
-        ["result.json"], ["live.json", "result.json"])
+        ["result.json"], ["live.json", "live_history.jsonl", "result.json"])
     data = (session / "calibration" / "result.json").read_bytes()
     assert hashlib.sha256(data).hexdigest() == job.result_sha256
     result = json.loads(data)

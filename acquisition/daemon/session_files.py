@@ -1,0 +1,108 @@
+"""A session's quality and calibration files for clients (`session.report`, `session.file`).
+
+A client (the operator's page) names a session by id and a file by a safe relative path under
+the session's `calibration/` directory (result.json, live.json, the live history, a report and
+its figures). Nothing else of the machine can be read: the id is one safe name under the
+session root, the path a safe relative path (acquisition.safe_names) that must resolve inside
+the session directory without a symbolic link at its end, the file must be a regular file, and
+it is read only up to MAX_FILE_BYTES.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import os
+import stat
+from pathlib import Path
+
+from ..session import SessionError, SessionReader
+from ..session._layout import attempt_dir
+from .files import open_inside
+from .protocol import (
+    CalibrationFile,
+    PoseQuality,
+    SessionFileResult,
+    SessionReportResult,
+    SessionSummary,
+)
+from .run import QUALITY_FILE
+
+CALIBRATION_PREFIX = "calibration/"
+MAX_FILE_BYTES = 4 * 2**20
+"""The largest file `session.file` sends (a report figure is a few hundred kilobytes)."""
+MAX_REPORT_FILES = 200
+MAX_QUALITY_BYTES = 2**20
+
+
+def session_dir(root: Path, session_id: str) -> Path:
+    """The directory of session `session_id` (a safe name) under `root`; SessionError if
+    there is none."""
+    path = root / session_id
+    if not path.is_dir() or path.is_symlink():
+        raise SessionError(f"there is no session {session_id} in {root}")
+    return path
+
+
+def session_report(path: Path, summary: SessionSummary) -> SessionReportResult:
+    """The quality of every completed step of the session at `path`, and its calibration
+    files (SessionError if its journal cannot be read)."""
+    reader = SessionReader(path)
+    steps = []
+    for step, record in reader.steps().items():
+        quality = _quality(path / attempt_dir(step, record.attempt) / QUALITY_FILE)
+        steps.append(PoseQuality(step=step, **quality))
+    return SessionReportResult(session=summary, steps=steps, files=_calibration_files(path))
+
+
+def _quality(path: Path) -> dict:
+    """What a step's quality.json says of its images ({} when it says nothing readable)."""
+    try:
+        if path.stat().st_size > MAX_QUALITY_BYTES:
+            return {}
+        data = json.loads(path.read_bytes())
+        return {"checkerboard_found": {str(k): bool(v)
+                                       for k, v in data["checkerboard_found"].items()},
+                "warnings": [str(w) for w in data.get("warnings", [])]}
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return {}
+
+
+def _calibration_files(session: Path) -> list[CalibrationFile]:
+    """The regular files under calibration/ (no symbolic links followed), sorted."""
+    found = []
+    top = session / CALIBRATION_PREFIX.rstrip("/")
+    for directory, dirs, files in os.walk(top, followlinks=False):
+        dirs.sort()
+        for name in sorted(files):
+            full = Path(directory) / name
+            info = full.lstat()
+            if stat.S_ISREG(info.st_mode) and not name.endswith(".partial"):
+                found.append(CalibrationFile(path=str(full.relative_to(session)),
+                                             bytes=info.st_size))
+            if len(found) >= MAX_REPORT_FILES:
+                return found
+    return found
+
+
+def session_file(path: Path, relative: str) -> SessionFileResult:
+    """The bytes of `relative` (under calibration/) in the session at `path`; ValueError says
+    why a file cannot be sent."""
+    if not relative.startswith(CALIBRATION_PREFIX):
+        raise ValueError(f"{relative}: only files under {CALIBRATION_PREFIX} are sent")
+    try:
+        fd = open_inside(path, relative)
+    except OSError as exc:
+        raise ValueError(f"{relative}: cannot open it: {exc}") from None
+    try:
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode):
+            raise ValueError(f"{relative} is not a regular file")
+        if info.st_size > MAX_FILE_BYTES:
+            raise ValueError(f"{relative} has {info.st_size} bytes; at most {MAX_FILE_BYTES} "
+                             "are sent")
+        data = os.pread(fd, info.st_size, 0)
+    finally:
+        os.close(fd)
+    return SessionFileResult(path=relative, bytes=len(data),
+                             content_b64=base64.b64encode(data).decode("ascii"))

@@ -1,0 +1,445 @@
+// micam's operator page: draws the state that `micam web` sends over its WebSocket, and sends
+// the operator's commands. No framework: a state object, one render function per part.
+"use strict";
+
+const SVG = "http://www.w3.org/2000/svg";
+const WAITING = ["references", "reference_microphone", "waiting_for_pose"];
+const SESSION_STATES = [...WAITING, "session_open", "capturing", "paused"];
+let state = {};
+// For tests and benchmarks: every event's seq as it arrived, and its delay (ms) from the
+// daemon's time stamp to its arrival here (both clocks are this machine's when local).
+window.micam = { seen: [], latencies: [], updates: 0, snapshots: 0 };
+
+function el(tag, attrs = {}, text = null, ns = null) {
+  const node = ns ? document.createElementNS(ns, tag) : document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs)) node.setAttribute(k, v);
+  if (text !== null) node.textContent = text;
+  return node;
+}
+const svg = (tag, attrs = {}, text = null) => el(tag, attrs, text, SVG);
+const $ = (id) => document.getElementById(id);
+const mm = (m, digits = 3) => (m === null || m === undefined) ? "n/a" : (m * 1e3).toFixed(digits) + " mm";
+
+// -- the connection --------------------------------------------------------------------------
+
+function connect(delay = 500) {
+  const ws = new WebSocket((location.protocol === "https:" ? "wss://" : "ws://") + location.host + "/ws");
+  ws.onmessage = (message) => {
+    const data = JSON.parse(message.data);
+    if (data.kind === "snapshot") {
+      state = data.state;
+      window.micam.snapshots += 1;
+      render(Object.keys(state));
+    } else if (data.kind === "update") {
+      Object.assign(state, data.state);
+      window.micam.updates += 1;
+      if (data.event) arrived(data.event);
+      render(Object.keys(data.state).concat(data.event && data.event.line ? ["log"] : []));
+    }
+  };
+  ws.onopen = () => { delay = 500; };
+  ws.onclose = () => {
+    document.body.dataset.state = "disconnected";
+    $("daemon").textContent = "page disconnected: reconnecting";
+    $("daemon").className = "badge bad";
+    setTimeout(() => connect(Math.min(delay * 2, 5000)), delay);
+  };
+}
+
+function arrived(event) {
+  const m = window.micam;
+  m.seen.push(event.seq);
+  m.latencies.push(Date.now() - Date.parse(event.time_utc));
+  if (m.seen.length > 20000) { m.seen.splice(0, 10000); m.latencies.splice(0, 10000); }
+  if (event.line) {
+    state.log = (state.log || []).concat([{ seq: event.seq, time_utc: event.time_utc, line: event.line }]).slice(-100);
+  }
+}
+
+const RENDER = {
+  daemon: renderHeader, status: renderHeader, progress: renderHeader, describe: renderAll,
+  cameras: renderCameras, previews: renderCameras, live: renderLive, live_history: renderLive,
+  levels: renderLevels, sessions: renderSessions, log: renderLog,
+};
+
+function render(keys) {
+  const done = new Set();
+  for (const key of keys) {
+    const f = RENDER[key];
+    if (f && !done.has(f)) { done.add(f); f(); }
+  }
+  if (keys.includes("status") || keys.includes("live")) { renderCameras(); renderControls(); }
+}
+
+function renderAll() { renderHeader(); renderCameras(); renderLevels(); renderLive(); renderSessions(); renderLog(); }
+
+// -- header and control ----------------------------------------------------------------------
+
+function renderHeader() {
+  const daemon = state.daemon || {};
+  const status = state.status;
+  const badge = $("daemon");
+  badge.textContent = daemon.connected ? "daemon connected" : ("daemon unreachable: " + (daemon.error || ""));
+  badge.className = "badge " + (daemon.connected ? "good" : "bad");
+  if (!status) return;
+  document.body.dataset.state = status.state;
+  $("state").textContent = status.state.replace(/_/g, " ") + (status.simulated ? " (simulated)" : "");
+  $("state").className = "badge state-" + status.state;
+  const s = status.session;
+  $("session").textContent = s ? s.id : (status.resumable ? "no session (" + status.resumable + " can be resumed)" : "no session");
+  const progress = $("progress");
+  if (s) {
+    progress.dataset.poses = s.poses_done;
+    progress.dataset.steps = s.steps_done;
+    progress.querySelector(".bar").style.width = (100 * s.steps_done / Math.max(1, s.steps_total)) + "%";
+    progress.querySelector(".text").textContent = `${s.steps_done}/${s.steps_total} steps, ${s.poses_done}/${s.n_poses} poses`;
+  } else {
+    progress.querySelector(".bar").style.width = "0%";
+    progress.querySelector(".text").textContent = "";
+  }
+  $("instruction").textContent = status.step ? `${status.step}: ${status.instruction || ""}` : "";
+  const last = status.last_capture;
+  $("last-capture").textContent = last ? `last capture ${last.number}: ${last.step} ${last.outcome}` +
+    (last.reason ? ` (${last.reason})` : "") + (last.warnings.length ? ` (${last.warnings.join("; ")})` : "") : "";
+  renderControls();
+}
+
+function renderControls() {
+  const status = state.status;
+  const st = status ? status.state : "unknown";
+  const connected = state.daemon && state.daemon.connected;
+  const inSession = SESSION_STATES.includes(st);
+  const enable = {
+    start: st === "idle", capture: WAITING.includes(st) || st === "session_open",
+    redo: st === "capturing", pause: WAITING.includes(st) || st === "capturing",
+    resume: st === "paused", stop: inSession, abort: inSession,
+  };
+  for (const [id, on] of Object.entries(enable)) $(id).disabled = !(connected && on);
+  const d = state.describe;
+  if (d && !$("start-poses").value) $("start-poses").placeholder = String(d.n_poses);
+  const list = $("resumable");
+  const wanted = ["last"].concat(status && status.resumable ? [status.resumable] : []);
+  if (list.children.length !== wanted.length) {
+    list.replaceChildren(...wanted.map((v) => el("option", { value: v })));
+  }
+}
+
+async function command(name, args = {}, extra = {}) {
+  const message = $("message");
+  message.textContent = name + "…";
+  message.className = "message";
+  try {
+    const reply = await fetch("/api/command", {
+      method: "POST", headers: { "content-type": "application/json" },
+      body: JSON.stringify({ command: name, args, ...extra }),
+    });
+    const data = await reply.json();
+    message.textContent = data.ok ? `${name}: done` : `${name}: ${data.error}`;
+    message.className = "message " + (data.ok ? "good" : "bad");
+  } catch (error) {
+    message.textContent = `${name}: the page cannot reach micam web (${error})`;
+    message.className = "message bad";
+  }
+}
+
+function setUpControls() {
+  $("start-form").addEventListener("submit", (e) => {
+    e.preventDefault();
+    const poses = $("start-poses").value;
+    const resume = $("start-resume").value.trim();
+    command("session.start", { poses: poses ? Number(poses) : null, resume: resume || null });
+  });
+  for (const button of document.querySelectorAll("button[data-command]")) {
+    button.addEventListener("click", () => {
+      const name = button.dataset.command;
+      if (name === "session.abort") {
+        if (!window.confirm("Abort the session? It ends for good and cannot be continued.")) return;
+        command(name, {}, { confirm: true });
+      } else {
+        command(name);
+      }
+    });
+  }
+}
+
+// -- cameras and the next pose ---------------------------------------------------------------
+
+function renderCameras() {
+  const d = state.describe;
+  if (!d) return;
+  const box = $("cameras");
+  const counts = Object.fromEntries((state.cameras || []).map((c) => [c.camera, c]));
+  const previews = state.previews || {};
+  for (const name of d.cameras) {
+    let card = box.querySelector(`[data-camera="${name}"]`);
+    if (!card) {
+      card = el("figure", { "data-camera": name, class: "camera" });
+      const view = el("div", { class: "view" });
+      view.append(el("img", { alt: `preview of ${name}` }), svg("svg", { class: "overlay" }));
+      card.append(view, el("figcaption"));
+      box.append(card);
+    }
+    const p = previews[name];
+    const img = card.querySelector("img");
+    const overlay = card.querySelector("svg");
+    if (p) {
+      const src = "data:image/jpeg;base64," + p.jpeg_b64;
+      if (img.getAttribute("src") !== src) img.setAttribute("src", src);
+      overlay.setAttribute("viewBox", `0 0 ${p.width} ${p.height}`);
+      card.dataset.found = p.found ? "yes" : "no";
+    }
+    overlay.replaceChildren();
+    if (p && name === d.cameras[0]) drawHint(overlay, p);
+    const c = counts[name] || { poses_seen: 0, warning: null };
+    const caption = card.querySelector("figcaption");
+    caption.replaceChildren(
+      el("strong", {}, name), " ",
+      el("span", { class: "badge " + (p ? (p.found ? "good" : "bad") : "") }, p ? (p.found ? "board found" : "board NOT found") : "no preview"),
+      " ", el("span", { class: "poses-seen" }, `${c.poses_seen} poses seen`),
+    );
+    if (c.warning) caption.append(el("div", { class: "warning" }, c.warning));
+    card.classList.toggle("uncalibrated", Boolean(c.warning));
+  }
+  renderHint();
+}
+
+function drawHint(overlay, preview) {
+  // The poses taken (faint) and the suggested pose (dashed) on camera 0's preview.
+  const w = preview.width, h = preview.height;
+  const coverage = (state.status && state.status.coverage) || [];
+  for (const pose of coverage) {
+    overlay.append(svg("polygon", { class: "coverage", points: pose.outline.map(([x, y]) => `${x * w},${y * h}`).join(" ") }));
+  }
+  const live = state.live;
+  const hint = live && live.suggestion;
+  if (!hint || !hint.outline_px.length || !live.image_size) return;
+  const sx = w / live.image_size[0], sy = h / live.image_size[1];
+  overlay.append(svg("polygon", { class: "hint-outline", id: "hint-outline", points: hint.outline_px.map(([x, y]) => `${x * sx},${y * sy}`).join(" ") }));
+  for (const [x, y] of hint.speakers_px) overlay.append(svg("circle", { class: "hint-speaker", cx: x * sx, cy: y * sy, r: 3 }));
+}
+
+function renderHint() {
+  const box = $("hint");
+  const live = state.live;
+  const hint = live && live.suggestion;
+  box.replaceChildren();
+  if (!hint) { box.append(el("p", { class: "small" }, "the hint appears with the live calibration")); return; }
+  const side = hint.azimuth_deg >= 0 ? "right" : "left", up = hint.elevation_deg >= 0 ? "up" : "down";
+  box.append(el("p", { id: "hint-text" }, `Next pose: ${hint.distance_m.toFixed(2)} m, ${Math.abs(hint.azimuth_deg).toFixed(0)}° ${side}, ` +
+    `${Math.abs(hint.elevation_deg).toFixed(0)}° ${up} (dashed outline on ${state.describe.cameras[0]}; predicted ${mm(hint.predicted_accuracy_m)})`));
+  // Coverage in angle and distance: the poses taken (dots) and the suggestion (ring).
+  const taken = live.poses_taken || [];
+  const chart = svg("svg", { viewBox: "0 0 300 120", class: "coverage-chart", "aria-label": "coverage" });
+  chart.append(svg("text", { x: 4, y: 12, class: "axis" }, "azimuth / elevation (deg)"), svg("text", { x: 164, y: 12, class: "axis" }, "distance (m)"));
+  const ax = (a) => 70 + a * 2, ay = (e) => 66 - e * 2;
+  chart.append(svg("rect", { x: 10, y: 20, width: 120, height: 92, class: "frame" }));
+  const dmax = Math.max(hint.distance_m, ...taken.map((p) => p.distance_m)) * 1.15;
+  const dx = (d) => 160 + 130 * d / dmax;
+  chart.append(svg("line", { x1: 160, y1: 66, x2: 290, y2: 66, class: "frame" }));
+  for (const p of taken) {
+    chart.append(svg("circle", { cx: ax(p.azimuth_deg), cy: ay(p.elevation_deg), r: 3, class: "taken" }));
+    chart.append(svg("circle", { cx: dx(p.distance_m), cy: 66, r: 3, class: "taken" }));
+  }
+  chart.append(svg("circle", { cx: ax(hint.azimuth_deg), cy: ay(hint.elevation_deg), r: 6, class: "suggested" }));
+  chart.append(svg("circle", { cx: dx(hint.distance_m), cy: 66, r: 6, class: "suggested" }));
+  for (const d of [0.5, 1, 1.5, 2, 3].filter((d) => d < dmax)) {
+    chart.append(svg("text", { x: dx(d) - 6, y: 86, class: "axis" }, String(d)));
+  }
+  box.append(chart);
+}
+
+// -- levels ----------------------------------------------------------------------------------
+
+const FLOOR_DBFS = -90;
+function meter(ch, big = false) {
+  const m = el("div", { class: "meter" + (big ? " big" : "") + (ch.listening ? "" : " idle") + ch.flags.map((f) => " " + f.replace(" ", "-")).join(""), title: `${ch.name}: rms ${fmt(ch.rms_dbfs)} dBFS, peak ${fmt(ch.peak_dbfs)} dBFS, SNR ${fmt(ch.snr_db)} dB` + (ch.flags.length ? " — " + ch.flags.join(", ") : ""), "data-column": ch.column });
+  const level = el("div", { class: "level" });
+  level.style.height = pct(ch.rms_dbfs) + "%";
+  const peak = el("div", { class: "peak" });
+  peak.style.bottom = pct(ch.peak_dbfs) + "%";
+  m.append(el("div", { class: "tube" }, null), el("span", { class: "label" }, ch.label));
+  m.firstChild.append(level, peak);
+  return m;
+}
+const fmt = (v) => (v === null || v === undefined) ? "n/a" : v.toFixed(1);
+const pct = (db) => Math.max(0, Math.min(100, 100 * ((db ?? FLOOR_DBFS) - FLOOR_DBFS) / -FLOOR_DBFS));
+
+function renderLevels() {
+  const lv = state.levels;
+  const box = $("levels");
+  if (!lv) return;
+  $("levels-step").textContent = `${lv.step} ${lv.file}`;
+  box.replaceChildren();
+  if (lv.reference) {
+    const ref = el("div", { class: "board reference" });
+    ref.append(el("h3", {}, "reference microphone"), meter(lv.reference, true), el("p", { class: "small" }, lv.reference.name));
+    box.append(ref);
+  }
+  for (const group of lv.boards) {
+    const b = el("div", { class: "board", "data-board": group.board });
+    const row = el("div", { class: "meters" });
+    for (const ch of group.channels) row.append(meter(ch));
+    b.append(el("h3", {}, `board ${group.board}`), row);
+    box.append(b);
+  }
+  const flags = $("flags");
+  flags.replaceChildren();
+  const names = { clipped: "Clipped", dead: "Dead (no burst heard)", low_snr: "Low SNR" };
+  let any = false;
+  for (const [key, title] of Object.entries(names)) {
+    const list = lv.flagged[key];
+    if (list.length) { any = true; flags.append(el("p", { class: "flag " + key }, `${title}: ${list.join(", ")}`)); }
+  }
+  if (!any) flags.append(el("p", { class: "flag none" }, "no channel flagged"));
+}
+
+// -- live calibration ------------------------------------------------------------------------
+
+function colour(u, umax) {
+  // Uncertainty to colour: blue (certain) to yellow to red (uncertain), by fraction of umax.
+  const t = Math.max(0, Math.min(1, u / umax));
+  return `hsl(${240 - 240 * t}, 80%, ${45 + 10 * t}%)`;
+}
+
+function drawArray(target, mics, i, j, title, umax) {
+  target.replaceChildren();
+  target.append(svg("text", { x: 4, y: 14, class: "axis" }, title));
+  if (!mics.length) return;
+  const xs = mics.map((m) => m.position_m[i]), ys = mics.map((m) => m.position_m[j]);
+  const cx = (Math.min(...xs) + Math.max(...xs)) / 2, cy = (Math.min(...ys) + Math.max(...ys)) / 2;
+  const span = Math.max(Math.max(...xs) - Math.min(...xs), Math.max(...ys) - Math.min(...ys), 1e-3) * 1.2;
+  const s = 200 / span;
+  target.append(svg("circle", { cx: 120 - cx * s, cy: 128 - cy * s, r: 3, class: "origin" }));
+  for (const m of mics) {
+    const c = svg("circle", { cx: 120 + (m.position_m[i] - cx) * s, cy: 128 + (m.position_m[j] - cy) * s, r: 4, fill: colour(m.uncertainty_m, umax), class: "mic" });
+    c.append(svg("title", {}, `mic ${m.id}: ± ${mm(m.uncertainty_m)}`));
+    target.append(c);
+  }
+  target.append(svg("text", { x: 4, y: 236, class: "axis" }, `${(span * 1e3).toFixed(0)} mm across`));
+}
+
+function drawChart(target, points, key, scale, unit, title, target_line = null) {
+  target.replaceChildren();
+  target.append(svg("text", { x: 4, y: 14, class: "axis" }, title));
+  if (!points.length) return;
+  const xs = points.map((p) => p.poses), ys = points.map((p) => p[key] * scale);
+  const lines = target_line === null ? ys : ys.concat([target_line]);
+  const x0 = Math.min(...xs), x1 = Math.max(...xs, x0 + 1);
+  let y0 = Math.min(...lines), y1 = Math.max(...lines);
+  if (y1 - y0 < 1e-9) { y0 -= 1; y1 += 1; }
+  const X = (x) => 40 + 250 * (x - x0) / (x1 - x0), Y = (y) => 140 - 110 * (y - y0) / (y1 - y0);
+  target.append(svg("line", { x1: 40, y1: 140, x2: 290, y2: 140, class: "frame" }), svg("line", { x1: 40, y1: 30, x2: 40, y2: 140, class: "frame" }));
+  if (target_line !== null) target.append(svg("line", { x1: 40, y1: Y(target_line), x2: 290, y2: Y(target_line), class: "target" }));
+  target.append(svg("polyline", { points: points.map((p) => `${X(p.poses)},${Y(p[key] * scale)}`).join(" "), class: "series" }));
+  for (const p of points) target.append(svg("circle", { cx: X(p.poses), cy: Y(p[key] * scale), r: 3, class: "point" }));
+  target.append(svg("text", { x: 2, y: 34, class: "axis" }, y1.toPrecision(4)), svg("text", { x: 2, y: 140, class: "axis" }, y0.toPrecision(4)));
+  target.append(svg("text", { x: 40, y: 156, class: "axis" }, `poses ${x0}`), svg("text", { x: 250, y: 156, class: "axis" }, String(x1)));
+  target.append(svg("text", { x: 230, y: 14, class: "axis" }, unit));
+}
+
+function renderLive() {
+  const live = state.live;
+  const history = state.live_history || [];
+  const target = state.target_m;
+  if (!live) return;
+  const umax = Math.max(...live.microphones.map((m) => m.uncertainty_m), 1e-6);
+  $("live-summary").textContent = `${live.poses} poses: mean uncertainty ${mm(live.mean_uncertainty_m)}, predicted accuracy ` +
+    `${mm(live.predicted_accuracy_m)}${target ? ` (target ${mm(target, 2)})` : ""}, c ${live.speed_of_sound_m_s.toFixed(2)} m/s`;
+  $("live-summary").dataset.poses = live.poses;
+  $("enough").classList.toggle("hidden", !live.enough);
+  drawArray($("view-top"), live.microphones, 0, 2, "top view (x right, z forward)", umax);
+  drawArray($("view-front"), live.microphones, 0, 1, "front view (x right, y down)", umax);
+  drawChart($("chart-accuracy"), history, "predicted_accuracy_m", 1e3, "mm", "predicted accuracy", target ? target * 1e3 : null);
+  drawChart($("chart-c"), history, "speed_of_sound_m_s", 1, "m/s", "speed of sound");
+  const legend = $("uncertainty-legend");
+  legend.replaceChildren(el("span", {}, "uncertainty: "));
+  for (const f of [0, 0.25, 0.5, 0.75, 1]) {
+    const swatch = el("span", { class: "swatch" });
+    swatch.style.background = colour(f * umax, umax);
+    legend.append(swatch, el("span", {}, mm(f * umax, 2) + " "));
+  }
+}
+
+// -- sessions and reports --------------------------------------------------------------------
+
+function renderSessions() {
+  const listing = state.sessions;
+  if (!listing) return;
+  const body = $("sessions").querySelector("tbody");
+  body.replaceChildren();
+  for (const s of [...listing.sessions].reverse()) {
+    const row = el("tr", { "data-session": s.id, "data-status": s.status });
+    const open = el("button", { class: "report-button" }, "report");
+    open.addEventListener("click", () => showReport(s.id));
+    const cell = el("td");
+    cell.append(open);
+    row.append(el("td", {}, s.id), el("td", { class: "status-" + s.status }, s.status), el("td", {}, `${s.poses_done}/${s.n_poses}`),
+      el("td", {}, `${s.steps_done}/${s.steps_total}`), cell);
+    body.append(row);
+  }
+}
+
+async function showReport(id) {
+  const box = $("report");
+  box.classList.remove("hidden");
+  delete box.dataset.calibrated;
+  box.replaceChildren(el("p", {}, `reading ${id}…`));
+  const reply = await fetch(`/api/sessions/${encodeURIComponent(id)}/report`);
+  const r = await reply.json();
+  box.replaceChildren();
+  box.dataset.session = id;
+  if (r.ok === false) { box.append(el("p", { class: "bad" }, r.error)); return; }
+  const s = r.session;
+  box.append(el("h3", {}, `Report: ${s.id}`), el("p", { id: "report-summary" }, `${s.status}: ${s.poses_done}/${s.n_poses} poses, ${s.steps_done}/${s.steps_total} steps, created ${s.created_utc}`));
+  if (r.result) {
+    const res = r.result;
+    box.dataset.calibrated = "yes";
+    box.append(el("p", { id: "report-result" }, `calibration (${res.method}): ${res.n_microphones} microphones from ${res.poses} poses; ` +
+      `c ${res.speed_of_sound_m_s.toFixed(3)} ± ${(res.speed_of_sound_std_m_s || 0).toFixed(3)} m/s; median uncertainty ${mm(res.median_uncertainty_m)}` +
+      (res.residual_rms_s ? `; TOF residual RMS ${(res.residual_rms_s * 1e9).toFixed(1)} ns` : "")));
+    const umax = Math.max(...res.microphones.map((m) => m.uncertainty_m), 1e-6);
+    const views = el("div", { class: "live" });
+    const top = svg("svg", { class: "array-view", viewBox: "0 0 240 240" }), front = svg("svg", { class: "array-view", viewBox: "0 0 240 240" });
+    drawArray(top, res.microphones, 0, 2, "calibrated: top view", umax);
+    drawArray(front, res.microphones, 0, 1, "calibrated: front view", umax);
+    views.append(top, front);
+    box.append(views);
+  } else {
+    box.dataset.calibrated = "no";
+    box.append(el("p", { class: "small" }, "no final calibration yet (a worker calibrates a complete session after it closes)"));
+  }
+  const table = el("table", { class: "quality" });
+  table.append(el("tr", {}, null));
+  table.firstChild.append(el("th", {}, "step"), el("th", {}, "board found"), el("th", {}, "warnings"));
+  for (const q of r.steps) {
+    const found = Object.entries(q.checkerboard_found).map(([c, f]) => `${c} ${f ? "yes" : "NO"}`).join(", ");
+    const row = el("tr");
+    row.append(el("td", {}, q.step), el("td", {}, found), el("td", {}, q.warnings.join("; ")));
+    table.append(row);
+  }
+  box.append(el("h4", {}, "steps"), table);
+  const pictures = r.files.filter((f) => f.path.endsWith(".png"));
+  const texts = r.files.filter((f) => f.path.endsWith(".md"));
+  if (pictures.length || texts.length) box.append(el("h4", {}, "report and pictures"));
+  for (const f of texts) {
+    const pre = el("pre", { class: "report-text" });
+    box.append(pre);
+    fetch(`/api/sessions/${encodeURIComponent(id)}/files/${f.path}`).then((x) => x.text()).then((t) => { pre.textContent = t; });
+  }
+  for (const f of pictures) {
+    const fig = el("figure", { class: "picture" });
+    fig.append(el("img", { src: `/api/sessions/${encodeURIComponent(id)}/files/${f.path}`, alt: f.path }), el("figcaption", {}, f.path));
+    box.append(fig);
+  }
+  box.append(el("p", { class: "small" }, "files: " + r.files.map((f) => f.path).join(", ")));
+}
+
+// -- events ----------------------------------------------------------------------------------
+
+function renderLog() {
+  const box = $("log");
+  box.replaceChildren(...(state.log || []).slice(-40).reverse().map((l) => el("li", { "data-seq": l.seq }, l.line)));
+}
+
+setUpControls();
+connect();
