@@ -85,11 +85,11 @@ def run(args: argparse.Namespace) -> int:
     truth_path = args.truth or (args.session / "truth.json")
     if args.truth is not None and not truth_path.is_file():
         raise UserError(f"--truth {truth_path} is not a file")
+    prior = _prior(args)
     options = CalibrationOptions(
         method=args.method, latency=args.latency, speed_of_sound=args.speed_of_sound,
         refine_poses=args.refine_poses, phat=args.phat,
-        allow_interrupted=args.allow_interrupted, joint=not args.no_joint,
-        prior=_prior(args))
+        allow_interrupted=args.allow_interrupted, joint=not args.no_joint, prior=prior)
     stages = ["load", "cameras", "speakers", "times of flight", "solver", "joint fit"]
     with tqdm(total=len(stages), unit="stage", desc="calibrate") as bar:
         def on_stage(name: str) -> None:
@@ -105,7 +105,8 @@ def run(args: argparse.Namespace) -> int:
         bar.refresh()
     run_.result.write(out)
     truth = json.loads(truth_path.read_text()) if truth_path.is_file() else None
-    report = write_report(run_, args.report or out.parent / (out.stem + "-report"), truth)
+    report = write_report(run_, args.report or out.parent / (out.stem + "-report"), truth,
+                          None if prior is None else prior.positions_m)
     if args.acoular_xml is not None:
         write_acoular_xml(run_.result, args.acoular_xml)
     for line in summary_lines(run_, truth):

@@ -14,6 +14,8 @@ optional (needed for scanning the rig plane and for evaluation). When the docume
 "board_latencies_s" (truth.json) or "latency_s" (result.json), {serial: seconds}, and each
 microphone its "board", the latencies are
 applied per microphone (`ArrayGeometry.mic_latencies_s`); otherwise they are taken as 0.
+An optional "microphone_responses" (result.json: each channel's gain and phase against
+frequency, see `csm_calibration`) is read into `ArrayGeometry.responses`.
 """
 
 from __future__ import annotations
@@ -24,6 +26,8 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+
+from .csm_calibration import ChannelResponses, responses_from_document
 
 
 def _rotation(rotvec: list[float]) -> np.ndarray:
@@ -66,7 +70,8 @@ class BoardPose:
 
 @dataclass(frozen=True)
 class ArrayGeometry:
-    """Microphone ids, positions (M, 3) and channel latencies (M,), c, cameras, rig poses."""
+    """Microphone ids, positions (M, 3) and channel latencies (M,), c, cameras, rig poses,
+    and the channels' complex responses when the calibration measured them."""
 
     mic_ids: tuple[int, ...]
     mic_positions_m: np.ndarray
@@ -74,6 +79,7 @@ class ArrayGeometry:
     cameras: tuple[CameraView, ...]
     poses: dict[int, BoardPose]
     mic_latencies_s: np.ndarray
+    responses: ChannelResponses | None = None
 
     @property
     def n_mics(self) -> int:
@@ -131,7 +137,8 @@ def geometry_from_dict(doc: dict, source: str = "geometry") -> ArrayGeometry:
         raise ValueError(f"{source}: microphone positions must be (M, 3) with unique ids")
     if not c > 0:
         raise ValueError(f"{source}: speed of sound {c} m/s must be positive")
-    return ArrayGeometry(ids, positions, c, cameras, poses, latencies)
+    return ArrayGeometry(ids, positions, c, cameras, poses, latencies,
+                         responses_from_document(doc, ids, source))
 
 
 def load_geometry(path: Path) -> ArrayGeometry:
