@@ -8,12 +8,17 @@ import argparse
 import json
 import math
 import os
+from collections.abc import Mapping
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from tqdm import tqdm
 
 from ..errors import UserError
 from . import imaging_options
+
+if TYPE_CHECKING:
+    from calibration.imaging.evaluate import Evaluation, Summary
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -57,21 +62,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(run=run)
 
 
-def _cells(s, truth: bool) -> str:
+def _cells(s: Summary, truth: bool) -> str:
     cells = f"{s.count:6d}  {1e3 * s.mean_m:7.3f}  {1e3 * s.median_m:7.3f}  {1e3 * s.p95_m:7.3f}"
     if truth:
         cells += f"  {1e3 * s.truth_mean_m:7.3f}" if s.truth_mean_m is not None else "        -"
     return cells
 
 
-def _label(key) -> str:
+def _label(key: float | tuple[float, float]) -> str:
     if isinstance(key, tuple):
         lo, hi = key
         return f"{lo:.1f}-{hi:.1f} m" if math.isfinite(hi) else f">= {lo:.1f} m"
     return f"{key:.0f} Hz"
 
 
-def table(columns: dict[str, object], spacing_m: float) -> list[str]:
+def table(columns: Mapping[str, Evaluation], spacing_m: float) -> list[str]:
     """The printed summary: one block of columns per evaluation (in-sample, held-out...),
     rows for all recordings, each distance class and each band."""
     evaluations = list(columns.values())
@@ -87,12 +92,12 @@ def table(columns: dict[str, object], spacing_m: float) -> list[str]:
         "distance classes: the rig's pattern centre from camera 0 (as simulate --distance)",
         f"{'':>14}  {head}", f"{'':>14}  {sub}",
         f"{'all':>14}  " + "  ".join(_cells(e.overall(), truth) for e in evaluations)]
-    for key in evaluations[0].by_distance():
-        lines.append(f"{_label(key):>14}  " + "  ".join(
-            _cells(e.by_distance()[key], truth) for e in evaluations))
-    for key in evaluations[0].by_band():
-        lines.append(f"{_label(key):>14}  " + "  ".join(
-            _cells(e.by_band()[key], truth) for e in evaluations))
+    for distance in evaluations[0].by_distance():
+        lines.append(f"{_label(distance):>14}  " + "  ".join(
+            _cells(e.by_distance()[distance], truth) for e in evaluations))
+    for band in evaluations[0].by_band():
+        lines.append(f"{_label(band):>14}  " + "  ".join(
+            _cells(e.by_band()[band], truth) for e in evaluations))
     nodes = ", ".join(f"{name} {1e3 * e.overall().mean_node_m:.2f}"
                       for name, e in columns.items())
     lines.append(f"at the grid nodes (the paper's measure): mean {nodes} mm, the "

@@ -39,9 +39,9 @@ def localization_figure(evaluations: Mapping[str, Evaluation], title: str) -> Fi
                              color=colour)
         spread.plot(errors, np.arange(1, errors.size + 1) / errors.size, color=colour)
         if all(r.error_truth_m is not None for r in ev.rows):
-            truth = np.sort([1e3 * r.error_truth_m for r in ev.rows])
-            by_band.plot(freqs, [1e3 * s.truth_mean_m for s in bands.values()], "--",
-                         color=colour)
+            truth = np.sort([1e3 * (r.error_truth_m or 0.0) for r in ev.rows])
+            by_band.plot(freqs, [1e3 * (s.truth_mean_m or np.nan) for s in bands.values()],
+                         "--", color=colour)
             spread.plot(truth, np.arange(1, truth.size + 1) / truth.size, "--", color=colour)
             label += f" (from the truth {truth.mean():.3g} mm)"
         line.set_label(label)

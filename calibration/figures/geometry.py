@@ -19,11 +19,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from matplotlib.artist import Artist
 from matplotlib.axes import Axes
 from matplotlib.collections import EllipseCollection
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Ellipse
+from matplotlib.transforms import Bbox
 
 from .style import MINUS, PAGE_IN, PALETTE, TIMES, new_figure, styled
 
@@ -137,9 +139,8 @@ def _label_cameras(ax: Axes, cameras: tuple[CameraMark, ...], i: int, j: int,
     `LABEL_OFFSETS_PT` whose box stays inside the axes and overlaps no label placed before
     (measured on the drawn figure; the last candidate if none does), on a white box over the
     microphones."""
-    renderer = ax.figure.canvas.get_renderer()
-    frame = ax.get_window_extent(renderer)
-    placed = []
+    frame = ax.get_window_extent()
+    placed: list[Bbox] = []
     for group in camera_groups(cameras, i, j, close_mm):
         text = ", ".join(c.name for c in group)
         anchor = 1e3 * group[0].centre_m
@@ -151,7 +152,7 @@ def _label_cameras(ax: Axes, cameras: tuple[CameraMark, ...], i: int, j: int,
                 gid="camera-label", zorder=6,
                 bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.85})
             label.set_in_layout(False)
-            box = label.get_window_extent(renderer)
+            box = label.get_window_extent()
             inside = (frame.x0 <= box.x0 and box.x1 <= frame.x1 and frame.y0 <= box.y0
                       and box.y1 <= frame.y1)
             if n + 1 == len(LABEL_OFFSETS_PT) or (
@@ -237,7 +238,7 @@ def geometry_figure(picture: ArrayPicture) -> Figure:
         _label_cameras(ax, picture.cameras, i, j, 1e3 * 0.04 * extent)
     axes[1, 1].set_title("scene, top view")
     axes[1, 1].set_gid("view-scene")
-    handles = [Line2D([], [], marker="o", ls="none", mfc="none", mec="0.35", ms=4,
+    handles: list[Artist] = [Line2D([], [], marker="o", ls="none", mfc="none", mec="0.35", ms=4,
                       label=picture.reference_label if picture.reference_m is not None
                       else "calibrated position")]
     if errors is not None:

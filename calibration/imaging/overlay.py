@@ -105,7 +105,9 @@ def clean_sources(result: CleanScResult, grid: PlaneGrid) -> tuple[np.ndarray, n
         if c.index not in strongest or c.power > strongest[c.index].power:
             strongest[c.index] = c
     nodes = sorted(strongest, key=lambda i: -result.clean_map[i])
-    points = [grid.at_index(*strongest[i].subgrid) if strongest[i].subgrid is not None
-              else grid.points[i] for i in nodes]
+    points = []
+    for i in nodes:
+        subgrid = strongest[i].subgrid
+        points.append(grid.points[i] if subgrid is None else grid.at_index(*subgrid))
     return (np.array(points).reshape(-1, 3),
             np.array([result.clean_map[i] for i in nodes], dtype=np.float64))
