@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from sim.capture import SimulationOptions
@@ -11,3 +13,14 @@ from sim.capture import SimulationOptions
 def small_options() -> SimulationOptions:
     """A quick capture: one camera, 48 microphones, short bursts, two poses."""
     return SimulationOptions(array="scatter48", poses=2, mls_order=9, seed=3)
+
+
+def simulated_session(tmp_path_factory: pytest.TempPathFactory, name: str, *options: str
+                      ) -> Path:
+    """A session recorded by `micam simulate --quiet` with these options, in a new temporary
+    directory (for module-scoped fixtures)."""
+    from acquisition.cli import main
+
+    path = tmp_path_factory.mktemp(name) / "s"
+    assert main(["simulate", "--out", str(path), "--quiet", *options]) == 0
+    return path

@@ -59,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         reader = SessionReader(args.session)
         geometry = load_geometry(args.geometry)
-        settings, _ = imaging_options.corrected_settings(
+        settings, calibrated_from = imaging_options.corrected_settings(
             args, reader, geometry, ImagingSettings(fraction=args.fraction,
                                                     bands_hz=(args.band,)))
         drawn = recording_map(reader, geometry, args.pose, args.speaker, args.band, settings,
@@ -71,4 +71,7 @@ def run(args: argparse.Namespace) -> int:
           f"{args.speaker} as the geometry places it (sub-grid; its grid node "
           f"{significant(1e3 * drawn.node_error_m)} mm away on the "
           f"{significant(1e3 * drawn.spacing_m)} mm grid), {drawn.n_components} components")
+    if (args.pose, args.speaker) in calibrated_from:
+        print("note: this recording calibrated the channels (--csm-calibration), so its map "
+              "fits the speaker's position by construction; image another one to judge it")
     return 0

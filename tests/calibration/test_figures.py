@@ -14,21 +14,13 @@ import numpy as np
 import pytest
 from matplotlib.quiver import Quiver
 
-from acquisition.cli import main
 from acquisition.demo_loop import report as demo_report
+from calibration import report
 from calibration.figures.geometry import geometry_figure
 from calibration.figures.residuals import corner_residual_figure, tof_residual_figure
 from calibration.figures.study import study_figure
 from calibration.pipeline import CalibrationRun, calibrate
-from calibration.report import (
-    array_picture,
-    corner_residuals,
-    significant,
-    step_ranges,
-    summary_lines,
-    tof_residuals,
-    write_report,
-)
+from tests.conftest import simulated_session
 
 MAX_PNG_BYTES = 200_000
 
@@ -36,10 +28,8 @@ MAX_PNG_BYTES = 200_000
 @pytest.fixture(scope="module")
 def session(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Four poses of the sphere: cam1 and cam2 see the board in few of them."""
-    path = tmp_path_factory.mktemp("figures") / "s"
-    assert main(["simulate", "--out", str(path), "--poses", "4", "--mls-order", "11",
-                 "--seed", "12", "--quiet"]) == 0
-    return path
+    return simulated_session(tmp_path_factory, "figures", "--poses", "4", "--mls-order", "11",
+                             "--seed", "12")
 
 
 @pytest.fixture(scope="module")
@@ -58,7 +48,7 @@ def _views(fig):
 
 def test_geometry_views_are_equal_aspect_and_show_every_camera(run: CalibrationRun,
                                                                truth: dict) -> None:
-    picture = array_picture(run.result, truth, None, run.solution.covariance_m2,
+    picture = report.array_picture(run.result, truth, None, run.solution.covariance_m2,
                             run.measurements.cameras.uncalibrated)
     fig = geometry_figure(picture)
     fig.canvas.draw()
@@ -92,18 +82,18 @@ def test_geometry_views_are_equal_aspect_and_show_every_camera(run: CalibrationR
 
 def test_report_figures_are_titled_small_and_notes_grouped(run: CalibrationRun, truth: dict,
                                                            tmp_path: Path) -> None:
-    report = write_report(run, tmp_path / "report", truth)
+    markdown = report.write_report(run, tmp_path / "report", truth)
     for name in ("geometry.png", "residuals.png", "corners.png", "tof_quality.png"):
-        size = (report.parent / name).stat().st_size
+        size = (markdown.parent / name).stat().st_size
         assert 10_000 < size < MAX_PNG_BYTES, name
-    text = report.read_text()
+    text = markdown.read_text()
     for camera, reason in {(m.camera, m.reason) for m in run.measurements.cameras.missed}:
         lines = [ln for ln in text.splitlines() if ln.startswith(f"- {camera}:") and reason in ln]
         assert len(lines) == 1  # one line per camera and reason, not one per image
         assert re.search(r"in \d+ images? \(pose/", lines[0])
-    tof = tof_residual_figure(tof_residuals(run))
+    tof = tof_residual_figure(report.tof_residuals(run))
     assert len(tof.axes) == 6 and all(ax.get_title() for ax in tof.axes)
-    corners = corner_residual_figure(corner_residuals(run))
+    corners = corner_residual_figure(report.corner_residuals(run))
     visible = [ax for ax in corners.axes if ax.get_visible()]
     assert len(visible) == 2 * len(run.result.cameras)
     assert all(ax.get_title() for ax in visible)
@@ -113,11 +103,12 @@ def test_report_figures_are_titled_small_and_notes_grouped(run: CalibrationRun, 
 
 def test_console_numbers_keep_their_significant_digits(run: CalibrationRun,
                                                        truth: dict) -> None:
-    assert significant(0.000081, signed=True) == "+0.000081"
-    assert significant(0.0141) == "0.014" and significant(12.3) == "12" and significant(0) == "0.0"
-    assert step_ranges(["pose/0001", "pose/0002", "pose/0003", "pose/0009", "refmic"]) == (
-        "pose/0001-0003, pose/0009, refmic")
-    line = next(ln for ln in summary_lines(run, truth) if "c error" in ln)
+    assert report.significant(0.000081, signed=True) == "+0.000081"
+    assert report.significant(0.0141) == "0.014" and report.significant(12.3) == "12"
+    assert report.significant(0) == "0.0"
+    steps = ["pose/0001", "pose/0002", "pose/0003", "pose/0009", "refmic"]
+    assert report.step_ranges(steps) == "pose/0001-0003, pose/0009, refmic"
+    line = next(ln for ln in report.summary_lines(run, truth) if "c error" in ln)
     printed = float(re.search(r"c error ([-+][\d.]+) m/s", line.split(";")[-1]).group(1))
     true_error = run.result.speed_of_sound_m_s - truth["speed_of_sound_m_s"]
     assert printed == pytest.approx(true_error, rel=0.06)  # never "+0.000"

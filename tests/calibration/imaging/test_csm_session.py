@@ -11,12 +11,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from acquisition.commands import evaluate_imaging, simulate
+from acquisition.commands import evaluate_imaging
 from acquisition.errors import UserError
 from acquisition.session import SessionReader
 from calibration.imaging import load_geometry
 from calibration.imaging.csm_calibration import simulated_phase_error
 from calibration.imaging.evaluate import ImagingSettings, channel_calibration, evaluate_session
+from tests.conftest import simulated_session
 
 from .test_evaluate import run_command
 
@@ -26,10 +27,8 @@ CALIBRATION = (0, 4)
 
 @pytest.fixture(scope="module")
 def session(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("csm") / "s"
-    assert run_command(simulate, ["--out", str(out), "--poses", "2", "--mls-order", "12",
-                                  "--seed", "21", "--quiet"]) == 0
-    return out
+    return simulated_session(tmp_path_factory, "csm", "--poses", "2", "--mls-order", "12",
+                             "--seed", "21")
 
 
 def _evaluate(session: Path, settings: ImagingSettings):

@@ -9,11 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from acquisition.commands import evaluate_imaging, simulate
+from acquisition.commands import evaluate_imaging
 from acquisition.errors import UserError
 from calibration.imaging import load_geometry
 from calibration.imaging.evaluate import ImagingSettings
 from calibration.imaging.holdout import cross_validate, fold_poses
+from tests.conftest import simulated_session
 
 from .test_evaluate import run_command
 
@@ -23,10 +24,8 @@ SETTINGS = ImagingSettings(band_lo_hz=9000.0, band_hi_hz=10000.0)  # one band: 9
 @pytest.fixture(scope="module")
 def session(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Four poses with the rig's pattern centre 0.7-0.9 m from camera 0."""
-    out = tmp_path_factory.mktemp("holdout") / "s"
-    assert run_command(simulate, ["--out", str(out), "--poses", "4", "--mls-order", "11",
-                                  "--distance", "0.7", "0.9", "--seed", "13", "--quiet"]) == 0
-    return out
+    return simulated_session(tmp_path_factory, "holdout", "--poses", "4", "--mls-order", "11",
+                             "--distance", "0.7", "0.9", "--seed", "13")
 
 
 def test_folds_deal_the_poses_and_keep_enough_to_calibrate() -> None:
