@@ -103,6 +103,10 @@ class RigEntry(ConfigModel):
         default=2e-3, ge=0, le=0.05,
         description="relative standard deviation of the printed pattern's scale about the "
                     "stated square size (0.002: within about 0.2 %)")
+    speaker_diameter_m: float | None = Field(
+        default=None, gt=0, le=0.5,
+        description="the speakers' diameter: their off-axis roll-off is then taken out of "
+                    "the microphones' estimated gains")
 
 
 class CameraEntry(ConfigModel):

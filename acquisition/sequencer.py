@@ -9,8 +9,9 @@ Steps, in order (paper IV-C):
    burst recorded on every channel;
 2. `refmic`: the reference microphone on its stand, touched by the rig's reference mark, one
    image from every camera (locates the reference microphone for the speed of sound);
-3. `pose/<nnnn>` for every rig pose: one image from every camera, then every speaker's burst
-   recorded on every channel (the reference microphone stays on its stand).
+3. `pose/<nnnn>` for every rig pose: one image from every camera, a reading of the air sensor
+   (`air.json`, when there is one), then every speaker's burst recorded on every channel (the
+   reference microphone stays on its stand).
 
 A step is atomic: if anything fails inside it, its attempt is journaled as abandoned (with the
 reason) and the error propagates; the session stays open (it reads as interrupted) and the whole
@@ -27,6 +28,7 @@ import numpy as np
 
 from daq import SyncGroup, volts_to_codes
 
+from .air import AIR_FILE, AirSensor
 from .camera import Camera
 from .capture_config import CaptureConfig
 from .operator import Instruction, InstructionKind, Operator
@@ -87,6 +89,7 @@ class CaptureSequencer:
         writer: SessionWriter,
         on_progress: Callable[[Progress], None] | None = None,
         camera_timeout_s: float = 2.0,
+        air_sensor: AirSensor | None = None,
     ) -> None:
         names = [c.name for c in cameras]
         if names != [c.name for c in config.cameras]:
@@ -99,6 +102,7 @@ class CaptureSequencer:
         self.writer = writer
         self.on_progress = on_progress
         self.camera_timeout_s = camera_timeout_s
+        self.air_sensor = air_sensor
         self._board_index = {b.serial: i for i, b in enumerate(config.boards)}
         self._burst_v = config.burst.amplitude_v * mls_burst(config.burst.mls_order)
 
@@ -138,6 +142,9 @@ class CaptureSequencer:
             self._take_images(step.id)
         else:
             self._take_images(step.id)
+            if self.air_sensor is not None:
+                reading = self.air_sensor.read()
+                self.writer.write_json(step.id, AIR_FILE, reading.model_dump(mode="json"))
             for speaker in self.config.speakers:
                 self._record_speaker(step.id, speaker.index)
 

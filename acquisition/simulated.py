@@ -50,7 +50,8 @@ def prepare_simulated_capture(out: Path, options: SimulationOptions | None,
         sim = build_simulated_capture(options)
         writer = SessionWriter.create(out, capture=sim.config.model_dump(mode="json"))
         _write_json_atomic(out / TRUTH_FILE, truth_document(sim))
-    return sim, CaptureSequencer(sim.config, sim.group, sim.cameras, sim.operator, writer)
+    return sim, CaptureSequencer(sim.config, sim.group, sim.cameras, sim.operator, writer,
+                                 air_sensor=sim.air_sensor)
 
 
 def record_simulated_session(out: Path, options: SimulationOptions,

@@ -8,24 +8,36 @@ microsecond; fitted together with the corner pixels they correct the camera.
 
 Model (frames of `calibration.cameras`; x_cam = R(rvec) x + t everywhere):
 
-- corner j of the board in view (camera i, pose k): pixel = project_i(R_i (R_k B_j + t_k) + t_i)
-  with camera i's intrinsics (fx, fy, cx, cy) and OpenCV's 5 distortion coefficients, the
-  board pose k (rig -> camera 0) and camera i's transform from camera 0 (identity for camera 0);
-- time of flight from speaker s of pose k to microphone m:
-  tau = |X_m - (R_k P_s + t_k)| / c + delta_b(m) (paper eq. 15, per-board latency);
+- corner j of the board in view (camera i, pose k):
+  pixel = project_i(R_i (R_k (s B_j) + t_k) + t_i) with camera i's intrinsics (fx, fy, cx, cy)
+  and OpenCV's 5 distortion coefficients, the board pose k (rig -> camera 0), camera i's
+  transform from camera 0 (identity for camera 0) and the print's scale s (1: as stated);
+- time of flight from speaker s of pose k to microphone m (paper eq. 15, extended):
+  tau = (|X_m - (R_k (P_s + D_s) + t_k)| - d_ref) / c_k + d_ref / c_tof + delta_b(m) + e_m,
+  with D_s the speaker's offset on the rig from its stated position P_s (build tolerance and
+  acoustic centre), c_k the speed of sound during pose k, delta_b the board latency, e_m the
+  microphone's own delay, and d_ref the reference microphone's distance from the diaphragm
+  during the reference recording (measured delays are relative to that recording; the TOFs
+  handed in had d_ref / c_tof added, so the model takes it out again at the fitted c);
 - time of flight from the same source to the reference microphone on its stand (position an
-  unknown; no latency: its board is the latency gauge).
+  unknown; no latency or own delay: its board is the latency gauge and its capsule is the
+  reference recording's).
 
 Gauges, fixed explicitly: the frame is camera 0's (it has no extrinsics unknowns); the
 latency of the board recording the reference microphone is 0 (the other boards' latencies
-are relative to it, as measured); the metric scale is the printed checkerboard's (its corners
-are fixed rig coordinates).
+are relative to it, as measured). The metric scale is a confound: scaling every length and c
+by one factor leaves every observation unchanged. Only the priors break it: the print's
+stated scale (print_scale_std), the speakers' stated positions (their tolerance), and a known
+speed of sound (a thermometer). The covariance carries what is left of it.
 
 Unknowns: every camera's 9 intrinsics, the other cameras' extrinsics (6 each), every board
 pose including the reference-microphone step (6 each), the microphones (3 each), the reference
-microphone (3), c, and the latencies. Residuals are whitened: corner pixels by a per-camera
-sigma, times of flight by their predicted std times a per-kind scale; both are estimated from
-the residual scatter (median absolute deviation) at the start and again after a first pass.
+microphone (3), c (one, or one per pose), the latencies, and with their priors (`BundlePriors`)
+the microphones' own delays, the speakers' rig offsets and the print scale. Residuals are
+whitened: corner pixels by a per-camera sigma, times of flight by their predicted std times a
+per-kind scale; both are estimated from the residual scatter (median absolute deviation) at
+the start and again after each pass. The priors are Gaussian pseudo-observations with the
+stated standard deviations (never rescaled, never down-weighted).
 
 Solver: Levenberg-Marquardt on the normal equations J^T W J, which are small (about 1,100
 unknowns for 140 poses) even when J has 10^5 rows; J is sparse and analytic (OpenCV's
@@ -37,7 +49,7 @@ every unknown is the inverse of the final J^T W J.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -48,6 +60,9 @@ from scipy.spatial.transform import Rotation
 from ._blas import single_threaded_blas
 from .cameras import CameraCalibration, CameraIntrinsics, Extrinsics, Pose
 from .solver import rotated_point_jacobian
+
+FIXED = 0.0
+"""A prior standard deviation of 0 fixes the unknown at its prior mean."""
 
 _MAD_TO_SIGMA = 1.4826
 N_INTRINSICS = 9
@@ -99,6 +114,14 @@ class BundleProblem:
             gauge, latency 0).
         n_latency: number of latency unknowns.
         camera_names: camera names, camera 0 first (for the noise groups' names).
+        reference_distance_m: (n_src,) the reference microphone's distance from the
+            diaphragm in the reference recording of each source's speaker (0: the TOFs are
+            already absolute).
+        tof_speed_of_sound_m_s: the c at which reference_distance_m / c was added to the
+            TOFs handed in (the model replaces it by the fitted c).
+        speed_of_sound_of_pose: (n_pose,) index of the c unknown of each board pose (-1: a
+            pose without sources); None: one c for the whole session.
+        priors: the Gaussian priors of the optional unknowns (`BundlePriors`).
     """
 
     board_points_m: np.ndarray
@@ -115,10 +138,52 @@ class BundleProblem:
     latency_column: np.ndarray
     n_latency: int
     camera_names: tuple[str, ...]
+    reference_distance_m: np.ndarray | None = None
+    tof_speed_of_sound_m_s: float = 343.0
+    speed_of_sound_of_pose: np.ndarray | None = None
+    priors: BundlePriors | None = None
 
     @property
     def n_camera(self) -> int:
         return len(self.camera_names)
+
+    @property
+    def n_speed_of_sound(self) -> int:
+        """Number of c unknowns."""
+        c_pose = self.speed_of_sound_of_pose
+        return 1 if c_pose is None else int(np.max(c_pose, initial=-1)) + 1
+
+
+@dataclass(frozen=True)
+class BundlePriors:
+    """Gaussian priors of the unknowns that the data alone cannot pin, from what the rig's
+    description states (a standard deviation of 0 = FIXED at the mean: not an unknown).
+
+    Attributes:
+        speaker_offset_mean_m: (n_speaker, 3) expected offset of each speaker from its stated
+            rig position (e.g. an expected acoustic-centre offset along the rig's Z).
+        speaker_offset_std_m: (n_speaker, 3) its standard deviation per axis (in-plane: the
+            build tolerance; along Z: the acoustic centre's uncertainty).
+        print_scale_std: relative standard deviation of the printed pattern's scale.
+        mic_delay_std_s: standard deviation of each microphone's own delay (capsule and
+            channel group delay) about the mean of its board.
+        speed_of_sound: (c, std) a known speed of sound (a thermometer), m/s, as a prior on
+            the session's mean c; None: unknown.
+        speed_of_sound_step_m_s: standard deviation of the change of c from one pose to the
+            next, when c is fitted per pose (the air drifting).
+    """
+
+    speaker_offset_mean_m: np.ndarray
+    speaker_offset_std_m: np.ndarray
+    print_scale_std: float = FIXED
+    mic_delay_std_s: float = FIXED
+    speed_of_sound: tuple[float, float] | None = None
+    speed_of_sound_step_m_s: float = 0.01
+
+    @classmethod
+    def none(cls, n_speaker: int) -> BundlePriors:
+        """Every optional unknown fixed: the model of the ideal world."""
+        return cls(np.zeros((n_speaker, 3)), np.zeros((n_speaker, 3)))
 
 
 @dataclass(frozen=True)
@@ -131,8 +196,12 @@ class BundleState:
         poses: (n_pose, 6) rvec (rad), t (m) of every board pose, rig -> camera 0.
         microphones_m: (n_mic, 3) microphone positions, camera-0 frame.
         reference_m: (3,) the reference microphone's position on its stand.
-        speed_of_sound_m_s: c.
+        speeds_of_sound_m_s: (n_c,) c, one for the session or one per pose with sources.
         latencies_s: (n_latency,) board latencies relative to the gauge board.
+        mic_delays_s: (n_mic,) each microphone's own delay (empty: zeros).
+        speaker_offsets_m: (n_speaker, 3) each speaker's offset from its stated rig position,
+            rig frame (empty: zeros).
+        print_scale: the printed pattern's scale relative to the stated one.
     """
 
     intrinsics: np.ndarray
@@ -140,8 +209,27 @@ class BundleState:
     poses: np.ndarray
     microphones_m: np.ndarray
     reference_m: np.ndarray
-    speed_of_sound_m_s: float
+    speeds_of_sound_m_s: np.ndarray
     latencies_s: np.ndarray
+    mic_delays_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    speaker_offsets_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    print_scale: float = 1.0
+
+    @property
+    def speed_of_sound_m_s(self) -> float:
+        """The session's mean c."""
+        return float(np.mean(self.speeds_of_sound_m_s))
+
+    def completed(self, n_speaker: int) -> BundleState:
+        """The state with its optional unknowns filled in (zeros where empty)."""
+        delays = np.asarray(self.mic_delays_s, float)
+        offsets = np.asarray(self.speaker_offsets_m, float).reshape(-1, 3)
+        return replace(
+            self,
+            speeds_of_sound_m_s=np.atleast_1d(np.asarray(self.speeds_of_sound_m_s, float)),
+            mic_delays_s=delays if delays.size else np.zeros(len(self.microphones_m)),
+            speaker_offsets_m=offsets if offsets.size else np.zeros((n_speaker, 3)),
+        )
 
 
 @dataclass(frozen=True)
@@ -153,7 +241,8 @@ class BundleSolution:
         std: the same shapes as `state`'s arrays, standard deviations (from the covariance).
         covariance: full covariance of the parameter vector (see `parameter_slices`).
         parameter_slices: name -> slice of the parameter vector ("intrinsics", "extrinsics",
-            "poses", "microphones", "reference", "c", "latencies").
+            "poses", "microphones", "reference", "c", "latencies", "mic_delays",
+            "speaker_offsets", "print_scale"); fixed unknowns have zero variance.
         sigmas: noise group -> estimated sigma: pixels per coordinate for a camera's corners,
             a factor on the predicted std for the times of flight.
         corner_residuals_px: (n_view, n_corner, 2) detected minus modelled corners.
@@ -183,6 +272,13 @@ class BundleSolution:
     chi2_per_dof: float
     iterations: int
 
+    @property
+    def speed_of_sound_std_m_s(self) -> float:
+        """Standard deviation of the session's mean c."""
+        sl = self.parameter_slices["c"]
+        block = self.covariance[sl, sl]
+        return float(np.sqrt(max(float(block.sum()), 0.0)) / block.shape[0])
+
     def marginal(self, name: str, index: int, width: int) -> np.ndarray:
         """(width, width) covariance of block `index` of the named unknowns (e.g. the 6 pose
         parameters of pose 3: marginal("poses", 3, 6))."""
@@ -203,10 +299,13 @@ class _Layout:
 
     @classmethod
     def of(cls, state: BundleState) -> _Layout:
+        """The layout of a completed state (`BundleState.completed`)."""
         shapes = {
             "intrinsics": state.intrinsics.shape, "extrinsics": state.extrinsics.shape,
             "poses": state.poses.shape, "microphones": state.microphones_m.shape,
-            "reference": (3,), "c": (1,), "latencies": state.latencies_s.shape,
+            "reference": (3,), "c": state.speeds_of_sound_m_s.shape,
+            "latencies": state.latencies_s.shape, "mic_delays": state.mic_delays_s.shape,
+            "speaker_offsets": state.speaker_offsets_m.shape, "print_scale": (1,),
         }  # fmt: skip
         slices, start = {}, 0
         for name, shape in shapes.items():
@@ -217,18 +316,20 @@ class _Layout:
 
     @property
     def size(self) -> int:
-        return self.slices["latencies"].stop
+        return self.slices["print_scale"].stop
 
     def pack(self, s: BundleState) -> np.ndarray:
         return np.concatenate([s.intrinsics.ravel(), s.extrinsics.ravel(), s.poses.ravel(),
-                               s.microphones_m.ravel(), s.reference_m, [s.speed_of_sound_m_s],
-                               s.latencies_s])  # fmt: skip
+                               s.microphones_m.ravel(), s.reference_m, s.speeds_of_sound_m_s,
+                               s.latencies_s, s.mic_delays_s, s.speaker_offsets_m.ravel(),
+                               [s.print_scale]])  # fmt: skip
 
     def unpack(self, x: np.ndarray) -> BundleState:
         part = {n: x[sl].reshape(self.shapes[n]) for n, sl in self.slices.items()}
         return BundleState(part["intrinsics"], part["extrinsics"], part["poses"],
-                           part["microphones"], part["reference"], float(part["c"][0]),
-                           part["latencies"])  # fmt: skip
+                           part["microphones"], part["reference"], part["c"],
+                           part["latencies"], part["mic_delays"], part["speaker_offsets"],
+                           float(part["print_scale"][0]))  # fmt: skip
 
     def columns(self, name: str, index: np.ndarray, width: int) -> np.ndarray:
         """(n, width) parameter columns of blocks `index` of the named unknowns."""
@@ -323,12 +424,13 @@ class _Model:
         n_view, n_corner = p.corners_px.shape[:2]
         out = np.empty((n_view, n_corner, 2))
         R_pose = Rotation.from_rotvec(s.poses[:, :3]).as_matrix()
+        board = s.print_scale * p.board_points_m
         for i in range(p.n_camera):
             views = np.flatnonzero(p.view_camera == i)
             if views.size == 0:
                 continue
             k = p.view_pose[views]
-            Y = np.einsum("vab,cb->vca", R_pose[k], p.board_points_m) + s.poses[k, None, 3:]
+            Y = np.einsum("vab,cb->vca", R_pose[k], board) + s.poses[k, None, 3:]
             if i > 0:
                 rvec_i, t_i = s.extrinsics[i - 1, :3], s.extrinsics[i - 1, 3:]
                 X = Y @ Rotation.from_rotvec(rvec_i).as_matrix().T + t_i
@@ -340,12 +442,14 @@ class _Model:
                                                s.intrinsics[i, 4:])
             out[views] = projected.reshape(len(views), n_corner, 2) - p.corners_px[views]
             if trip is not None:
-                self._corner_jacobian(trip, i, views, k, s, Y, jac)
+                self._corner_jacobian(trip, i, views, k, s, Y, jac, R_pose)
         return out.ravel()
 
     def _corner_jacobian(self, trip: _Triplets, i: int, views: np.ndarray, k: np.ndarray,
-                         s: BundleState, Y: np.ndarray, jac: np.ndarray) -> None:
-        """Jacobian rows of camera i's corners: intrinsics, pose k, camera i's extrinsics."""
+                         s: BundleState, Y: np.ndarray, jac: np.ndarray,
+                         R_pose: np.ndarray) -> None:
+        """Jacobian rows of camera i's corners: intrinsics, pose k, camera i's extrinsics, the
+        print scale."""
         n_corner = self.p.corners_px.shape[1]
         rows = _corner_rows(views, n_corner)
         lay = self.layout
@@ -354,13 +458,18 @@ class _Model:
         d_pix_d_X = jac[:, 3:6].reshape(-1, 2, 3)  # per point: d(u, v) / d(x, y, z)
         R_i = (Rotation.from_rotvec(s.extrinsics[i - 1, :3]).as_matrix() if i > 0
                else np.eye(3))
-        board = np.broadcast_to(self.p.board_points_m, Y.shape).reshape(-1, 3)
+        board = np.broadcast_to(s.print_scale * self.p.board_points_m, Y.shape).reshape(-1, 3)
         pose_of_point = np.repeat(k, n_corner)
         d_Y_d_pose = np.concatenate(
             [rotated_point_jacobian(s.poses[pose_of_point, :3], board),
              np.broadcast_to(np.eye(3), (board.shape[0], 3, 3))], axis=2)
         d_pose = np.einsum("npa,ab,nbw->npw", d_pix_d_X, R_i, d_Y_d_pose).reshape(-1, 6)
         trip.add(rows, lay.columns("poses", np.repeat(pose_of_point, 2), 6), d_pose)
+        # d Y / d scale = R_k B_j (the unscaled board point, rotated)
+        d_Y_d_scale = np.einsum("nab,nb->na", R_pose[pose_of_point],
+                                np.broadcast_to(self.p.board_points_m, Y.shape).reshape(-1, 3))
+        d_scale = np.einsum("npa,ab,nb->np", d_pix_d_X, R_i, d_Y_d_scale).reshape(-1, 1)
+        trip.add(rows, np.full((rows.size, 1), lay.slices["print_scale"].start), d_scale)
         if i > 0:
             rvec_i = np.broadcast_to(s.extrinsics[i - 1, :3], (board.shape[0], 3))
             d_X_d_ext = np.concatenate(
@@ -370,17 +479,17 @@ class _Model:
             trip.add(rows, lay.columns("extrinsics", np.full(rows.size, i - 1), 6), d_ext)
 
     def _sources(self, s: BundleState) -> tuple[np.ndarray, np.ndarray]:
-        """(n_src, 3) source positions R_k P_s + t_k and (n_src, 3, 6) their derivatives by
-        pose k's (rvec, t)."""
+        """(n_src, 3) source positions R_k (P_s + D_s) + t_k and (n_src, 3, 9) their
+        derivatives by pose k's (rvec, t) and by the speaker's offset D_s."""
         p = self.p
         k, spk = p.pose_of_source, p.speaker_of_source
-        points = p.speakers_rig_m[spk]
+        points = p.speakers_rig_m[spk] + s.speaker_offsets_m[spk]
         rvec = s.poses[k, :3]
-        positions = (np.einsum("sab,sb->sa", Rotation.from_rotvec(rvec).as_matrix(), points)
-                     + s.poses[k, 3:])
-        d_pose = np.concatenate([rotated_point_jacobian(rvec, points),
-                                 np.broadcast_to(np.eye(3), (k.size, 3, 3))], axis=2)
-        return positions, d_pose
+        R = Rotation.from_rotvec(rvec).as_matrix()
+        positions = np.einsum("sab,sb->sa", R, points) + s.poses[k, 3:]
+        d_source = np.concatenate([rotated_point_jacobian(rvec, points),
+                                   np.broadcast_to(np.eye(3), (k.size, 3, 3)), R], axis=2)
+        return positions, d_source
 
     def _tofs(self, s: BundleState, sources: np.ndarray, d_sources: np.ndarray,
               trip: _Triplets | None) -> np.ndarray:
@@ -388,30 +497,113 @@ class _Model:
         p, lay = self.p, self.layout
         parts = []
         start = self.n_corner_rows
-        for src, receiver, lat_col, measured, name in (
+        d_ref = (np.zeros(p.pose_of_source.size) if p.reference_distance_m is None
+                 else p.reference_distance_m)
+        c_of_source = self.c_of_source
+        for src, receiver, lat_col, own, measured, name in (
             (self.src, s.microphones_m[self.mic], p.latency_column[self.mic],
-             p.tof_s[self.tof_valid], "microphones"),
+             s.mic_delays_s[self.mic], p.tof_s[self.tof_valid], "microphones"),
             (self.ref_valid, np.broadcast_to(s.reference_m, (self.ref_valid.size, 3)),
-             np.full(self.ref_valid.size, -1), p.reference_tof_s[self.ref_valid], "reference"),
+             np.full(self.ref_valid.size, -1), np.zeros(self.ref_valid.size),
+             p.reference_tof_s[self.ref_valid], "reference"),
         ):
             diff = receiver - sources[src]
             dist = np.linalg.norm(diff, axis=1)
             lat = np.append(s.latencies_s, 0.0)[lat_col]  # column -1: the gauge board, 0
-            parts.append(dist / s.speed_of_sound_m_s + lat - measured)
+            c_col = c_of_source[src]
+            c = s.speeds_of_sound_m_s[c_col]
+            flight = dist - d_ref[src]
+            parts.append(flight / c + d_ref[src] / p.tof_speed_of_sound_m_s + lat + own
+                         - measured)
             if trip is not None:
                 rows = start + np.arange(src.size)
-                grad = diff / (dist * s.speed_of_sound_m_s)[:, None]
+                grad = diff / (dist * c)[:, None]
                 index = self.mic if name == "microphones" else np.zeros(src.size, dtype=int)
                 trip.add(rows, lay.columns(name, index, 3), grad)
-                trip.add(rows, lay.columns("poses", p.pose_of_source[src], 6),
-                         -np.einsum("ra,raw->rw", grad, d_sources[src]))
-                trip.add(rows, np.full((src.size, 1), lay.slices["c"].start),
-                         (-dist / s.speed_of_sound_m_s**2)[:, None])
+                d_src = -np.einsum("ra,raw->rw", grad, d_sources[src])
+                trip.add(rows, lay.columns("poses", p.pose_of_source[src], 6), d_src[:, :6])
+                trip.add(rows, lay.columns("speaker_offsets", p.speaker_of_source[src], 3),
+                         d_src[:, 6:])
+                trip.add(rows, (lay.slices["c"].start + c_col)[:, None],
+                         (-flight / c**2)[:, None])
                 has = lat_col >= 0
                 trip.add(rows[has], lay.slices["latencies"].start + lat_col[has, None],
                          np.ones((has.sum(), 1)))
+                if name == "microphones":
+                    trip.add(rows, lay.slices["mic_delays"].start + self.mic[:, None],
+                             np.ones((src.size, 1)))
             start += src.size
         return np.concatenate(parts)
+
+    @property
+    def c_of_source(self) -> np.ndarray:
+        """(n_src,) the c unknown of every source."""
+        c_pose = self.p.speed_of_sound_of_pose
+        if c_pose is None:
+            return np.zeros(self.p.pose_of_source.size, dtype=int)
+        return np.asarray(c_pose)[self.p.pose_of_source]
+
+
+# ---------------------------------------------------------------------------------------------
+# Priors
+
+
+@dataclass(frozen=True)
+class _Priors:
+    """The priors as whitened linear pseudo-observations L x - b, and the unknowns they fix.
+
+    Attributes:
+        L: (n_prior, n_param) sparse, rows already divided by their standard deviation.
+        b: (n_prior,) the whitened prior means.
+        free: (n_param,) False for the unknowns fixed at their start (prior std FIXED).
+    """
+
+    L: sparse.csr_matrix
+    b: np.ndarray
+    free: np.ndarray
+
+    @classmethod
+    def of(cls, problem: BundleProblem, layout: _Layout) -> _Priors:
+        n_spk = problem.speakers_rig_m.shape[0]
+        priors = problem.priors or BundlePriors.none(n_spk)
+        free = np.ones(layout.size, dtype=bool)
+        rows: list[tuple[np.ndarray, np.ndarray, float]] = []  # (columns, weights, target)
+
+        def prior(column: int, mean: float, std: float) -> None:
+            if std == FIXED:
+                free[column] = False
+            else:
+                rows.append((np.array([column]), np.array([1.0 / std]), mean / std))
+
+        offsets = layout.slices["speaker_offsets"].start
+        mean = np.broadcast_to(priors.speaker_offset_mean_m, (n_spk, 3))
+        std = np.broadcast_to(priors.speaker_offset_std_m, (n_spk, 3))
+        for j in range(n_spk):
+            for a in range(3):
+                prior(offsets + 3 * j + a, float(mean[j, a]), float(std[j, a]))
+        prior(layout.slices["print_scale"].start, 1.0, priors.print_scale_std)
+        for m in range(layout.shapes["mic_delays"][0]):
+            prior(layout.slices["mic_delays"].start + m, 0.0, priors.mic_delay_std_s)
+        c = layout.slices["c"]
+        n_c = c.stop - c.start
+        for j in range(n_c - 1):  # the air drifts slowly from pose to pose
+            step = priors.speed_of_sound_step_m_s
+            rows.append((np.array([c.start + j, c.start + j + 1]),
+                         np.array([-1.0, 1.0]) / step, 0.0))
+        if priors.speed_of_sound is not None:
+            value, sd = priors.speed_of_sound
+            rows.append((np.arange(c.start, c.stop), np.full(n_c, 1.0 / (n_c * sd)),
+                         value / sd))
+        if not rows:
+            return cls(sparse.csr_matrix((0, layout.size)), np.zeros(0), free)
+        cols = np.concatenate([r[0] for r in rows])
+        vals = np.concatenate([r[1] for r in rows])
+        row_index = np.concatenate([np.full(r[0].size, i) for i, r in enumerate(rows)])
+        L = sparse.csr_matrix((vals, (row_index, cols)), shape=(len(rows), layout.size))
+        return cls(L, np.array([r[2] for r in rows]), free)
+
+    def residual(self, x: np.ndarray) -> np.ndarray:
+        return self.L @ x - self.b
 
 
 # ---------------------------------------------------------------------------------------------
@@ -448,42 +640,52 @@ def _huber(e: np.ndarray, widths: np.ndarray, k: float) -> tuple[np.ndarray, flo
 
 
 class _Pass:
-    """One robust Levenberg-Marquardt pass with fixed sigmas and a fixed set of kept rows."""
+    """One robust Levenberg-Marquardt pass with fixed sigmas and a fixed set of kept rows; the
+    priors enter as whitened Gaussian pseudo-observations and only the free unknowns move."""
 
     def __init__(self, model: _Model, sigma: np.ndarray, keep: np.ndarray,
-                 options: BundleOptions) -> None:
-        self.model, self.options = model, options
+                 priors: _Priors, options: BundleOptions) -> None:
+        self.model, self.priors, self.options = model, priors, options
         self.whiten = np.where(keep, 1.0 / sigma, 0.0)
         self.widths = np.ones(model.n_rows, dtype=int)
         for g in model.groups:
             self.widths[g.index] = g.width
+        self.free = np.flatnonzero(priors.free)
 
-    def cost(self, residual: np.ndarray) -> tuple[np.ndarray, float]:
-        return _huber(residual * self.whiten, self.widths, self.options.huber_k)
+    def cost(self, residual: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, float]:
+        """Huber weights of the data rows and the total cost (data plus priors)."""
+        weight, data = _huber(residual * self.whiten, self.widths, self.options.huber_k)
+        prior = self.priors.residual(x)
+        return weight, data + float(prior @ prior)
 
-    def normal_equations(self, residual: np.ndarray,
-                         jac: sparse.csr_matrix) -> tuple[np.ndarray, np.ndarray]:
-        """J^T W J (dense) and J^T W r, W the whitening squared times the Huber weights."""
-        weight, _ = self.cost(residual)
+    def normal_equations(self, residual: np.ndarray, jac: sparse.csr_matrix,
+                         x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """J^T W J + L^T L (dense) and J^T W r + L^T (L x - b) over the free unknowns, W the
+        whitening squared times the Huber weights."""
+        weight, _ = self.cost(residual, x)
         w = self.whiten**2 * weight
         weighted = jac.copy()
         weighted.data *= np.repeat(w, np.diff(jac.indptr))  # rows scaled in place: W J
-        return (jac.T @ weighted).toarray(), jac.T @ (w * residual)
+        L = self.priors.L
+        A = (jac.T @ weighted + L.T @ L).toarray()
+        g = jac.T @ (w * residual) + L.T @ self.priors.residual(x)
+        return A[np.ix_(self.free, self.free)], g[self.free]
 
     def run(self, x: np.ndarray) -> tuple[np.ndarray, int]:
         """Iterate from x until the robust cost stops decreasing; return x and iterations."""
         residual, jac = self.model.evaluate(x, jacobian=True)
-        cost = self.cost(residual)[1]
+        cost = self.cost(residual, x)[1]
         damping = 1e-4
         for iteration in range(1, self.options.max_iterations + 1):
-            A, g = self.normal_equations(residual, jac)
+            A, g = self.normal_equations(residual, jac, x)
             scale = np.sqrt(np.maximum(np.diag(A), 1e-300))
             A_s = A / scale / scale[:, None]
             while True:
                 step = _solve_spd(A_s + damping * np.eye(A.shape[0]), -g / scale) / scale
-                trial = x + step
+                trial = x.copy()
+                trial[self.free] += step
                 trial_residual, _ = self.model.evaluate(trial, jacobian=False)
-                trial_cost = self.cost(trial_residual)[1]
+                trial_cost = self.cost(trial_residual, trial)[1]
                 if trial_cost <= cost or damping > 1e12:
                     break
                 damping *= 10.0
@@ -496,6 +698,15 @@ class _Pass:
             if decrease <= self.options.tolerance * cost:
                 return x, iteration
         return x, self.options.max_iterations
+
+    def covariance(self, residual: np.ndarray, jac: sparse.csr_matrix,
+                   x: np.ndarray) -> np.ndarray:
+        """(n_param, n_param) inverse of the normal matrix over the free unknowns; the fixed
+        ones have zero rows and columns."""
+        A, _ = self.normal_equations(residual, jac, x)
+        out = np.zeros((x.size, x.size))
+        out[np.ix_(self.free, self.free)] = _inverse_spd(A)
+        return out
 
 
 def _solve_spd(A: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -524,7 +735,9 @@ def _inverse_spd(A: np.ndarray) -> np.ndarray:
 
 def fit_bundle(problem: BundleProblem, start: BundleState,
                options: BundleOptions | None = None) -> BundleSolution:
-    """The joint fit of cameras, board poses, microphones, c and latencies.
+    """The joint fit of cameras, board poses, microphones, c, latencies and, with their
+    priors (problem.priors), the microphones' own delays, the speakers' rig offsets and the
+    print scale.
 
     Passes of robust Levenberg-Marquardt, the first with sigmas estimated from the start's
     residuals, each next one with the sigmas re-estimated from the previous pass's residuals
@@ -532,27 +745,40 @@ def fit_bundle(problem: BundleProblem, start: BundleState,
     outliers not at all. Why more than two: the start's residuals hold the frozen camera's
     systematic error, so the first TOF sigma is far too large (the first pass then sides with
     the corners), and each pass gets closer to the noise. The covariance is the inverse of
-    the final J^T W J.
+    the final normal matrix (data and priors).
+
+    `start` may leave the optional unknowns None (zeros) and give one c for all poses.
 
     Raises:
         ValueError: the problem's arrays disagree in shape with the start.
     """
     options = options or BundleOptions()
+    start = _completed(problem, start)
     _check(problem, start)
     with single_threaded_blas():
         return _fit(problem, start, options)
+
+
+def _completed(problem: BundleProblem, start: BundleState) -> BundleState:
+    """`start` with its optional unknowns filled in and its c repeated per pose if needed."""
+    state = start.completed(problem.speakers_rig_m.shape[0])
+    c = state.speeds_of_sound_m_s
+    if c.size == 1 and problem.n_speed_of_sound > 1:
+        state = replace(state, speeds_of_sound_m_s=np.full(problem.n_speed_of_sound, c[0]))
+    return state
 
 
 def _fit(problem: BundleProblem, start: BundleState, options: BundleOptions) -> BundleSolution:
     """`fit_bundle` after the checks."""
     layout = _Layout.of(start)
     model = _Model(problem, layout)
+    priors = _Priors.of(problem, layout)
     x = layout.pack(start)
     keep = np.ones(model.n_rows, dtype=bool)
     sigma = _estimate_sigmas(model, model.evaluate(x, jacobian=False)[0], keep)
     iterations = 0
     for _ in range(options.max_passes):
-        fit = _Pass(model, sigma, keep, options)
+        fit = _Pass(model, sigma, keep, priors, options)
         x, n = fit.run(x)
         iterations += n
         residual = model.evaluate(x, jacobian=False)[0]
@@ -564,13 +790,14 @@ def _fit(problem: BundleProblem, start: BundleState, options: BundleOptions) -> 
         sigma, keep = new_sigma, new_keep
         if settled:
             break
-    final = _Pass(model, sigma, keep, options)
+    final = _Pass(model, sigma, keep, priors, options)
     residual, jac = model.evaluate(x, jacobian=True)
-    covariance = _inverse_spd(final.normal_equations(residual, jac)[0])
+    covariance = final.covariance(residual, jac, x)
     e = residual * final.whiten
-    dof = max(int(keep.sum()) - layout.size, 1)
-    return _solution(model, x, residual, keep, sigma, covariance, float(e @ e) / dof,
-                     iterations)
+    prior = priors.residual(x)
+    dof = max(int(keep.sum()) + prior.size - int(priors.free.sum()), 1)
+    return _solution(model, x, residual, keep, sigma, covariance,
+                     float(e @ e + prior @ prior) / dof, iterations)
 
 
 def _check(problem: BundleProblem, start: BundleState) -> None:
@@ -580,6 +807,7 @@ def _check(problem: BundleProblem, start: BundleState) -> None:
         "extrinsics": ((problem.n_camera - 1, 6), start.extrinsics.shape),
         "microphones": ((n_mic, 3), start.microphones_m.shape),
         "latencies": ((problem.n_latency,), start.latencies_s.shape),
+        "speeds of sound": ((problem.n_speed_of_sound,), start.speeds_of_sound_m_s.shape),
     }
     for name, (want, got) in expected.items():
         if want != got:

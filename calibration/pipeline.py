@@ -32,9 +32,12 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from .bundle import (
+    FIXED,
     GROUP_TOF,
+    BundlePriors,
     BundleProblem,
     BundleSolution,
     BundleState,
@@ -45,14 +48,26 @@ from .bundle import (
     refined_cameras,
 )
 from .cameras import CameraCalibration, calibrate_session
+from .plausibility import (
+    AIR_RANGE_M_S,
+    FitFigures,
+    acoustic_problems,
+    optical_problems,
+    raise_if_implausible,
+    turned_rig,
+)
+from .responses import Flights, estimate_responses, evenly_spread
 from .result import (
     CalibrationResult,
     CameraFrozenResult,
     CameraResult,
     JointFitResult,
+    MicrophoneResponse,
+    MicrophoneResponsesResult,
     MicrophoneResult,
     PoseResult,
     ResidualStats,
+    RigFitResult,
     SpeedOfSoundReference,
     TofQuality,
     TransformResult,
@@ -76,8 +91,9 @@ from .speakers import (
     reference_microphone_position,
     speaker_positions,
 )
-from .speed_of_sound import SpeedOfSoundFit, fit_speed_of_sound
+from .speed_of_sound import SpeedOfSoundFit, fit_speed_of_sound_robust
 from .times_of_flight import SessionTofs, measure_session_tofs
+from .tof import Weighting
 
 NOMINAL_SPEED_OF_SOUND_M_S = 343.0
 """Start value of c when nothing better is known (about 20 degC)."""
@@ -109,7 +125,9 @@ class CalibrationOptions:
         refine_poses: fit a rigid correction per rig pose, weighted by the camera's pose
             covariance.
         band_hz: the band the times of flight are estimated in (the speaker band).
-        phat: GCC-PHAT weighting of the correlations.
+        weighting: the correlations' spectral weighting (calibration.tof): "compact" (robust
+            to early reflections, the default), "matched" (maximum likelihood in free field)
+            or "phat".
         allow_interrupted: calibrate the completed poses of an interrupted session.
         joint: finish with the optical-acoustic bundle adjustment (method "micam" only); the
             camera-frozen solution is reported beside it.
@@ -117,6 +135,20 @@ class CalibrationOptions:
             calibration), in the session's microphone order: the solver then fits its rigid
             transform R_m, T_m into the camera-0 frame (paper IV-H), and each microphone's
             deviation from it if the prior has a deviation std. Method "micam" only.
+        speaker_offsets: the joint fit estimates where each speaker's sound comes from on the
+            rig (its offset from the stated position, held to the rig's stated tolerance in
+            the board plane and to its acoustic-centre prior along the normal).
+        print_scale: the joint fit estimates the printed pattern's scale (held to the rig's
+            stated print tolerance).
+        mic_delay_std_s: the joint fit estimates each microphone's own delay (capsule and
+            channel group delay) with this prior standard deviation; None: no such unknown.
+        speed_of_sound_per_pose: the joint fit estimates c per pose (the air drifting),
+            consecutive poses' c held together by `speed_of_sound_step_m_s`.
+        speed_of_sound_step_m_s: standard deviation of c's change from pose to pose.
+        speed_of_sound_prior: (c, std) in m/s, a known speed of sound (a measured air
+            temperature), as a prior on the session's mean c.
+        responses: estimate every microphone's complex response against frequency after the
+            joint fit (calibration.responses).
     """
 
     method: Literal["micam", "paper"] = "micam"
@@ -124,16 +156,25 @@ class CalibrationOptions:
     speed_of_sound: Literal["reference", "solve"] = "reference"
     refine_poses: bool = False
     band_hz: tuple[float, float] = (300.0, 20_000.0)
-    phat: bool = False
+    weighting: Weighting = "compact"
     allow_interrupted: bool = False
     joint: bool = True
     prior: PriorGeometry | None = None
+    speaker_offsets: bool = True
+    print_scale: bool = True
+    mic_delay_std_s: float | None = 1e-6
+    speed_of_sound_per_pose: bool = True
+    speed_of_sound_step_m_s: float = 0.01
+    speed_of_sound_prior: tuple[float, float] | None = None
+    responses: bool = True
 
 
 @dataclass
 class Measurements:
     """Everything the solver works from: the session, the cameras, the speaker positions,
-    the times of flight and the reference-microphone fit of c."""
+    the times of flight, the reference-microphone fit of c and (`air`) the (c, std) in m/s
+    that the session's air-sensor readings imply (their mean c; the std is the sensor's
+    stated accuracy, systematic, so not reduced by the number of readings)."""
 
     data: SessionData
     cameras: CameraCalibration
@@ -143,6 +184,8 @@ class Measurements:
     reference: ReferenceMicrophonePosition | None
     reference_fit: SpeedOfSoundFit | None
     timings_s: dict[str, float] = field(default_factory=dict)
+    air: tuple[float, float] | None = None
+    notes: list[str] = field(default_factory=list)
 
 
 @dataclass
@@ -207,14 +250,38 @@ def measure(path: Path, options: CalibrationOptions | None = None,
         reference = _reference_position(cams, data)
     with _timed(timings, "times of flight", on_stage):
         tofs = measure_session_tofs(data, NOMINAL_SPEED_OF_SOUND_M_S, options.band_hz,
-                                    options.phat)
+                                    options.weighting)
     located = [data.pose_steps.index(p.step) for p in speakers.poses]
-    reference_fit = None
-    if reference is not None:
-        distances = np.linalg.norm(speakers.positions_m - reference.position_m, axis=2)
-        reference_fit = fit_speed_of_sound(distances.ravel(),
-                                           tofs.reference_tof_s[located].ravel())
-    return Measurements(data, cams, speakers, located, tofs, reference, reference_fit, timings)
+    reference_fit, notes = _reference_fit(speakers, reference, tofs.reference_tof_s[located])
+    return Measurements(data, cams, speakers, located, tofs, reference, reference_fit, timings,
+                        _air(data), notes)
+
+
+def _reference_fit(speakers: SpeakerPositions, reference: ReferenceMicrophonePosition | None,
+                   tofs_s: np.ndarray) -> tuple[SpeedOfSoundFit | None, list[str]]:
+    """The paper's IV-G fit of c (robust), or None with a note when it is not air's."""
+    if reference is None:
+        return None, []
+    distances = np.linalg.norm(speakers.positions_m - reference.position_m, axis=2)
+    try:
+        fit = fit_speed_of_sound_robust(distances.ravel(), tofs_s.ravel())
+    except ValueError:
+        fit = None
+    lo, hi = AIR_RANGE_M_S
+    if fit is None or not lo <= fit.speed_of_sound_m_s <= hi:
+        found = "no fit" if fit is None else f"{fit.speed_of_sound_m_s:.1f} m/s"
+        return None, [f"the reference microphone on its stand gave no speed of sound that air "
+                      f"can have ({found}): not used; does every speaker face it?"]
+    return fit, []
+
+
+def _air(data: SessionData) -> tuple[float, float] | None:
+    """(c, std) from the air sensor's readings of the session, None without any."""
+    readings = list(data.air_readings().values())
+    if not readings:
+        return None
+    implied = np.array([r.speed_of_sound() for r in readings])
+    return float(np.mean(implied[:, 0])), float(np.mean(implied[:, 1]))
 
 
 def calibrate(path: Path, options: CalibrationOptions | None = None,
@@ -222,7 +289,9 @@ def calibrate(path: Path, options: CalibrationOptions | None = None,
     """Calibrate the session at `path`. `on_stage` is told the name of each stage as it starts.
 
     Raises CalibrationInputError (or the cameras' and speakers' own errors, all ValueError)
-    with a message that says what is missing.
+    with a message that says what is missing; ImplausibleCalibrationError (a
+    CalibrationInputError) when the result's own figures say its model is wrong
+    (calibration.plausibility), naming the likely cause.
     """
     options = options or CalibrationOptions()
     return calibrate_measured(measure(path, options, on_stage), options, on_stage=on_stage)
@@ -239,17 +308,77 @@ def calibrate_measured(m: Measurements, options: CalibrationOptions,
     with _timed(timings, "solver", on_stage):
         solution = solve(m, options, poses)
     if not (options.joint and options.method == "micam"):
+        if options.method == "micam":
+            _check_plausible(m, options, _solution_figures(m, solution, options))
         return CalibrationRun(_assemble(m, solution, options, timings), m, solution)
     with _timed(timings, "joint fit", on_stage):
         bundle = fit_joint(m, solution, options, poses)
         joint_m, joint_solution = joint_measurements(m, bundle, solution, options)
+    names = list(m.cameras.intrinsics)
+    _check_plausible(m, options, replace(
+        _solution_figures(m, joint_solution, options),
+        corner_rms_px={n: float(bundle.corner_rms_px[i]) for i, n in enumerate(names)}))
+    responses = None
+    if options.responses:
+        with _timed(timings, "responses", on_stage):
+            responses = _responses(m, bundle, solution)
     result = _assemble(joint_m, joint_solution, options, timings)
     result = result.model_copy(update={
+        "microphones": _with_delays(result.microphones, bundle, solution),
         "camera_frozen": _frozen_summary(m, solution),
-        "joint_fit": _joint_summary(m, bundle),
+        "joint_fit": _joint_summary(m, bundle, options),
+        "rig": _rig_summary(m, bundle),
+        "microphone_responses": responses,
         "notes": [*result.notes, JOINT_NOTE],
     })
     return CalibrationRun(result, joint_m, joint_solution, solution, bundle)
+
+
+def _known_speed_of_sound(m: Measurements,
+                          options: CalibrationOptions) -> tuple[float, float] | None:
+    """A measured c: the option's, else the session's air sensor's."""
+    return options.speed_of_sound_prior or m.air
+
+
+def _solution_figures(m: Measurements, sol: MicrophoneSolution,
+                      options: CalibrationOptions) -> FitFigures:
+    return FitFigures(sol.speed_of_sound_m_s, sol.speed_of_sound_std_m_s, sol.residuals_s,
+                      sol.outliers, {}, _known_speed_of_sound(m, options))
+
+
+def _check_plausible(m: Measurements, options: CalibrationOptions, fig: FitFigures) -> None:
+    """Raise ImplausibleCalibrationError if the solution's figures say its model is wrong;
+    when the times of flight fit with the rig turned by 180 degrees, say so."""
+    acoustic = acoustic_problems(fig)
+    problems = acoustic + optical_problems(fig)
+    cause = _turned_rig_fits(m, options) if acoustic else None
+    raise_if_implausible(problems, cause)
+
+
+def _turned_rig_fits(m: Measurements, options: CalibrationOptions) -> str | None:
+    """The likely cause when the camera-frozen solver fits the session with the rig's
+    pattern origin at the opposite corner (speakers 1-4, 2-3, 5-6 swapped), else None."""
+    data = m.data
+    rig = data.config.rig
+    turned = turned_rig(data.speakers_rig_m, rig.corners_x, rig.corners_y, rig.square_m)
+    config = data.config.model_copy(update={"speakers": tuple(
+        s.model_copy(update={"rig_position_m": tuple(float(v) for v in p)})
+        for s, p in zip(data.config.speakers, turned, strict=True))})
+    data_t = replace(data, config=config)
+    speakers = speaker_positions(m.cameras, data_t.speakers_rig_m, data.pose_steps)
+    fit, _ = _reference_fit(speakers, m.reference, m.tofs.reference_tof_s[m.located])
+    m_t = replace(m, data=data_t, speakers=speakers, reference_fit=fit)
+    try:
+        sol = solve(m_t, options)
+    except ValueError:
+        return None
+    if acoustic_problems(_solution_figures(m_t, sol, options)):
+        return None
+    return ("the times of flight fit with the rig turned by 180 degrees in its plane (speakers "
+            "1-4, 2-3 and 5-6 swapped): the checkerboard's origin is at the other end of the "
+            "pattern from where the description puts it, i.e. its colour convention (which "
+            "colour the square at the origin has) or its corner order is the opposite one; "
+            "correct the rig description and calibrate again")
 
 
 def _reference_position(cams: CameraCalibration,
@@ -332,6 +461,31 @@ def _latency_layout(data: SessionData, options: CalibrationOptions) -> tuple[np.
         reference_board=boards.index(ref_board) if ref_board in boards else None))
 
 
+def bundle_priors(m: Measurements, options: CalibrationOptions) -> BundlePriors:
+    """The joint fit's priors from the rig's stated tolerances and the options: each
+    speaker's offset from its stated position (in the board plane: the build tolerance;
+    along the normal: the acoustic centre's expected offset and its spread), the print's
+    scale, each microphone's own delay and a known speed of sound (the option's, else the
+    session's air sensor's)."""
+    data = m.data
+    rig = data.config.rig
+    n = data.n_speakers
+    mean = np.zeros((n, 3))
+    std = np.zeros((n, 3))
+    if options.speaker_offsets:
+        mean[:, 2] = rig.acoustic_centre_m
+        std[:, :2] = rig.speaker_tolerance_m
+        std[:, 2] = np.hypot(rig.speaker_tolerance_m, rig.acoustic_centre_std_m)
+    return BundlePriors(
+        speaker_offset_mean_m=mean, speaker_offset_std_m=std,
+        print_scale_std=rig.print_scale_std if options.print_scale else FIXED,
+        mic_delay_std_s=(FIXED if options.mic_delay_std_s is None
+                         else options.mic_delay_std_s),
+        speed_of_sound=options.speed_of_sound_prior or m.air,
+        speed_of_sound_step_m_s=options.speed_of_sound_step_m_s,
+    )
+
+
 def fit_joint(m: Measurements, frozen: MicrophoneSolution, options: CalibrationOptions,
               poses: np.ndarray | None = None, speakers: np.ndarray | None = None
               ) -> BundleSolution:
@@ -353,6 +507,12 @@ def fit_joint(m: Measurements, frozen: MicrophoneSolution, options: CalibrationO
     n_mic = len(data.mic_ids)
     board_column, n_latency = _latency_layout(data, options)
     latency_column = board_column[board_indices(data)[1]]
+    c_of_pose = None
+    if options.speed_of_sound_per_pose:
+        c_of_pose = np.full(len(board_poses), -1)
+        c_of_pose[pose_idx] = np.arange(pose_idx.size)
+    n_src = pose_idx.size * speaker_idx.size
+    priors = bundle_priors(m, options)
     problem = BundleProblem(
         board_points_m=m.cameras.board.object_points(),
         speakers_rig_m=data.speakers_rig_m,
@@ -365,6 +525,10 @@ def fit_joint(m: Measurements, frozen: MicrophoneSolution, options: CalibrationO
         reference_std_s=m.tofs.reference_std_s[rows][:, speaker_idx].ravel(),
         latency_column=latency_column[solved], n_latency=n_latency,
         camera_names=tuple(m.cameras.intrinsics),
+        reference_distance_m=np.full(n_src, data.config.reference.distance_from_speaker_m),
+        tof_speed_of_sound_m_s=NOMINAL_SPEED_OF_SOUND_M_S,
+        speed_of_sound_of_pose=c_of_pose,
+        priors=priors,
     )  # fmt: skip
     sources = _rig_sources(data, m.speakers, pose_idx, speaker_idx).positions()
     reference = multilaterate(sources, frozen.speed_of_sound_m_s
@@ -376,7 +540,8 @@ def fit_joint(m: Measurements, frozen: MicrophoneSolution, options: CalibrationO
         intrinsics=intrinsics, extrinsics=extrinsics,
         poses=np.array([[*p.rig_to_cam0.rvec, *p.rig_to_cam0.tvec] for p in board_poses]),
         microphones_m=frozen.positions_m[solved], reference_m=reference,
-        speed_of_sound_m_s=frozen.speed_of_sound_m_s, latencies_s=latencies,
+        speeds_of_sound_m_s=np.array([frozen.speed_of_sound_m_s]), latencies_s=latencies,
+        speaker_offsets_m=priors.speaker_offset_mean_m.copy(),
     )  # fmt: skip
     return fit_bundle(problem, start)
 
@@ -389,7 +554,8 @@ def joint_measurements(m: Measurements, bundle: BundleSolution, frozen: Micropho
     solved = np.flatnonzero(np.all(np.isfinite(frozen.positions_m), axis=1))
     poses = [RigPoseInCam0(p.step, p.camera, pose_estimate(bundle, k), p.rms_px)
              for k, p in enumerate(m.speakers.poses)]
-    located = [p.locate(data.speakers_rig_m) for p in poses]
+    rig_points = data.speakers_rig_m + bundle.state.speaker_offsets_m
+    located = [p.locate(rig_points) for p in poses]
     speakers = SpeakerPositions(poses, np.stack([x for x, _ in located]),
                                 np.stack([c for _, c in located]), m.speakers.unlocated)
     joint_m = replace(m, cameras=refined_cameras(m.cameras, bundle), speakers=speakers)
@@ -406,7 +572,7 @@ def joint_measurements(m: Measurements, bundle: BundleSolution, frozen: Micropho
     solution = MicrophoneSolution(
         positions_m=positions, covariance_m2=covariance,
         speed_of_sound_m_s=bundle.state.speed_of_sound_m_s,
-        speed_of_sound_std_m_s=float(bundle.std.speed_of_sound_m_s),
+        speed_of_sound_std_m_s=bundle.speed_of_sound_std_m_s,
         latency_s=np.append(bundle.state.latencies_s, 0.0)[board_column],
         latency_std_s=np.append(bundle.std.latencies_s, 0.0)[board_column],
         pose_corrections=None, pose_correction_std=None,
@@ -506,10 +672,80 @@ def _frozen_summary(m: Measurements, sol: MicrophoneSolution) -> CameraFrozenRes
     )
 
 
-def _joint_summary(m: Measurements, bundle: BundleSolution) -> JointFitResult:
+def _with_delays(mics: list[MicrophoneResult], bundle: BundleSolution,
+                 frozen: MicrophoneSolution) -> list[MicrophoneResult]:
+    """The microphones with their own delays, where the joint fit estimated them."""
+    if not bundle.std.mic_delays_s.any():
+        return mics
+    solved = np.flatnonzero(np.all(np.isfinite(frozen.positions_m), axis=1))
+    out = list(mics)
+    for i, m in enumerate(solved):
+        out[m] = mics[m].model_copy(update={
+            "delay_s": float(bundle.state.mic_delays_s[i]),
+            "delay_std_s": float(bundle.std.mic_delays_s[i])})
+    return out
+
+
+def flights(m: Measurements, bundle: BundleSolution, frozen: MicrophoneSolution,
+            pose_indices: list[int]) -> Flights:
+    """The joint fit's modelled flights from the chosen located poses' sources to every
+    microphone it placed (NaN for the others): for estimating responses."""
+    data = m.data
+    solved = np.flatnonzero(np.all(np.isfinite(frozen.positions_m), axis=1))
+    s = bundle.state
+    points = data.speakers_rig_m + s.speaker_offsets_m
+    board_column, _ = _latency_layout(data, CalibrationOptions())
+    mic_latency = np.append(s.latencies_s, 0.0)[board_column[board_indices(data)[1]]][solved]
+    n_mic = len(data.mic_ids)
+    shape = (len(pose_indices), data.n_speakers, n_mic)
+    delay, distance, sin_axis = (np.full(shape, np.nan) for _ in range(3))
+    d_ref = data.config.reference.distance_from_speaker_m
+    for row, k in enumerate(pose_indices):
+        R = Rotation.from_rotvec(s.poses[k, :3]).as_matrix()
+        sources = points @ R.T + s.poses[k, 3:]
+        diff = s.microphones_m[None] - sources[:, None]
+        dist = np.linalg.norm(diff, axis=2)
+        c = s.speeds_of_sound_m_s[k] if s.speeds_of_sound_m_s.size > 1 else s.speed_of_sound_m_s
+        delay[row][:, solved] = (dist - d_ref) / c + mic_latency
+        distance[row][:, solved] = dist
+        sin_axis[row][:, solved] = np.linalg.norm(np.cross(diff / dist[..., None], R[:, 2]),
+                                                  axis=2)
+    steps = tuple(m.speakers.poses[k].step for k in pose_indices)
+    return Flights(steps, delay, distance, sin_axis)
+
+
+def _responses(m: Measurements, bundle: BundleSolution,
+               frozen: MicrophoneSolution) -> MicrophoneResponsesResult:
+    """Every microphone's response from the joint fit's geometry (calibration.responses)."""
+    data = m.data
+    chosen = evenly_spread([p.step for p in m.speakers.poses])
+    est = estimate_responses(data, flights(m, bundle, frozen, chosen),
+                             data.config.reference.distance_from_speaker_m,
+                             bundle.state.speed_of_sound_m_s, data.config.rig.speaker_diameter_m)
+    return MicrophoneResponsesResult(
+        frequencies_hz=est.frequencies_hz.tolist(), n_sources=est.n_sources,
+        microphones=[MicrophoneResponse(
+            id=int(mic_id), gain=est.gain[i].tolist(), phase_rad=est.phase_rad[i].tolist(),
+            gain_std=est.gain_std[i].tolist(), phase_std_rad=est.phase_std_rad[i].tolist())
+            for i, mic_id in enumerate(data.mic_ids) if np.all(np.isfinite(est.gain[i]))])
+
+
+def _rig_summary(m: Measurements, bundle: BundleSolution) -> RigFitResult:
+    """The rig as the joint fit found it: speaker positions and print scale."""
+    offsets = bundle.state.speaker_offsets_m
+    std = bundle.std.speaker_offsets_m
+    return RigFitResult(
+        speakers_rig_m=[_vec(p) for p in m.data.speakers_rig_m + offsets],
+        speakers_rig_std_m=[_vec(s) for s in std], offsets_m=[_vec(o) for o in offsets],
+        print_scale=bundle.state.print_scale, print_scale_std=float(bundle.std.print_scale))
+
+
+def _joint_summary(m: Measurements, bundle: BundleSolution,
+                   options: CalibrationOptions) -> JointFitResult:
     """The joint fit's noise estimates, outliers and convergence, for the result."""
     names = list(m.cameras.intrinsics)
     view_camera = board_views(m.cameras, _bundle_steps(m)[0])[0]
+    per_pose = bundle.state.speeds_of_sound_m_s.size > 1
     return JointFitResult(
         sigmas=bundle.sigmas,
         corner_outliers={n: int(bundle.corner_outliers[view_camera == i].sum())
@@ -520,12 +756,15 @@ def _joint_summary(m: Measurements, bundle: BundleSolution) -> JointFitResult:
         iterations=bundle.iterations,
         reference_microphone_m=_vec(bundle.state.reference_m),
         reference_microphone_std_m=_vec(bundle.std.reference_m),
+        speed_of_sound_per_pose_m_s=(bundle.state.speeds_of_sound_m_s.tolist() if per_pose
+                                     else None),
+        speed_of_sound_per_pose_std_m_s=(bundle.std.speeds_of_sound_m_s.tolist() if per_pose
+                                         else None),
+        speed_of_sound_prior_m_s=options.speed_of_sound_prior or m.air,
     )
 
 
 def _camera_result(cams: CameraCalibration, name: str) -> CameraResult:
-    from scipy.spatial.transform import Rotation
-
     intr = cams.intrinsics[name]
     ext = cams.cam_from_cam0[name]
     missed = [m.step for m in cams.missed if m.camera == name]

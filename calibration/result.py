@@ -28,6 +28,10 @@ class MicrophoneResult(_Model):
     board: str
     residual_rms_s: float
     n_measurements: int
+    delay_s: float | None = Field(
+        default=None, description="the microphone's own delay (capsule and channel group "
+        "delay) relative to its board's latency, when the joint fit estimated it")
+    delay_std_s: float | None = None
 
 
 class TransformResult(_Model):
@@ -98,6 +102,18 @@ class CameraFrozenResult(_Model):
     focal_std_px: dict[str, tuple[float, float]]
 
 
+class RigFitResult(_Model):
+    """What the joint fit found of the rig: where each speaker's sound comes from (rig frame:
+    the stated position plus the fitted offset, the acoustic centre included) and the scale
+    of the printed pattern relative to its stated square size."""
+
+    speakers_rig_m: list[Vector3]
+    speakers_rig_std_m: list[Vector3]
+    offsets_m: list[Vector3] = Field(description="fitted minus stated position, rig frame")
+    print_scale: float
+    print_scale_std: float
+
+
 class JointFitResult(_Model):
     """Diagnostics of the optical-acoustic bundle adjustment (calibration.bundle)."""
 
@@ -111,6 +127,34 @@ class JointFitResult(_Model):
     iterations: int
     reference_microphone_m: Vector3
     reference_microphone_std_m: Vector3
+    speed_of_sound_per_pose_m_s: list[float] | None = Field(
+        default=None, description="c during each located pose, in the order of `poses`, "
+        "when c was fitted per pose (the air drifting)")
+    speed_of_sound_per_pose_std_m_s: list[float] | None = None
+    speed_of_sound_prior_m_s: tuple[float, float] | None = Field(
+        default=None, description="(c, std): the known speed of sound the fit was held to "
+        "(the session's air sensor, or given)")
+
+
+class MicrophoneResponse(_Model):
+    """One microphone's response relative to the array (recorded = gain e^(j phase) x ideal),
+    per band of `MicrophoneResponsesResult.frequencies_hz`."""
+
+    id: int
+    gain: list[float]
+    phase_rad: list[float]
+    gain_std: list[float]
+    phase_std_rad: list[float]
+
+
+class MicrophoneResponsesResult(_Model):
+    """Every microphone's complex response against frequency, relative to the array's median
+    gain and mean phase, after the board latencies (calibration.responses). The phase holds
+    the microphone's own delay (`microphones[].delay_s`): apply one or the other."""
+
+    frequencies_hz: list[float]
+    microphones: list[MicrophoneResponse]
+    n_sources: int
 
 
 class CalibrationResult(_Model):
@@ -133,6 +177,8 @@ class CalibrationResult(_Model):
         default=None, description="the board whose latency is 0 (records the reference mic)")
     camera_frozen: CameraFrozenResult | None = None
     joint_fit: JointFitResult | None = None
+    rig: RigFitResult | None = None
+    microphone_responses: MicrophoneResponsesResult | None = None
 
     def positions(self) -> np.ndarray:
         return np.array([m.position_m for m in self.microphones])
@@ -155,6 +201,29 @@ def write_acoular_xml(result: CalibrationResult, path: Path, name: str = "micam"
         x, y, z = mic.position_m
         lines.append(f'  <pos Name="Point {mic.id + 1}" x="{x:.6f}" y="{y:.6f}" z="{z:.6f}"/>')
     lines.append("</MicArray>")
+    path.write_text("\n".join(lines) + "\n")
+
+
+def write_acoular_calib_xml(result: CalibrationResult, path: Path,
+                            name: str = "micam") -> None:
+    """The microphones' relative sensitivities as Acoular's calibration XML
+    (`<Calib><pos Name factor/>`, read by `acoular.Calib(file=...)`), in microphone-id order.
+
+    Acoular multiplies each channel by its factor, so the factor is 1 / gain, the gain being
+    the median over the bands of `microphone_responses` (Acoular's calibration of time data
+    is one number per channel; the phases stay in result.json).
+
+    Raises:
+        ValueError: the result has no microphone responses.
+    """
+    if result.microphone_responses is None:
+        raise ValueError("the result has no microphone responses (calibrate with the joint "
+                         "fit to estimate them)")
+    gain = {r.id: float(np.median(r.gain)) for r in result.microphone_responses.microphones}
+    lines = ['<?xml version="1.0" encoding="utf-8"?>', f"<Calib name={quoteattr(name)}>"]
+    for mic in sorted(result.microphones, key=lambda m: m.id):
+        lines.append(f'  <pos Name="Point {mic.id + 1}" factor="{1.0 / gain[mic.id]:.6f}"/>')
+    lines.append("</Calib>")
     path.write_text("\n".join(lines) + "\n")
 
 

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from acquisition.air import AIR_FILE, AirReading
 from acquisition.capture_config import CaptureConfig
 from acquisition.session import SessionError, SessionReader
 
@@ -75,6 +76,12 @@ class SessionData:
             codes, _ = self.reader.read_recording(step, f"speaker_{s.index}.wav")
             out.append(codes.T)
         return np.asarray(out, dtype=np.float32)
+
+    def air_readings(self) -> dict[str, AirReading]:
+        """The air sensor's reading of every pose step that has one (step -> reading)."""
+        steps = self.reader.steps()
+        return {step: AirReading.model_validate(self.reader.read_json(step, AIR_FILE))
+                for step in self.pose_steps if AIR_FILE in steps[step].files}
 
     def images(self, step: str) -> dict[str, np.ndarray]:
         """The images of a step by camera name (cameras whose image is missing are left out)."""

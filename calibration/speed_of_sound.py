@@ -1,4 +1,5 @@
-"""Speed of sound: the paper's camera-scaled fit (section IV-G) and the Cramer (1993) formula.
+"""Speed of sound: the paper's camera-scaled fit (section IV-G). (The speed of sound of air
+from its temperature and humidity, Cramer's formula, is `acquisition.air.speed_of_sound`.)
 
 Why fit c instead of measuring temperature: the microphone solver only sees ranges c * TOF
 against source positions measured by the camera. An error in the camera's metric scale
@@ -103,48 +104,23 @@ def fit_speed_of_sound(
     )
 
 
-# Cramer (1993), J. Acoust. Soc. Am. 93(5) 2510-2516, Table III, coefficients a0..a15.
-_CRAMER = (
-    331.5024, 0.603055, -0.000528, 51.471935, 0.1495874, -0.000782, -1.82e-7, 3.73e-8,
-    -2.93e-10, -85.20931, -0.228525, 5.91e-5, -2.835149, -2.15e-13, 29.179762, 0.000486,
-)  # fmt: skip
-
-
-def speed_of_sound_from_temperature(
-    temperature_c: float | np.ndarray,
-    relative_humidity: float | np.ndarray = 0.5,
-    pressure_pa: float | np.ndarray = 101_325.0,
-    co2_mole_fraction: float = 0.0004,
-) -> float | np.ndarray:
-    """Speed of sound in air (m/s) from Cramer's (1993) formula.
-
-    Accuracy: Cramer states an uncertainty below 300 ppm (about 0.1 m/s) for 0-30 degC,
-    60-110 kPa, water-vapour mole fraction up to 0.06 and CO2 up to 1 %. In practice the
-    thermometer dominates: c changes by 0.6 m/s per kelvin and by ~0.6 m/s between dry and
-    saturated air at 20 degC, so the paper's +-0.1 m/s needs +-0.17 K. The water-vapour mole
-    fraction uses the enhancement factor and saturation vapour pressure of Davis (1992),
-    as in Cramer's appendix.
-
-    Args:
-        temperature_c: air temperature in degC.
-        relative_humidity: 0..1.
-        pressure_pa: static pressure in Pa.
-        co2_mole_fraction: 0.0004 (400 ppm) by default.
-    """
-    t = np.asarray(temperature_c, dtype=float)
-    p = np.asarray(pressure_pa, dtype=float)
-    kelvin = t + 273.15
-    enhancement = 1.00062 + 3.14e-8 * p + 5.6e-7 * t**2
-    saturation = np.exp(1.2811805e-5 * kelvin**2 - 1.9509874e-2 * kelvin + 34.04926034
-                        - 6.3536311e3 / kelvin)  # fmt: skip
-    xw = np.asarray(relative_humidity, dtype=float) * enhancement * saturation / p
-    xc = co2_mole_fraction
-    a = _CRAMER
-    c = (
-        a[0] + a[1] * t + a[2] * t**2
-        + (a[3] + a[4] * t + a[5] * t**2) * xw
-        + (a[6] + a[7] * t + a[8] * t**2) * p
-        + (a[9] + a[10] * t + a[11] * t**2) * xc
-        + a[12] * xw**2 + a[13] * p**2 + a[14] * xc**2 + a[15] * xw * p * xc
-    )  # fmt: skip
-    return float(c) if c.ndim == 0 else c
+def fit_speed_of_sound_robust(distances_m: np.ndarray, tofs_s: np.ndarray,
+                              threshold: float = 4.0, max_rounds: int = 10) -> SpeedOfSoundFit:
+    """`fit_speed_of_sound` with outliers left out: pairs whose distance residual exceeds
+    `threshold` robust sigmas (1.4826 x median |residual|) are dropped and the line refitted
+    until the kept set settles. Why: a reference microphone on its stand that a tilted rig
+    turns its back on hears a reflection first now and then (milliseconds late), and one
+    such pair moves c by metres per second."""
+    d = np.asarray(distances_m, dtype=float).ravel()
+    t = np.asarray(tofs_s, dtype=float).ravel()
+    keep = np.isfinite(d) & np.isfinite(t)
+    fit = fit_speed_of_sound(d[keep], t[keep])
+    for _ in range(max_rounds):
+        residual = np.abs(d - fit.speed_of_sound_m_s * t)
+        sigma = 1.4826 * float(np.median(residual[keep]))
+        new_keep = np.isfinite(d) & np.isfinite(t) & (residual <= threshold * max(sigma, 1e-9))
+        if np.array_equal(new_keep, keep) or new_keep.sum() < 3:
+            break
+        keep = new_keep
+        fit = fit_speed_of_sound(d[keep], t[keep])
+    return fit

@@ -17,7 +17,7 @@ import numpy as np
 from scipy import fft as sfft
 
 from .session_data import SessionData
-from .tof import TofEstimate, estimate_delays, tof_from_delay
+from .tof import TofEstimate, Weighting, estimate_delays, tof_from_delay
 
 MAX_RANGE_M = 6.0
 """Longest path searched for a correlation peak; later peaks are reflections."""
@@ -83,7 +83,7 @@ def measure_session_tofs(
     data: SessionData,
     speed_of_sound_m_s: float,
     band_hz: tuple[float, float] = (300.0, 20_000.0),
-    phat: bool = False,
+    weighting: Weighting = "compact",
     on_pose: Callable[[str], None] | None = None,
 ) -> SessionTofs:
     """Times of flight of every pose of `data`.
@@ -103,7 +103,7 @@ def measure_session_tofs(
     # Bursts are recorded with silence before and after, so zero-padding to a fast FFT length
     # changes nothing but the speed (19 k samples is 19 x 997: a slow length).
     n_fft = sfft.next_fast_len(data.config.burst.n_samples, real=True)
-    settings = (band_hz, phat, window, n_fft, tuple(columns.tolist()),
+    settings = (band_hz, weighting, window, n_fft, tuple(columns.tolist()),
                 _recording_hashes(data, "reference/{}"))
     parts = []
     for step in data.pose_steps:
@@ -113,7 +113,8 @@ def measure_session_tofs(
             if references is None:
                 references = data.references()
             recordings = data.pose_recordings(step)[:, columns, :]
-            est = estimate_delays(recordings, references, data.fs, band=band_hz, phat=phat,
+            est = estimate_delays(recordings, references, data.fs, band=band_hz,
+                                  weighting=weighting,
                                   delay_window_s=window, n_fft=n_fft)
             _remember(key, est)
         parts.append((tof_from_delay(est.delay_s, d_ref, speed_of_sound_m_s), est.std_s,

@@ -17,6 +17,18 @@ whose derivatives are analytic. This is the maximum-likelihood delay for white n
 W_k = 1; it is unbiased for any fractional delay and reaches the Cramer-Rao bound
 (`delay_crlb`) above the threshold SNR.
 
+Weightings W_k (`estimate_delays(weighting=...)`):
+- "compact" (the default): the reference deconvolved out, W_k = hann_k / <|X_k|^2> (the
+  reference's power spectrum smoothed over 40 Hz), so that the correlation is the relative
+  impulse response seen through a Hann window over the band: a pulse whose sidelobes fall
+  fast. Why: a reflection arriving 0.2 ms after the direct sound (a table below the array;
+  amplitude up to 0.9 of the direct) leaves its correlation tails on the direct peak; with
+  the plain band (a brick wall in frequency, tails falling as 1/n) that biased delays by up
+  to 0.44 us (96 ns RMS) in the simulated room, with this pulse 12 ns RMS. It costs a
+  little precision in white noise: 5.0 ns where the Cramer-Rao bound is 4.0 ns (30 dB).
+- "matched": W_k = 1, the maximum-likelihood delay in free field (reaches the bound).
+- "phat": W_k = 1 / |Y_k X_k^*| (GCC-PHAT).
+
 The correlation is circular over `n_fft` samples (default: the recording length). That is
 exact for a periodic MLS in steady state (one period per recording) and for bursts followed
 by silence longer than the largest delay; otherwise pass a larger `n_fft` to zero-pad.
@@ -25,9 +37,13 @@ by silence longer than the largest delay; otherwise pass a larger `n_fft` to zer
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 from scipy import fft as sfft
+from scipy.ndimage import uniform_filter1d
+
+Weighting = Literal["compact", "matched", "phat"]
 
 # Working-set budget (elements of the largest (chunk, channel, bin) array) per batch, so
 # that thousands of recordings of 72 channels do not need gigabytes at once.
@@ -35,6 +51,12 @@ _CHUNK_ELEMENTS = 8_000_000
 _NEWTON_ITERATIONS = 8
 _NEWTON_TOL_SAMPLES = 1e-7
 _PHASOR_BLOCK = 64  # see _phasors
+_COMPACT_SMOOTHING_HZ = 40.0
+"""Width of the moving average of the reference's power spectrum that "compact" divides by
+(about 7 x fs / burst length for an order-14 MLS at 96 kHz): it keeps the dips of a burst's
+spectrum from amplifying the noise, and leaves the pulse compact (measured on the simulated
+room: 4 / 8 / 16 / 32 bins of 4.9 Hz gave 13.9 / 12.0 / 18.7 / 30 ns RMS with the room,
+5.0 / 5.0 / 4.9 / 4.9 ns in white noise, where the bound is 4.0 ns)."""
 
 
 @dataclass(frozen=True)
@@ -78,10 +100,11 @@ def estimate_delays(
     references: np.ndarray,
     fs: float,
     band: tuple[float, float] = (300.0, 20000.0),
-    phat: bool = False,
+    weighting: Weighting = "compact",
     delay_window_s: tuple[float, float] | None = None,
     n_fft: int | None = None,
     sidelobe_guard_s: float = 5e-4,
+    first_arrival: float = 0.5,
 ) -> TofEstimate:
     """Delay of every array channel relative to its recording's reference, batched.
 
@@ -91,13 +114,17 @@ def estimate_delays(
         fs: sample rate in Hz.
         band: (f_lo, f_hi) in Hz: only these bins enter the correlation (the speaker band; out
             of band there is only noise).
-        phat: whiten the cross-spectrum (GCC-PHAT). Buys robustness to reverberation and
-            coloured interference, costs variance in white noise (~2x the bound).
+        weighting: the correlation's spectral weighting (module docstring): "compact"
+            (robust to early reflections), "matched" (maximum likelihood in free field) or
+            "phat" (GCC-PHAT).
         delay_window_s: (min, max) delay in seconds searched for the peak; None searches all
             circular lags in [-n_fft/2, n_fft/2). Use it to gate out late reflections.
         n_fft: correlation length (>= n_samples); see the module docstring.
         sidelobe_guard_s: half-width in seconds of the main lobe excluded from the
             peak-to-sidelobe ratio.
+        first_arrival: the delay is that of the earliest correlation peak in the window that
+            reaches this fraction of the window's highest one (the direct sound arrives first;
+            a reflection can be stronger); 1 takes the highest peak.
 
     Returns:
         TofEstimate with (n_rec, n_ch) arrays.
@@ -129,9 +156,10 @@ def estimate_delays(
             fs,
             bins,
             n_fft,
-            phat,
+            weighting,
             window,
             guard,
+            first_arrival,
         )
         for i in range(0, n_rec, chunk)
     ]
@@ -157,18 +185,20 @@ def _estimate_chunk(
     fs: float,
     bins: np.ndarray,
     n_fft: int,
-    phat: bool,
+    weighting: Weighting,
     window: np.ndarray,
     guard: int,
+    first_arrival: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """estimate_delays on a chunk of recordings; returns (delay, std, snr_db, psr_db)."""
     X = sfft.rfft(ref, n_fft, axis=-1, workers=-1)[:, None, bins]  # (r, 1, K)
     Y = sfft.rfft(rec, n_fft, axis=-1, workers=-1)[..., bins]  # (r, ch, K)
     cross = Y * np.conj(X)
-    weighted = cross / np.maximum(np.abs(cross), np.finfo(float).tiny) if phat else cross
+    weighted = _weighted(cross, X, weighting,
+                         max(1, round(_COMPACT_SMOOTHING_HZ * n_fft / fs)))
 
     corr = _integer_lag_correlation(weighted, bins, n_fft)
-    peak = np.argmax(np.where(window, corr, -np.inf), axis=-1)
+    peak = _first_arrival(corr, window, first_arrival)
     psr_db = _peak_to_sidelobe_db(corr, peak, guard)
 
     start = peak + _parabolic_offset(corr, peak)
@@ -177,6 +207,41 @@ def _estimate_chunk(
 
     std_s, snr_db = _quality(X, Y, cross, bins, n_fft, tau, fs)
     return tau / fs, std_s, snr_db, psr_db
+
+
+def _first_arrival(corr: np.ndarray, window: np.ndarray, fraction: float) -> np.ndarray:
+    """Lag index (...) of the earliest local maximum inside `window` that reaches `fraction`
+    of the window's largest correlation: the direct sound, which arrives first even when a
+    reflection is stronger (a speaker turned away from a microphone radiates more towards a
+    table than towards it). fraction = 1 picks the largest peak."""
+    n = corr.shape[-1]
+    lags = np.arange(n)
+    order = np.argsort(np.where(lags >= (n + 1) // 2, lags - n, lags)[window], kind="stable")
+    index = np.flatnonzero(window)[order]  # window's lag indices, earliest first
+    values = corr[..., index]
+    top = values.max(axis=-1, keepdims=True)
+    left = corr[..., (index - 1) % n]
+    right = corr[..., (index + 1) % n]
+    candidate = (values >= fraction * top) & (values >= left) & (values >= right)
+    return index[np.argmax(candidate, axis=-1)]
+
+
+def _weighted(cross: np.ndarray, X: np.ndarray, weighting: Weighting,
+              smoothing_bins: int) -> np.ndarray:
+    """The cross-spectrum (..., K) with the weighting W_k of the module docstring
+    (`smoothing_bins`: the width of the moving average of |X_k|^2 for "compact")."""
+    tiny = np.finfo(float).tiny
+    if weighting == "matched":
+        return cross
+    if weighting == "phat":
+        return cross / np.maximum(np.abs(cross), tiny)
+    if weighting == "compact":
+        k = cross.shape[-1]
+        hann = 0.5 - 0.5 * np.cos(2.0 * np.pi * (np.arange(k) + 0.5) / k)
+        power = uniform_filter1d(X.real**2 + X.imag**2, smoothing_bins, axis=-1, mode="nearest")
+        scale = np.mean(power, axis=-1, keepdims=True)  # keeps the values' magnitude
+        return cross * (hann * scale / np.maximum(power, tiny * scale + tiny))
+    raise ValueError(f"unknown weighting {weighting!r}; choose compact, matched or phat")
 
 
 def _integer_lag_correlation(weighted: np.ndarray, bins: np.ndarray, n_fft: int) -> np.ndarray:

@@ -23,6 +23,7 @@ import numpy as np
 
 from daq import CODE_FULL_SCALE, InputChannel, board_model, volts_to_codes
 
+from .arrivals import SpeakerState, linear_phase, transfer_functions
 from .sound import creeping_path_length, fft_length, propagate
 from .world import World
 
@@ -68,8 +69,11 @@ class _Scan:
 
     number: int
     drives: dict[int, np.ndarray]  # speaker index -> drive volts from sample 0
-    rig_pose_speakers: np.ndarray  # (n_speakers, 3) speaker positions at trigger time
+    rig_pose_speakers: np.ndarray  # (n_speakers, 3) speaker diaphragms at trigger time
+    rig_normal: np.ndarray  # (3,) out of the rig's printed face at trigger time
     reference_mic_m: np.ndarray | None
+    reference_near_speaker: int | None  # the reference microphone is in its near field
+    speed_of_sound_m_s: float  # the air at trigger time
     signals: dict[tuple[int, int], np.ndarray] | None = None  # (board, channel) -> volts
 
 
@@ -93,6 +97,7 @@ class AcousticBench:
         self._pending: dict[int, np.ndarray] = {}
         self._scan_number = 0
         self._scans: dict[int, _Scan] = {}
+        self._capsule_cache: dict[tuple[int, bool], np.ndarray] = {}
         self._cond = threading.Condition()
 
     def board_index(self, serial: str) -> int:
@@ -116,8 +121,10 @@ class AcousticBench:
             self._scan_number += 1
             n = self._scan_number
             w = self.world
-            self._scans[n] = _Scan(n, self._pending, w.speaker_positions(),
-                                   None if w.reference_mic_m is None else w.reference_mic_m.copy())
+            self._scans[n] = _Scan(
+                n, self._pending, w.speaker_positions(), w.rig_normal(),
+                None if w.reference_mic_m is None else w.reference_mic_m.copy(),
+                w.reference_near_speaker, w.speed_of_sound_m_s)
             self._pending = {}
             for old in [k for k in self._scans if k < n - 2]:
                 del self._scans[old]
@@ -172,10 +179,12 @@ class AcousticBench:
         return np.concatenate(chunks)[offset: offset + n] * sigma
 
     def _render(self, scan: _Scan) -> dict[tuple[int, int], np.ndarray]:
-        """Noise-free input voltages of every wired channel for one scan."""
+        """Noise-free input voltages of every wired channel for one scan (the lab's ambient
+        noise, a deterministic function of the scan, included)."""
         w = self.world
         layout = w.layout
         fs = w.sample_rate_hz
+        c = scan.speed_of_sound_m_s
         signals: dict[tuple[int, int], np.ndarray] = {}
         if not scan.drives:
             return signals
@@ -195,21 +204,106 @@ class AcousticBench:
         gain = np.concatenate(gains) * w.speaker_pressure_gain
         n_drive = max(len(d) for d in scan.drives.values())
         max_range = 4.0 + float(np.max(np.linalg.norm(receivers, axis=1)))
-        n_out = n_drive + int(np.ceil((max_range / w.speed_of_sound_m_s + latency.max()) * fs))
+        if w.lab.room is not None:
+            max_range += 2 * float(np.max(np.abs(w.lab.room.walls_m)))
+        n_out = n_drive + int(np.ceil((max_range / c + latency.max()) * fs))
         n_out += TAIL_SAMPLES
         n_fft = fft_length(n_out + TAIL_SAMPLES)
         freqs = np.fft.rfftfreq(n_fft, 1 / fs)
         response = w.speaker.frequency_response(freqs, fs)
-        total = np.zeros((len(keys), n_out))
-        for speaker, drive in scan.drives.items():
-            source = scan.rig_pose_speakers[speaker]
-            paths = self._path_lengths(source, receivers, n_mics=len(mic_keys))
-            spectrum = np.fft.rfft(drive, n_fft) * response
-            total += propagate(spectrum, n_fft, fs, paths / w.speed_of_sound_m_s + latency,
-                               gain / paths, n_out)
+        if w.lab.names:
+            total = self._render_lab(scan, receivers, len(mic_keys), latency,
+                                     np.concatenate(gains), n_fft, n_out, response)
+        else:
+            total = np.zeros((len(keys), n_out))
+            for speaker, drive in scan.drives.items():
+                source = scan.rig_pose_speakers[speaker]
+                paths = self._path_lengths(source, receivers, n_mics=len(mic_keys))
+                spectrum = np.fft.rfft(drive, n_fft) * response
+                total += propagate(spectrum, n_fft, fs, paths / c + latency, gain / paths,
+                                   n_out)
         for key, row in zip(keys, total, strict=True):
             signals[key] = row
         return signals
+
+    def _render_lab(self, scan: _Scan, receivers: np.ndarray, n_mics: int, latency: np.ndarray,
+                    sensitivity: np.ndarray, n_fft: int, n_out: int, response: np.ndarray
+                    ) -> np.ndarray:
+        """`_render`'s signals (n_receivers, n_out) in the realistic lab (sim.lab): every
+        path of sim.arrivals, each receiver's sensitivity and capsule response, the ambient
+        noise."""
+        w = self.world
+        lab = w.lab_truth
+        fs = w.sample_rate_hz
+        c = scan.speed_of_sound_m_s
+        freqs = np.fft.rfftfreq(n_fft, 1 / fs)
+        capsule = self._capsules(n_fft, receivers.shape[0] > n_mics)
+        near = np.zeros(receivers.shape[0], dtype=bool)
+        if scan.reference_near_speaker is not None and receivers.shape[0] > n_mics:
+            near[n_mics:] = True
+        # latency, sensitivity and capsule of every receiver, shared by every path
+        receiver_part = (capsule * sensitivity[:, None]
+                         * linear_phase(latency, freqs[1], freqs.size))
+        spectra = np.zeros_like(receiver_part)
+        radius = w.rig.speaker_diameter_m / 2
+        for speaker, drive in scan.drives.items():
+            state = SpeakerState(speaker, scan.rig_pose_speakers[speaker], scan.rig_normal,
+                                 radius)
+            is_near = near & (scan.reference_near_speaker == speaker)
+            transfer = transfer_functions(lab, w.lab.room, state, receivers, is_near, freqs, c,
+                                          w.lab.directivity)
+            spectra += transfer * (np.fft.rfft(drive, n_fft) * response)[None, :]
+        spectra *= w.speaker_pressure_gain
+        if w.lab.ambient_noise is not None:
+            spectra += self._ambient_spectra(scan, receivers, freqs, n_fft)
+        spectra *= receiver_part
+        return np.fft.irfft(spectra, n=n_fft, axis=1)[:, :n_out]
+
+    def _capsules(self, n_fft: int, with_reference: bool) -> np.ndarray:
+        """(n_mics [+ 1], n_freq) capsule responses on the rFFT grid of n_fft (remembered:
+        the responses never change)."""
+        key = (n_fft, with_reference)
+        if key not in self._capsule_cache:
+            lab = self.world.lab_truth
+            freqs = np.fft.rfftfreq(n_fft, 1 / self.world.sample_rate_hz)
+            rows = [lab.mic_response(freqs)]
+            if with_reference:
+                rows.append(lab.reference_response(freqs)[None, :])
+            self._capsule_cache[key] = np.vstack(rows)
+        return self._capsule_cache[key]
+
+    def _ambient_spectra(self, scan: _Scan, receivers: np.ndarray, freqs: np.ndarray,
+                         n_fft: int) -> np.ndarray:
+        """rFFT (n_receivers, n_freq) of the lab's low-frequency ambient noise during `scan`,
+        as the voltage of a microphone of unit sensitivity: plane waves from the lab's fixed
+        directions plus an incoherent part. Seeded by the world's seed and the scan, like the
+        input noise."""
+        w = self.world
+        amb = w.lab.ambient_noise
+        assert amb is not None
+        rng = np.random.default_rng([w.seed, 6, scan.number])
+        shape = 1.0 / (1.0 + (freqs / amb.corner_hz) ** 2)
+        shape[0] = 0.0
+        # time-domain variance of irfft(Z * shape) for unit complex Gaussian Z per bin
+        unit_var = 2.0 * float(np.sum(shape**2)) / n_fft**2
+        sigma = amb.rms_v / np.sqrt(unit_var)
+        n_recv = receivers.shape[0]
+
+        def gaussian(shape_: tuple[int, ...]) -> np.ndarray:
+            return (rng.standard_normal(shape_) + 1j * rng.standard_normal(shape_)) / np.sqrt(2)
+
+        directions = w.lab_truth.ambient_directions
+        coherent = np.zeros((n_recv, freqs.size), dtype=np.complex128)
+        if directions.shape[0]:
+            share = np.sqrt((1.0 - amb.incoherent_fraction) / directions.shape[0])
+            for d in directions:
+                # a plane wave travelling along d reaches X at d.X / c (relative to the origin)
+                delay = receivers @ d / scan.speed_of_sound_m_s
+                delay -= delay.min()
+                coherent += share * gaussian((freqs.size,))[None, :] * linear_phase(
+                    delay, freqs[1], freqs.size)
+        incoherent = np.sqrt(amb.incoherent_fraction) * gaussian((n_recv, freqs.size))
+        return sigma * shape[None, :] * (coherent + incoherent)
 
     def _path_lengths(self, source: np.ndarray, receivers: np.ndarray, n_mics: int) -> np.ndarray:
         """Acoustic path length from a source to every receiver (array mics first)."""

@@ -14,7 +14,8 @@ from .world import World
 
 
 class SimulatedCamera:
-    """Renders what camera `model` sees of the rig at the world's current pose.
+    """Renders what camera `model` sees of the rig (as built: the world's `physical_rig`) at the
+    world's current pose.
 
     `fail_next_grabs` makes the next grabs time out, as a camera that returns no frame does.
     """
@@ -44,7 +45,7 @@ class SimulatedCamera:
         rng = np.random.default_rng([*self._rng_key, self._grabs])
         w = self.world
         image = render_rig_image(
-            self.model, w.rig, w.rig_pose if w.rig_in_view else None, rng,
+            self.model, w.physical_rig, w.rig_pose if w.rig_in_view else None, rng,
             noise_grey=w.noise.image_noise_grey * w.noise.scale,
             blur_sigma_px=w.noise.image_blur_px,
         )

@@ -25,11 +25,13 @@ from acquisition.capture_config import (
 )
 from daq import Board, InputChannel, OutputChannel, SyncGroup, board_model
 
+from .air_sensor import SimulatedAirSensor
 from .arrays import ARRAY_KINDS, ArrayLayout, array_layout
 from .bench import AcousticBench
 from .boards import SimulatedBoard
 from .cameras import SimulatedCamera
 from .geometry import Rig, RigidTransform
+from .lab import EFFECTS, LabEffects
 from .operator import SimulatedOperator, reference_stand_position
 from .poses import sample_poses
 from .world import NoiseModel, World
@@ -52,6 +54,36 @@ class SimulationOptions(BaseModel):
         default="sim",
         description="plain simulated boards, or the real USB driver on emulated USB boards",
     )
+    lab: Literal["ideal", "realistic"] = Field(
+        default="ideal",
+        description="the lab's profile: 'ideal' (point speakers at their stated positions, "
+                    "exact print, identical microphones, still air, free field) or "
+                    "'realistic' (every effect of sim.lab on)",
+    )
+    effects: tuple[str, ...] = Field(default=(), description="lab effects added to the profile")
+    description_mistake: Literal["none", "turned-pattern", "sample-rate"] = Field(
+        default="none",
+        description="a mistake in the capture's description, for testing that calibration "
+                    "catches it: 'turned-pattern' states the speakers as seen from the "
+                    "pattern's opposite corner (a print of the other colour convention), "
+                    "'sample-rate' states a sample rate 10 % above the clock's")
+    without_effects: tuple[str, ...] = Field(
+        default=(), description="lab effects removed from the profile")
+
+    @field_validator("effects", "without_effects")
+    @classmethod
+    def _known_effects(cls, v: tuple[str, ...]) -> tuple[str, ...]:
+        unknown = sorted(set(v) - set(EFFECTS))
+        if unknown:
+            raise ValueError(f"unknown lab effect(s) {', '.join(unknown)}; choose from "
+                             f"{', '.join(EFFECTS)}")
+        return v
+
+    def lab_effects(self) -> LabEffects:
+        """The lab's effects: the profile's, plus `effects`, minus `without_effects`."""
+        names = set(EFFECTS if self.lab == "realistic" else ())
+        names = (names | set(self.effects)) - set(self.without_effects)
+        return LabEffects.with_effects(tuple(n for n in EFFECTS if n in names))
 
     @field_validator("array")
     @classmethod
@@ -80,6 +112,7 @@ class SimulatedCapture:
     operator: SimulatedOperator
     config: CaptureConfig
     poses: list[RigidTransform]
+    air_sensor: SimulatedAirSensor | None = None
 
 
 def capture_config_for(layout: ArrayLayout, rig: Rig, n_poses: int, sample_rate_hz: float,
@@ -120,7 +153,8 @@ def capture_config_for(layout: ArrayLayout, rig: Rig, n_poses: int, sample_rate_
         burst=burst,
         rig=RigEntry(corners_x=rig.corners_x, corners_y=rig.corners_y, square_m=rig.square_m,
                      speakers_m=tuple(tuple(p) for p in rig.speakers_m),
-                     reference_mark_m=tuple(rig.reference_mark_m)),
+                     reference_mark_m=tuple(rig.reference_mark_m),
+                     speaker_diameter_m=rig.speaker_diameter_m),
         cameras=tuple(CameraEntry(name=c.name, device_id=c.device_id) for c in cameras),
         n_poses=n_poses,
     )
@@ -144,26 +178,49 @@ def build_simulated_capture(options: SimulationOptions) -> SimulatedCapture:
     rig = Rig()
     world = World(layout=layout, rig=rig, temperature_c=options.temperature_c,
                   noise=NoiseModel(scale=options.noise), seed=options.seed,
-                  body_diffraction=options.body_diffraction)
+                  body_diffraction=options.body_diffraction, lab=options.lab_effects())
     bench = AcousticBench(world)
     hardware = _boards_for(options, layout, bench)
     cameras: list[Camera] = [SimulatedCamera(m, world, i) for i, m in enumerate(layout.cameras)]
     poses = sample_poses(layout.cameras[0], rig, options.poses, options.distance_m,
                          np.random.default_rng([options.seed, 4]))
     operator = SimulatedOperator(world, poses, reference_stand_position(layout.cameras[0]))
-    config = capture_config_for(layout, rig, options.poses, world.sample_rate_hz,
+    stated_rig = rig.turned() if options.description_mistake == "turned-pattern" else rig
+    stated_rate = world.sample_rate_hz * (1.1 if options.description_mistake == "sample-rate"
+                                          else 1.0)
+    config = capture_config_for(layout, stated_rig, options.poses, stated_rate,
                                 BurstConfig(mls_order=options.mls_order), cameras)
+    air_sensor = SimulatedAirSensor(world) if world.lab.air_sensor is not None else None
     return SimulatedCapture(options, world, bench, SyncGroup(hardware), cameras, operator,
-                            config, poses)
+                            config, poses, air_sensor)
 
 
 def truth_document(sim: SimulatedCapture) -> dict:
     """The ground truth of a simulated capture, in the shape of a calibration result.
 
-    Positions are in the camera-0 frame (OpenCV convention), metres.
+    Positions are in the camera-0 frame (OpenCV convention), metres. `speed_of_sound_m_s` is
+    the mean over the poses (the air drifts in the realistic lab; every pose's own is in
+    `poses`); a pose's `speakers_m` are the speakers' acoustic centres (at the lab model's
+    reference frequency), `diaphragms_m` their diaphragms.
     """
     w = sim.world
     layout = w.layout
+    progress = w.session_progress
+    poses, pose_c = [], []
+    for i, p in enumerate(sim.poses):
+        w.set_session_progress(i / max(len(sim.poses) - 1, 1))
+        pose_c.append(w.speed_of_sound_m_s)
+        saved = w.rig_pose
+        w.rig_pose = p
+        poses.append({"index": i, "rig_to_cam0": p.to_json(),
+                      "speakers_m": w.acoustic_centres_m().tolist(),
+                      "diaphragms_m": w.speaker_positions().tolist(),
+                      "speed_of_sound_m_s": w.speed_of_sound_m_s,
+                      "temperature_c": w.air_temperature_c})
+        w.rig_pose = saved
+    w.set_session_progress(0.0)
+    start_c = w.speed_of_sound_m_s
+    w.set_session_progress(progress)
     return {
         "microphones": [
             {"id": m, "position_m": layout.mic_positions_m[m].tolist(),
@@ -171,14 +228,13 @@ def truth_document(sim: SimulatedCapture) -> dict:
              "channel": layout.mic_inputs[m].channel}
             for m in range(layout.n_mics)
         ],
-        "speed_of_sound_m_s": w.speed_of_sound_m_s,
+        "speed_of_sound_m_s": float(np.mean(pose_c)) if pose_c else start_c,
+        "speed_of_sound_at_start_m_s": start_c,
         "temperature_c": w.temperature_c,
+        "relative_humidity": w.relative_humidity,
+        "pressure_pa": w.pressure_pa,
         "cameras": [c.to_json() for c in layout.cameras],
-        "poses": [
-            {"index": i, "rig_to_cam0": p.to_json(),
-             "speakers_m": p.apply(w.rig.speakers_m).tolist()}
-            for i, p in enumerate(sim.poses)
-        ],
+        "poses": poses,
         "reference_microphone": {
             "stand_position_m": sim.operator.stand_position_m.tolist(),
             "distance_from_speaker_m": w.reference_distance_m,
@@ -188,6 +244,7 @@ def truth_document(sim: SimulatedCapture) -> dict:
                               for b, lat in zip(layout.boards, w.board_latencies_s, strict=True)},
         "mic_gains": w.mic_gains.tolist(),
         "rig": w.rig.to_json(),
+        "lab": w.lab_truth.to_json(),
         "noise": {"scale": w.noise.scale,
                   "array_noise_v": w.noise.array_noise_v,
                   "reference_noise_v": w.noise.reference_noise_v,

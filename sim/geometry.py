@@ -12,7 +12,7 @@ Frames (all right-handed, metres):
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -165,6 +165,14 @@ class Rig:
         ix, iy = np.meshgrid(np.arange(self.corners_x), np.arange(self.corners_y))
         pts = np.stack([ix.ravel(), iy.ravel(), np.zeros(ix.size)], axis=1)
         return pts * np.array([self.square_m, self.square_m, 1.0])
+
+    def turned(self) -> Rig:
+        """The rig described from the pattern's opposite inner corner: its speakers turned by
+        180 degrees in the board plane about the pattern's centre (a half-turn, so the
+        frame stays right-handed with Z out of the face)."""
+        speakers = self.speakers_m.copy()
+        speakers[:, :2] = 2 * self.centre()[:2] - speakers[:, :2]
+        return replace(self, speakers_m=speakers)
 
     def centre(self) -> np.ndarray:
         """Centre of the checkerboard pattern in the rig frame."""

@@ -42,13 +42,17 @@ class SimulatedOperator:
         if instruction.kind is InstructionKind.REFERENCE_AT_SPEAKER:
             if instruction.speaker is None or not 0 <= instruction.speaker < w.rig.n_speakers:
                 raise ValueError(f"no speaker {instruction.speaker} on the rig")
-            w.place_reference_mic(w.reference_position_at_speaker(instruction.speaker))
+            w.set_session_progress(0.0)
+            w.place_reference_mic(w.reference_position_at_speaker(instruction.speaker),
+                                  near_speaker=instruction.speaker)
         elif instruction.kind is InstructionKind.REFERENCE_ON_STAND:
+            w.set_session_progress(0.0)
             w.place_reference_mic(self.stand_position_m)
             w.place_rig(self.rig_pose_on_stand())
         elif instruction.kind is InstructionKind.RIG_AT_POSE:
             if instruction.pose is None or not 0 <= instruction.pose < len(self.poses):
                 raise ValueError(f"the simulated operator has no pose {instruction.pose}")
+            w.set_session_progress(instruction.pose / max(len(self.poses) - 1, 1))
             w.place_reference_mic(self.stand_position_m)
             w.place_rig(self.poses[instruction.pose])
         else:  # pragma: no cover - every kind is handled above

@@ -17,21 +17,7 @@ import scipy.signal
 
 from acquisition.stimulus import mls_burst
 
-__all__ = [
-    "SpeakerResponse", "creeping_path_length", "fft_length", "mls_burst", "propagate",
-    "speed_of_sound",
-]
-
-
-def speed_of_sound(temperature_c: float) -> float:
-    """Speed of sound in dry air, m/s, from the ideal-gas law: 331.3 * sqrt(1 + T / 273.15).
-
-    Within about 0.1 % of Cramer's formula for dry air between 0 and 35 degC; the simulation
-    only needs a consistent value, the calibration measures c.
-    """
-    if not -40.0 <= temperature_c <= 60.0:
-        raise ValueError(f"air temperature {temperature_c} degC is outside -40..60 degC")
-    return 331.3 * float(np.sqrt(1.0 + temperature_c / 273.15))
+__all__ = ["SpeakerResponse", "creeping_path_length", "fft_length", "mls_burst", "propagate"]
 
 
 @dataclass(frozen=True)

@@ -12,10 +12,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from acquisition.air import speed_of_sound
+
 from .arrays import ArrayLayout
 from .geometry import Rig, RigidTransform
+from .lab import LabEffects, LabTruth
 from .poses import FACING_CAMERA
-from .sound import SpeakerResponse, mls_burst, speed_of_sound
+from .sound import SpeakerResponse, mls_burst
 
 
 @dataclass(frozen=True)
@@ -66,8 +69,13 @@ class World:
 
     Attributes:
         layout: the array, its cameras and wiring.
-        rig: the calibration rig.
-        temperature_c: air temperature; sets the speed of sound.
+        rig: the calibration rig as stated (its description); the rig as built is
+            `physical_rig` (the lab's print scale and speaker build errors).
+        temperature_c: air temperature at the start of the session (the lab's air drift
+            changes it as the session progresses).
+        relative_humidity: of the air (0..1); with the temperature and the pressure it sets
+            the speed of sound by Cramer's formula (acquisition.air).
+        pressure_pa: the air's static pressure.
         sample_rate_hz: the shared sample clock of all boards.
         noise: levels and noise.
         seed: seeds every random draw of this world (hidden parameters and noise).
@@ -76,21 +84,28 @@ class World:
         body_diffraction: let sound reach microphones in the shadow of a sphere array around
             its surface (the creeping-wave path) instead of straight through it.
         speaker: the speakers' response.
+        lab: the realistic lab's systematic effects (sim.lab; default: none, the ideal world).
     """
 
     layout: ArrayLayout
     rig: Rig = field(default_factory=Rig)
     temperature_c: float = 20.0
+    relative_humidity: float = 0.45
+    pressure_pa: float = 101_325.0
     sample_rate_hz: float = 96_000.0
     noise: NoiseModel = field(default_factory=NoiseModel)
     seed: int = 0
     reference_distance_m: float = 0.002
     body_diffraction: bool = False
     speaker: SpeakerResponse = field(default_factory=SpeakerResponse)
+    lab: LabEffects = field(default_factory=LabEffects)
 
     def __post_init__(self) -> None:
         rng = np.random.default_rng([self.seed, 1])
-        self.speed_of_sound_m_s = speed_of_sound(self.temperature_c)
+        self.lab_truth = LabTruth.draw(self.lab, self.rig.n_speakers, self.layout.n_mics,
+                                       np.random.default_rng([self.seed, 7]))
+        self.physical_rig = self.lab_truth.physical_rig(self.rig)
+        self.session_progress = 0.0
         self.mic_gains = 10 ** (rng.normal(0, self.noise.gain_spread_db, self.layout.n_mics) / 20)
         lo, hi = self.noise.latency_range_s
         self.board_latencies_s = rng.uniform(lo, hi, len(self.layout.boards))
@@ -100,7 +115,23 @@ class World:
         )
         self.rig_pose = RigidTransform(FACING_CAMERA, np.array([-0.075, 0.12, 0.8]))
         self.reference_mic_m: np.ndarray | None = None
+        self.reference_near_speaker: int | None = None
         self.rig_in_view = True
+
+    @property
+    def air_temperature_c(self) -> float:
+        """The air's temperature now (the start temperature plus the lab's drift so far)."""
+        return self.temperature_c + self.lab_truth.temperature_offset_k(self.session_progress)
+
+    @property
+    def speed_of_sound_m_s(self) -> float:
+        """The speed of sound now, m/s."""
+        return float(speed_of_sound(self.air_temperature_c, self.relative_humidity,
+                                    self.pressure_pa))
+
+    def set_session_progress(self, progress: float) -> None:
+        """Where the session is in time, 0 (its start) to 1 (its last pose): the air drifts."""
+        self.session_progress = float(progress)
 
     def _unit_drive_rms(self) -> float:
         """RMS of the speaker's acoustic output for a +-1 V MLS drive (order 14)."""
@@ -112,8 +143,19 @@ class World:
         return float(np.sqrt(np.mean(y**2)))
 
     def speaker_positions(self) -> np.ndarray:
-        """(n_speakers, 3) speaker acoustic centres in the camera-0 frame, at the current pose."""
-        return self.rig_pose.apply(self.rig.speakers_m)
+        """(n_speakers, 3) speaker diaphragm centres in the camera-0 frame, at the current pose
+        (the acoustic centres in the ideal world)."""
+        return self.rig_pose.apply(self.physical_rig.speakers_m)
+
+    def acoustic_centres_m(self, frequency_hz: float | None = None) -> np.ndarray:
+        """(n_speakers, 3) where each speaker's sound appears to come from in the far field,
+        camera-0 frame, at the current pose (at the lab model's reference frequency when
+        `frequency_hz` is None)."""
+        ac = self.lab.acoustic_centres
+        default_hz = ac.reference_hz if ac is not None else 1000.0
+        f = default_hz if frequency_hz is None else frequency_hz
+        offsets = self.lab_truth.acoustic_offset_m(np.array([f]))[:, 0]
+        return self.speaker_positions() + offsets[:, None] * self.rig_normal()
 
     def rig_normal(self) -> np.ndarray:
         """Unit vector out of the rig's printed face, in the camera-0 frame."""
@@ -123,8 +165,12 @@ class World:
         self.rig_pose = pose
         self.rig_in_view = in_view
 
-    def place_reference_mic(self, position_m: np.ndarray | None) -> None:
+    def place_reference_mic(self, position_m: np.ndarray | None,
+                            near_speaker: int | None = None) -> None:
+        """Put the reference microphone at `position_m` (None: nowhere); `near_speaker` says it
+        sits in that speaker's near field (a reference recording): it hears the diaphragm."""
         self.reference_mic_m = None if position_m is None else np.asarray(position_m, float)
+        self.reference_near_speaker = near_speaker
 
     def reference_position_at_speaker(self, speaker: int) -> np.ndarray:
         """Where the reference microphone sits for speaker `speaker`'s reference recording."""

@@ -21,6 +21,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="directory for report.md and its pictures (default: beside --out)")
     p.add_argument("--acoular-xml", type=Path, default=None,
                    help="also write the geometry in Acoular's MicGeom XML format")
+    p.add_argument("--acoular-calib", type=Path, default=None, metavar="FILE",
+                   help="also write the microphones' relative sensitivities in Acoular's "
+                        "calibration XML format (acoular.Calib)")
     p.add_argument("--method", choices=("micam", "paper"), default="micam",
                    help="micam (default) or the paper's coordinate search (baseline)")
     p.add_argument("--latency", choices=("per_board", "common", "none"), default="per_board")
@@ -38,7 +41,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--prior-std-mm", type=float, default=None,
                    help="let each microphone deviate from the prior by about this much "
                         "(default: the prior is rigid)")
-    p.add_argument("--phat", action="store_true", help="GCC-PHAT weighting of the correlations")
+    p.add_argument("--weighting", choices=("compact", "matched", "phat"), default="compact",
+                   help="spectral weighting of the TOF correlations: compact (default; robust "
+                        "to early reflections), matched (maximum likelihood in free field) "
+                        "or phat (GCC-PHAT)")
     p.add_argument("--allow-interrupted", action="store_true",
                    help="calibrate the completed poses of an interrupted session")
     p.add_argument("--truth", type=Path, default=None,
@@ -75,22 +81,29 @@ def run(args: argparse.Namespace) -> int:
 
     from calibration.pipeline import CalibrationOptions, calibrate
     from calibration.report import summary_lines, write_report
-    from calibration.result import write_acoular_xml
+    from calibration.result import write_acoular_calib_xml, write_acoular_xml
 
     out: Path = args.out
     if out.exists() and not args.force:
         raise UserError(f"{out} exists; choose another --out or pass --force to overwrite it")
-    if not out.parent.is_dir():
-        raise UserError(f"the directory of --out ({out.parent}) does not exist")
+    for flag, path in (("--out", out), ("--acoular-xml", args.acoular_xml),
+                       ("--acoular-calib", args.acoular_calib)):
+        if path is not None and not path.absolute().parent.is_dir():
+            raise UserError(f"the directory of {flag} ({path.absolute().parent}) does not "
+                            "exist; create it first")
+    if args.acoular_calib is not None and (args.no_joint or args.method == "paper"):
+        raise UserError("--acoular-calib needs the joint fit (it estimates the responses); "
+                        "leave out --no-joint and --method paper")
     truth_path = args.truth or (args.session / "truth.json")
     if args.truth is not None and not truth_path.is_file():
         raise UserError(f"--truth {truth_path} is not a file")
     prior = _prior(args)
     options = CalibrationOptions(
         method=args.method, latency=args.latency, speed_of_sound=args.speed_of_sound,
-        refine_poses=args.refine_poses, phat=args.phat,
+        refine_poses=args.refine_poses, weighting=args.weighting,
         allow_interrupted=args.allow_interrupted, joint=not args.no_joint, prior=prior)
-    stages = ["load", "cameras", "speakers", "times of flight", "solver", "joint fit"]
+    stages = ["load", "cameras", "speakers", "times of flight", "solver", "joint fit",
+              "responses"]
     with tqdm(total=len(stages), unit="stage", desc="calibrate") as bar:
         def on_stage(name: str) -> None:
             bar.set_postfix_str(name)
@@ -109,6 +122,8 @@ def run(args: argparse.Namespace) -> int:
                           None if prior is None else prior.positions_m)
     if args.acoular_xml is not None:
         write_acoular_xml(run_.result, args.acoular_xml)
+    if args.acoular_calib is not None:
+        write_acoular_calib_xml(run_.result, args.acoular_calib)
     for line in summary_lines(run_, truth):
         print(line)
     print(f"result: {out}\nreport: {report}")

@@ -36,6 +36,16 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="MLS order of the bursts (14 = 171 ms at 96 kS/s)")
     p.add_argument("--body-diffraction", action="store_true",
                    help="sound reaches microphones behind a sphere array around its surface")
+    p.add_argument("--lab", choices=("ideal", "realistic"), default="ideal",
+                   help="the lab: 'ideal' (default) or 'realistic' (speaker acoustic centres, "
+                        "rig tolerance, print scale, microphone responses, air drift, room, "
+                        "ambient noise, directivity; docs/simulation.md)")
+    p.add_argument("--effect", action="append", default=[], metavar="NAME",
+                   help="add one lab effect to the profile (repeatable): acoustic-centres, "
+                        "rig-tolerance, print-scale, mic-responses, air-drift, room, "
+                        "ambient-noise, directivity")
+    p.add_argument("--without", action="append", default=[], metavar="NAME",
+                   help="remove one lab effect from the profile (repeatable)")
     p.add_argument("--backend", choices=("sim", "usb-emulated"), default="sim",
                    help="plain simulated boards (default) or the real USB driver on emulated "
                         "USB boards")
@@ -50,7 +60,8 @@ def _options_from_args(args: argparse.Namespace):
         return SimulationOptions(
             array=args.array, poses=args.poses, distance_m=tuple(args.distance), seed=args.seed,
             noise=args.noise, temperature_c=args.temperature, mls_order=args.mls_order,
-            body_diffraction=args.body_diffraction, backend=args.backend,
+            body_diffraction=args.body_diffraction, backend=args.backend, lab=args.lab,
+            effects=tuple(args.effect), without_effects=tuple(args.without),
         )
     except ValidationError as exc:
         problems = "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 from daq import SyncGroup
 
+from ..air import AirSensor
 from ..camera import Camera
 from ..capture_config import CaptureConfig
 from ..operator import Operator
@@ -34,6 +35,7 @@ class Hardware:
         max_poses: the most poses a session may have (the simulated world has a fixed list).
         session_files: top-level JSON files written into every new session (the ground truth).
         description: for the log and `status`.
+        air_sensor: reads the air beside the array at every pose (None: no sensor).
     """
 
     config: CaptureConfig
@@ -43,6 +45,7 @@ class Hardware:
     max_poses: int | None = None
     session_files: dict[str, dict] = field(default_factory=dict)
     description: str = ""
+    air_sensor: AirSensor | None = None
 
     @property
     def simulated(self) -> bool:
@@ -61,6 +64,7 @@ def _simulated(options: SimulationConfig) -> Hardware:
     return Hardware(
         config=sim.config, group=sim.group, cameras=sim.cameras, world_operator=sim.operator,
         max_poses=options.poses, session_files={TRUTH_FILE: truth_document(sim)},
+        air_sensor=sim.air_sensor,
         description=f"simulated world ({options.array}, {options.poses} poses, seed "
                     f"{options.seed})")
 

@@ -116,7 +116,8 @@ class SessionRun:
         self.sequencer = CaptureSequencer(
             self.capture, hardware.group, hardware.cameras, operator=self,
             writer=_ObservedWriter(writer, self),  # type: ignore[arg-type]
-            on_progress=self._on_progress, camera_timeout_s=config.camera_timeout_s)
+            on_progress=self._on_progress, camera_timeout_s=config.camera_timeout_s,
+            air_sensor=hardware.air_sensor)
         columns = self.capture.columns
         self._mics = [j for j, c in enumerate(columns) if c.role == "mic"]
         self._reference = [j for j, c in enumerate(columns) if c.role == "reference"]
@@ -367,6 +368,9 @@ class _ObservedWriter:
         path = self._writer.write_recording(step, name, codes, sample_rate_hz, meta)
         self._run.on_recording(step, name, codes)
         return path
+
+    def write_json(self, step: str, name: str, data: dict) -> Path:
+        return self._writer.write_json(step, name, data)
 
     def end_step(self, step: str) -> None:
         self._run.before_end(step)

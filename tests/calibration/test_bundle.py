@@ -107,7 +107,7 @@ def frozen_camera_start(truth: BundleState, focal_error: float = 1e-3) -> Bundle
     mics = truth.microphones_m + np.array([0.0, 0.0, 0.5e-3])
     return replace(truth, intrinsics=intrinsics, poses=poses, microphones_m=mics,
                    reference_m=truth.reference_m + 1e-3,
-                   speed_of_sound_m_s=truth.speed_of_sound_m_s + 0.3,
+                   speeds_of_sound_m_s=np.array([truth.speed_of_sound_m_s + 0.3]),
                    latencies_s=np.zeros(2))  # fmt: skip
 
 
@@ -122,16 +122,27 @@ def fitted(scene: Scene) -> BundleSolution:
 
 
 def test_jacobian_matches_central_differences() -> None:
+    """Every unknown's analytic derivatives, the optional ones included (c per pose, the
+    reference distance, speaker offsets, print scale, microphone delays), away from their
+    neutral values."""
     small = make_scene(n_pose=3, seed=1, n_mic=5)
-    layout = _Layout.of(small.truth)
-    model = _Model(small.problem, layout)
-    x = layout.pack(frozen_camera_start(small.truth))
+    problem = replace(small.problem, reference_distance_m=np.full(18, 0.002),
+                      speed_of_sound_of_pose=np.array([0, 1, 2]))
+    start = replace(frozen_camera_start(small.truth),
+                    speeds_of_sound_m_s=np.array([343.1, 343.3, 343.6]),
+                    mic_delays_s=np.linspace(-1e-6, 1e-6, 5),
+                    speaker_offsets_m=np.linspace(-3e-3, 3e-3, 18).reshape(6, 3),
+                    print_scale=1.001)
+    layout = _Layout.of(start)
+    model = _Model(problem, layout)
+    x = layout.pack(start)
     jac = model.evaluate(x, jacobian=True)[1].toarray()
     # Steps per parameter kind: pixels and distortion, radians and metres, seconds.
     step = np.full(x.size, 1e-6)
     step[layout.slices["intrinsics"]] = np.tile([1e-3] * 4 + [1e-6] * 5, 2)
     step[layout.slices["c"]] = 1e-4
     step[layout.slices["latencies"]] = 1e-9
+    step[layout.slices["mic_delays"]] = 1e-9
     numeric = np.empty_like(jac)
     for j in range(x.size):
         dx = np.zeros(x.size)
@@ -141,6 +152,7 @@ def test_jacobian_matches_central_differences() -> None:
         numeric[:, j] = (plus - minus) / (2 * step[j])
     scale = np.abs(numeric).max(axis=0) + 1e-300
     assert np.max(np.abs(jac - numeric) / scale) < 1e-5
+    assert np.all(np.abs(numeric).max(axis=0) > 0)  # every unknown is observed
 
 
 def test_joint_fit_corrects_the_focal_length_and_the_array(scene: Scene,
@@ -211,9 +223,11 @@ def test_pipeline_joint_fit_beats_the_frozen_camera_against_the_truth(session: P
     joint = compare_with_truth(run.result, truth)
     frozen = compare_with_truth(run.result, truth, camera_frozen=True)
     # 48 sources: the frozen camera leaves a few tenths of a millimetre of common depth
-    # offset; the joint fit is limited by the timing noise instead.
-    assert joint["mean_mic_error_m"] < 0.1e-3
-    assert joint["mean_mic_error_m"] < 0.5 * frozen["mean_mic_error_m"]
+    # offset; the joint fit is limited by the timing noise instead (and, with so few
+    # sources, by the real lab's unknowns it also fits: speaker offsets, microphone delays,
+    # c per pose, the print scale: 0.08 -> 0.11 mm here).
+    assert joint["mean_mic_error_m"] < 0.15e-3
+    assert joint["mean_mic_error_m"] < 0.2 * frozen["mean_mic_error_m"]
     assert joint["max_focal_error_rel"] < 3e-4
     assert abs(joint["speed_of_sound_error_m_s"]) < 0.02
     assert joint["max_latency_error_s"] < 0.1e-6

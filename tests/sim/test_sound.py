@@ -9,7 +9,7 @@ from scipy.optimize import minimize_scalar
 from daq import InputChannel, volts_to_codes
 from sim.arrays import scatter48, sphere72
 from sim.bench import AcousticBench
-from sim.sound import creeping_path_length, mls_burst, speed_of_sound
+from sim.sound import creeping_path_length, mls_burst
 from sim.world import NoiseModel, World
 
 FS = 96_000.0
@@ -93,13 +93,6 @@ def test_mls_is_plus_minus_one_and_white() -> None:
     assert circular[0] == pytest.approx(1023) and np.allclose(circular[1:], -1)
     with pytest.raises(ValueError, match="MLS order"):
         mls_burst(30)
-
-
-def test_speed_of_sound_from_temperature() -> None:
-    assert speed_of_sound(20.0) == pytest.approx(343.2, abs=0.2)
-    assert speed_of_sound(0.0) == pytest.approx(331.3)
-    with pytest.raises(ValueError, match="temperature"):
-        speed_of_sound(200.0)
 
 
 def test_creeping_path_is_longer_only_in_the_shadow() -> None:
