@@ -12,8 +12,16 @@ the mean CLEAN-SC localization error (from the speaker as the camera places it, 
 truth) and the mean delay-and-sum peak level of the same (recording, band) pairs in dB re the
 error-free, uncorrected maps.
 
+With --capsules, a second session of the same seed is simulated with the world's own capsule
+responses (`micam simulate --effect mic-responses`: delays and resonances, about 0.5 us of
+group-delay spread, 2 degrees at 10 kHz) and calibrated with its responses; it is imaged with
+the microphones' own delays left out of the steering (as before the joint fit estimated
+them), with them in it (the default), corrected by the eigenvalue calibration, and corrected
+by the calibration's microphone_responses (which hold the own delays, so the steering then
+leaves them out).
+
     .venv/bin/python benchmarks/bench_csm_calibration.py [--poses 10] [--errors 0 1 2 5 10]
-        [--calibration 0:4] [--keep DIR] [--figure docs/figures/csm_calibration.png]
+        [--calibration 0:4] [--capsules] [--keep DIR] [--figure docs/figures/csm_calibration.png]
 """
 
 from __future__ import annotations
@@ -46,6 +54,37 @@ def scaled_error(n_mics: int, std_deg: float, seed: int) -> ChannelResponses:
                             f"simulated phase error {std_deg:g} deg (seed {seed})")
 
 
+def capsule_rows(session: Path, args: argparse.Namespace, skip: set) -> list[dict]:
+    """The four imagings of a session with the world's capsule responses (module doc)."""
+    if not (session / "truth.json").is_file():
+        record_simulated_session(session, SimulationOptions(
+            poses=args.poses, seed=args.seed, effects=("mic-responses",)))
+    geometry = geometry_of(calibrate(session))
+    truth = load_geometry(session / "truth.json")
+    reader = SessionReader(session)
+    base = ImagingSettings()
+    pose, speaker = next(iter(skip))
+    variants = {
+        "own delays left out": (geometry.without_own_delays(), base),
+        "own delays in the steering": (geometry, base),
+        "eigen": (geometry, replace(base, correction=channel_calibration(
+            reader, geometry, pose, speaker, base))),
+        "responses": (geometry.without_own_delays(), replace(base,
+                                                             correction=geometry.responses)),
+    }
+    rows = []
+    for name, (geo, settings) in variants.items():
+        s = evaluate_session(reader, geo, settings, workers=args.workers, skip=skip,
+                             truth=truth).overall()
+        rows.append({"imaging": name, "count": s.count, "mean_mm": round(1e3 * s.mean_m, 4),
+                     "p95_mm": round(1e3 * s.p95_m, 4),
+                     "truth_mean_mm": round(1e3 * s.truth_mean_m, 4)})
+        print(f"capsules  {name:>26}  mean {rows[-1]['mean_mm']:.3f} mm  p95 "
+              f"{rows[-1]['p95_mm']:.3f} mm  from the truth {rows[-1]['truth_mean_mm']:.3f} mm",
+              flush=True)
+    return rows
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--poses", type=int, default=10)
@@ -57,6 +96,8 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=None)
     parser.add_argument("--keep", type=Path, default=None, help="keep the session here")
     parser.add_argument("--figure", type=Path, default=None, help="also draw the figure")
+    parser.add_argument("--capsules", action="store_true",
+                        help="also measure on the world's own capsule responses")
     args = parser.parse_args()
     cal_pose, cal_speaker = (int(x) for x in args.calibration.split(":"))
     with tempfile.TemporaryDirectory() as tmp:
@@ -103,8 +144,11 @@ def main() -> None:
                 record(deg, "responses", evaluate(replace(settings, correction=error)))
         figures = {"session": {"poses": args.poses, "seed": args.seed,
                                "calibration_recording": args.calibration},
-                   "imaging": reference.to_json()["settings"], "rows": rows,
-                   "total_s": round(time.perf_counter() - t0, 1)}
+                   "imaging": reference.to_json()["settings"], "rows": rows}
+        if args.capsules:
+            figures["capsules"] = capsule_rows(session.parent / f"{session.name}-capsules",
+                                               args, skip)
+        figures["total_s"] = round(time.perf_counter() - t0, 1)
     out = Path(__file__).parent / "results" / "csm_calibration.json"
     out.parent.mkdir(exist_ok=True)
     out.write_text(json.dumps(figures, indent=1))

@@ -151,8 +151,8 @@ def run(args: argparse.Namespace) -> int:
                 document = cv.to_json()
             else:
                 geometry = load_geometry(args.geometry)
-                settings, skip = imaging_options.corrected_settings(args, reader, geometry,
-                                                                    settings)
+                settings, skip, geometry = imaging_options.corrected_settings(
+                    args, reader, geometry, settings)
                 result = evaluate_session(reader, geometry, settings, progress, args.workers,
                                           skip=skip, truth=truth)
                 columns = {"given calibration": result}

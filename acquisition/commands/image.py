@@ -59,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         reader = SessionReader(args.session)
         geometry = load_geometry(args.geometry)
-        settings, calibrated_from = imaging_options.corrected_settings(
+        settings, calibrated_from, geometry = imaging_options.corrected_settings(
             args, reader, geometry, ImagingSettings(fraction=args.fraction,
                                                     bands_hz=(args.band,)))
         drawn = recording_map(reader, geometry, args.pose, args.speaker, args.band, settings,

@@ -57,8 +57,10 @@ def with_simulated_error(args: argparse.Namespace, settings, n_mics: int):
 
 
 def corrected_settings(args: argparse.Namespace, reader, geometry, settings):
-    """The imaging settings with the options' simulated error and correction, and the
-    recordings to leave out of an evaluation (the calibration recording), as a set.
+    """The imaging settings with the options' simulated error and correction, the recordings
+    to leave out of an evaluation (the calibration recording), as a set, and the geometry to
+    image with (without the microphones' own delays when the responses, which hold them,
+    correct the CSM).
 
     Raises UserError for --responses without responses in the geometry file, and
     ValueError/SessionError from the eigenvalue calibration (for the caller to report)."""
@@ -70,9 +72,10 @@ def corrected_settings(args: argparse.Namespace, reader, geometry, settings):
             raise UserError(f"--responses: {args.geometry} has no microphone_responses; "
                             "calibrate with a version that measures them, or use "
                             "--csm-calibration POSE:SPEAKER")
-        return replace(settings, correction=geometry.responses), set()
+        return (replace(settings, correction=geometry.responses), set(),
+                geometry.without_own_delays())
     if args.csm_calibration is not None:
         pose, speaker = args.csm_calibration
         correction = channel_calibration(reader, geometry, pose, speaker, settings)
-        return replace(settings, correction=correction), {(pose, speaker)}
-    return settings, set()
+        return replace(settings, correction=correction), {(pose, speaker)}, geometry
+    return settings, set(), geometry

@@ -7,7 +7,10 @@ the prior geometry rigidly fitted to the result) each microphone is drawn at its
 position with its error vector magnified by a stated factor, and the 95 % ellipse of its
 calibrated uncertainty (the projection of its 3x3 covariance into the view) magnified by the
 same factor and centred on the reference: an arrow tip outside its ellipse is an error larger
-than the calibration claims. Without a reference the ellipses are centred on the estimates.
+than the calibration claims. When the uncertainty is so much larger than the errors that the
+ellipses would cover the array, they get a smaller factor of their own, stated in the legend,
+and the title counts the errors inside their 95 % ellipsoids instead. Without a reference the
+ellipses are centred on the estimates.
 Every camera is drawn (position and optical axis) and labelled beside its marker where the
 label overlaps no other; cameras that coincide in a view share one label, and a camera the
 calibration could not place is drawn hollow from the reference when it has one, or named in
@@ -33,6 +36,11 @@ CHI2_95_2D = 5.991
 """Squared radius of the 95 % ellipse of a 2-D normal distribution, in standard deviations."""
 VECTOR_SHARE = 0.12
 """The largest magnified error vector spans this fraction of the array's extent."""
+ELLIPSE_SHARE = 0.06
+"""At most this fraction of the array's extent for the median magnified ellipse radius: when
+the errors' factor would draw them larger, the ellipses get a smaller factor of their own."""
+CHI2_95_3D = 7.815
+"""Squared Mahalanobis radius of the 95 % ellipsoid of a 3-D normal distribution."""
 
 
 @dataclass(frozen=True)
@@ -87,19 +95,54 @@ def nice_factor(value: float) -> float:
     return float(10 ** (exponent - 1) * 5)
 
 
-def _magnification(picture: ArrayPicture, extent: float) -> tuple[float, np.ndarray | None]:
-    """The factor errors and ellipses are drawn at, and the errors (M, 3) or None."""
-    errors = None
-    if picture.reference_m is not None:
-        errors = picture.positions_m - picture.reference_m
-        largest = np.nanmax(np.linalg.norm(errors, axis=1))
-        if largest > 0:
-            return nice_factor(VECTOR_SHARE * extent / largest), errors
+@dataclass(frozen=True)
+class Magnification:
+    """How much errors and uncertainty ellipses are magnified, and the errors (M, 3)."""
+
+    errors: float
+    ellipses: float
+    error_m: np.ndarray | None
+
+
+def _radius95(cov: np.ndarray) -> np.ndarray:
+    """(M,) the largest semi-axis of each 95 % 2-D ellipse a view can show, metres."""
+    with np.errstate(invalid="ignore"):
+        return np.sqrt(CHI2_95_2D * np.linalg.eigvalsh(cov)[:, -1])
+
+
+def _magnification(picture: ArrayPicture, extent: float) -> Magnification:
+    """One factor for both (module docstring), unless the ellipses would then cover the
+    array: they get their own, smaller factor (`ELLIPSE_SHARE`), stated in the legend."""
+    errors = (None if picture.reference_m is None
+              else picture.positions_m - picture.reference_m)
+    largest = np.nanmax(np.linalg.norm(errors, axis=1)) if errors is not None else 0.0
+    radius = np.nan
     if picture.covariance_m2 is not None:
-        std = np.sqrt(np.nanmax(np.trace(picture.covariance_m2, axis1=1, axis2=2)))
-        if np.isfinite(std) and std > 0:
-            return nice_factor(0.5 * VECTOR_SHARE * extent / std), errors
-    return 1.0, errors
+        ok = np.all(np.isfinite(picture.covariance_m2.reshape(len(picture.covariance_m2), -1)),
+                    axis=1)
+        radius = float(np.median(_radius95(picture.covariance_m2[ok]))) if ok.any() else np.nan
+    ellipses = (nice_factor(ELLIPSE_SHARE * extent / radius) if np.isfinite(radius) and radius > 0
+                else np.inf)
+    if largest > 0:
+        vectors = nice_factor(VECTOR_SHARE * extent / largest)
+        return Magnification(vectors, min(vectors, ellipses), errors)
+    common = ellipses if np.isfinite(ellipses) else 1.0
+    return Magnification(common, common, None if largest == 0 else errors)
+
+
+def inside_ellipsoids(errors: np.ndarray, covariance: np.ndarray | None
+                      ) -> tuple[int, int] | None:
+    """(how many, of how many) errors (M, 3) lie inside the 95 % ellipsoid of their
+    covariance (M, 3, 3); microphones without a finite covariance are not counted."""
+    if covariance is None:
+        return None
+    ok = np.all(np.isfinite(covariance.reshape(len(covariance), -1)), axis=1) & np.all(
+        np.isfinite(errors), axis=1)
+    if not ok.any():
+        return None
+    e = errors[ok]
+    d2 = np.einsum("mi,mi->m", e, np.linalg.solve(covariance[ok], e[..., None])[..., 0])
+    return int(np.sum(d2 <= CHI2_95_3D)), int(ok.sum())
 
 
 def _ellipses(cov: np.ndarray, i: int, j: int, factor: float
@@ -162,8 +205,8 @@ def _label_cameras(ax: Axes, cameras: tuple[CameraMark, ...], i: int, j: int,
             label.remove()
 
 
-def _draw_view(ax: Axes, picture: ArrayPicture, i: int, j: int, factor: float,
-               errors: np.ndarray | None) -> None:
+def _draw_view(ax: Axes, picture: ArrayPicture, i: int, j: int, scale: Magnification
+               ) -> None:
     """One orthographic view of the array in millimetres."""
     est = 1e3 * picture.positions_m
     base = 1e3 * picture.reference_m if picture.reference_m is not None else est
@@ -174,12 +217,12 @@ def _draw_view(ax: Axes, picture: ArrayPicture, i: int, j: int, factor: float,
         cov = 1e6 * picture.covariance_m2
         ok = np.all(np.isfinite(cov.reshape(len(cov), -1)), axis=1)
         if ok.any():
-            w, h, a = _ellipses(cov[ok], i, j, factor)
+            w, h, a = _ellipses(cov[ok], i, j, scale.ellipses)
             ax.add_collection(EllipseCollection(
                 w, h, a, units="xy", offsets=base[ok][:, [i, j]], offset_transform=ax.transData,
                 facecolors=PALETTE[5], alpha=0.25, edgecolors="none", zorder=1))
-    if errors is not None:
-        e = 1e3 * factor * errors
+    if scale.error_m is not None:
+        e = 1e3 * scale.errors * scale.error_m
         ax.quiver(base[:, i], base[:, j], e[:, i], e[:, j], angles="xy", scale_units="xy",
                   scale=1.0, color=PALETTE[1], width=0.004, headwidth=3, headlength=3.5,
                   zorder=3)
@@ -225,11 +268,12 @@ def geometry_figure(picture: ArrayPicture) -> Figure:
     """The figure (module docstring); its axes are equal-aspect, gid "view-<name>"."""
     positions = np.asarray(picture.positions_m, dtype=np.float64)
     extent = _extent(positions)
-    factor, errors = _magnification(picture, extent)
+    scale = _magnification(picture, extent)
+    errors = scale.error_m
     fig = new_figure(PAGE_IN, 6.2)
     axes = fig.subplots(2, 2)
     for ax, (title, i, j) in zip(axes.ravel()[:3], VIEWS, strict=True):
-        _draw_view(ax, picture, i, j, factor, errors)
+        _draw_view(ax, picture, i, j, scale)
         ax.set_title(f"{title} ({AXIS_NAMES[i]}, {AXIS_NAMES[j]})")
         ax.set_gid(f"view-{title.split(',')[0]}")
     _draw_scene(axes[1, 1], picture)
@@ -243,10 +287,12 @@ def geometry_figure(picture: ArrayPicture) -> Figure:
                       else "calibrated position")]
     if errors is not None:
         handles.append(Line2D([], [], color=PALETTE[1], lw=1.5, label=(
-            f"error {TIMES} {factor:g} (calibrated {MINUS} {picture.reference_label})")))
+            f"error {TIMES} {scale.errors:g} (calibrated {MINUS} {picture.reference_label})")))
     if picture.covariance_m2 is not None:
         handles.append(Ellipse((0, 0), 1, 1, facecolor=PALETTE[5], alpha=0.25,
-                               label=f"95 % uncertainty {TIMES} {factor:g}"))
+                               label=f"95 % uncertainty {TIMES} {scale.ellipses:g}"
+                               + ("" if scale.ellipses == scale.errors or errors is None
+                                  else " (smaller: they would cover the array)")))
     handles.append(Line2D([], [], marker="s", ls="none", mfc="k", mec="k", ms=4,
                           label="camera and its optical axis"))
     if not all(c.calibrated for c in picture.cameras):
@@ -258,6 +304,10 @@ def geometry_figure(picture: ArrayPicture) -> Figure:
         norms = 1e3 * np.linalg.norm(errors, axis=1)
         title += (f"; against the {picture.reference_label}: mean {np.nanmean(norms):.3g} mm, "
                   f"max {np.nanmax(norms):.3g} mm")
+        inside = inside_ellipsoids(errors, picture.covariance_m2)
+        if inside is not None:
+            title += (f"\n{inside[0]} of {inside[1]} errors inside their 95 % uncertainty "
+                      "ellipsoid")
     if picture.missing:
         title += "\nnot drawn: " + "; ".join(picture.missing)
     fig.suptitle(title)

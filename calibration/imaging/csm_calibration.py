@@ -125,8 +125,9 @@ def apply_responses(spectra: CrossSpectra, responses: ChannelResponses) -> Cross
 
 def simulated_phase_error(n_channels: int, std_deg: float, seed: int = 0) -> ChannelResponses:
     """A per-channel phase error, normal with standard deviation std_deg degrees, constant
-    over frequency, for `apply_responses` (the evaluation's stand-in for microphones that
-    differ in phase until the simulated world models microphone responses itself)."""
+    over frequency, for `apply_responses`: a controlled error of a chosen size, applied in the
+    evaluation (the simulated world's own capsule responses, `micam simulate --effect
+    mic-responses`, are delays and resonances of fixed spread)."""
     if not 0.0 <= std_deg <= 90.0:
         raise ValueError(f"a phase error of {std_deg} degrees must lie in 0-90")
     phase = np.radians(std_deg) * np.random.default_rng([seed, 17]).standard_normal(n_channels)

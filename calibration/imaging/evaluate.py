@@ -65,8 +65,8 @@ class ImagingSettings:
         correction: channel responses the CSM is corrected for before beamforming
             (`csm_calibration.correct_csm`, per DFT bin), or None.
         simulated_error: channel responses applied to every recording's spectra first
-            (`csm_calibration.apply_responses`): microphone errors simulated in the evaluation,
-            a stand-in until the simulated world has microphone responses of its own.
+            (`csm_calibration.apply_responses`): a microphone error of a chosen size simulated
+            in the evaluation (the world's own capsule responses are in the recordings).
     """
 
     welch: WelchOptions = field(default_factory=WelchOptions)

@@ -15,7 +15,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -112,8 +112,9 @@ def cross_validate(session: Path, folds: int, settings: ImagingSettings | None =
 
     in_sample = evaluate(geometry_of(calibrate_measured(m, options)), located)
     held_out: list[Localization] = []
+    fold_options = replace(options, responses=False)  # not imaged with: not estimated
     for test in split:
         train = np.array([i for i, n in enumerate(numbers) if n not in test])
-        held_out += evaluate(geometry_of(calibrate_measured(m, options, train)), test)
+        held_out += evaluate(geometry_of(calibrate_measured(m, fold_options, train)), test)
     return CrossValidation(Evaluation(in_sample, settings), Evaluation(held_out, settings),
                            split)

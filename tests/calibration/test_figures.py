@@ -16,7 +16,7 @@ from matplotlib.quiver import Quiver
 
 from acquisition.demo_loop import report as demo_report
 from calibration import report
-from calibration.figures.geometry import geometry_figure
+from calibration.figures.geometry import ArrayPicture, geometry_figure, inside_ellipsoids
 from calibration.figures.residuals import corner_residual_figure, tof_residual_figure
 from calibration.figures.study import study_figure
 from calibration.pipeline import CalibrationRun, calibrate
@@ -78,6 +78,21 @@ def test_geometry_views_are_equal_aspect_and_show_every_camera(run: CalibrationR
     # The largest magnified (3-D) error spans 5-12 % of the array: visible, not overwhelming.
     extent = np.ptp(run.result.positions(), axis=0).max()
     assert 0.048 <= factor * np.linalg.norm(errors, axis=1).max() / extent <= 0.12
+
+
+def test_ellipses_much_larger_than_the_errors_get_their_own_factor() -> None:
+    rng = np.random.default_rng(0)
+    mics = rng.normal(0, 0.1, (40, 3))
+    errors = rng.normal(0, 1e-5, (40, 3))
+    errors[:4] = [6e-4, 0.0, 0.0]  # four microphones 6 sigma off
+    cov = np.broadcast_to(np.diag([1e-4, 1e-4, 4e-4]) ** 2, (40, 3, 3))
+    fig = geometry_figure(ArrayPicture(mics + errors, cov, mics, "simulated truth"))
+    legend = " ".join(t.get_text() for t in fig.legends[0].get_texts())
+    error_factor = float(re.search(r"error \S (\d+)", legend).group(1))
+    ellipse_factor = float(re.search(r"uncertainty \S (\d+)", legend).group(1))
+    assert ellipse_factor < error_factor and "smaller" in legend
+    assert "36 of 40 errors inside their 95 % uncertainty ellipsoid" in fig._suptitle.get_text()
+    assert inside_ellipsoids(errors, None) is None
 
 
 def test_report_figures_are_titled_small_and_notes_grouped(run: CalibrationRun, truth: dict,

@@ -143,6 +143,25 @@ def test_geometry_reads_board_latencies_per_microphone(session: Path) -> None:
         assert latency == truth["board_latencies_s"][mic["board"]]
 
 
+def test_geometry_adds_each_microphones_own_delay(session: Path, tmp_path: Path) -> None:
+    truth = json.loads((session / "truth.json").read_text())
+    plain = load_geometry(session / "truth.json")
+    for k, mic in enumerate(truth["microphones"]):
+        mic["delay_s"] = 1e-7 * (k % 5)
+    path = tmp_path / "result.json"
+    path.write_text(json.dumps(truth))
+    delayed = load_geometry(path)
+    own = np.array([1e-7 * (m["id"] % 5) for m in sorted(truth["microphones"],
+                                                         key=lambda m: m["id"])])
+    np.testing.assert_allclose(delayed.mic_latencies_s - plain.mic_latencies_s, own)
+    np.testing.assert_allclose(delayed.without_own_delays().mic_latencies_s,
+                               plain.mic_latencies_s)
+    truth["microphones"][3]["delay_s"] = float("nan")
+    path.write_text(json.dumps(truth))
+    with pytest.raises(ValueError, match="finite"):
+        load_geometry(path)
+
+
 def test_poses_in_worker_processes_give_the_same_localizations(tmp_path: Path) -> None:
     out = tmp_path / "s"
     assert run_command(simulate, ["--out", str(out), "--poses", "2", "--mls-order", "11",
