@@ -242,7 +242,7 @@ def responses_from_document(doc: dict, mic_ids: tuple[int, ...], source: str
         if missing:
             raise ValueError(f"no response for microphones {missing[:10]}")
         return ChannelResponses(freqs, np.column_stack([by_id[m] for m in mic_ids]),
-                                f"{source} (microphone_responses)")
+                                f"microphone_responses of {source}")
     except (KeyError, TypeError, ValueError) as exc:
         raise ValueError(f"{source}: its microphone_responses cannot be used: {exc}; see "
                          "docs/imaging.md for the format") from None
