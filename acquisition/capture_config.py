@@ -1,9 +1,11 @@
 """The capture configuration: what hardware records what, frozen into every session's manifest.
 
-It is the contract between acquisition and calibration: which column of a recording is which
-microphone (or the reference microphone), the volts per code of each column, which output
-drives which speaker, the burst, the rig and the cameras. Every model refuses unknown keys
-(ConfigModel), so a misspelt key of a hand-written `[hardware.capture]` is an error.
+It says which column of a recording is which microphone (or the reference microphone), the
+volts per code of each column, which output drives which speaker, the burst, the rig and the
+cameras. Calibration reads none of the hardware in it: it reads the rig and array description
+that `CaptureConfig.description` derives (acquisition/rig_description.py). Every model refuses
+unknown keys (ConfigModel), so a misspelt key of a hand-written `[hardware.capture]` is an
+error.
 """
 
 from __future__ import annotations
@@ -16,6 +18,14 @@ from pydantic import Field, ValidationError, model_validator
 from daq import CODE_FULL_SCALE, InputChannel, OutputChannel, ScanConfig
 
 from .config_model import ConfigModel, describe_problems
+from .rig_description import (
+    BurstLayout,
+    CameraDescription,
+    ChannelGroup,
+    ReferenceMicrophone,
+    RigArrayDescription,
+    RigDescription,
+)
 from .session import SessionError
 
 
@@ -75,38 +85,9 @@ class BurstConfig(ConfigModel):
         return self.pre_samples + 2**self.mls_order - 1 + self.post_samples
 
 
-class RigEntry(ConfigModel):
-    """The calibration rig (see sim.geometry.Rig for the frame) and how well it is known.
-
-    The tolerances are priors of the calibration, not corrections: it fits each speaker's
-    position on the rig and the print's scale, held to the stated values with these
-    standard deviations.
-    """
-
-    corners_x: int
-    corners_y: int
-    square_m: float
-    speakers_m: tuple[tuple[float, float, float], ...]
-    reference_mark_m: tuple[float, float, float]
-    speaker_tolerance_m: float = Field(
-        default=3e-4, ge=0, le=0.01,
-        description="build tolerance: standard deviation, per axis in the board plane, of each "
-                    "speaker's position about its stated one (m)")
-    acoustic_centre_m: float = Field(
-        default=0.0, ge=-0.02, le=0.02,
-        description="expected offset of each speaker's acoustic centre from its stated "
-                    "position along the board normal, + out of the printed face (m)")
-    acoustic_centre_std_m: float = Field(
-        default=5e-3, ge=0, le=0.05,
-        description="standard deviation of that offset, per speaker (m)")
-    print_scale_std: float = Field(
-        default=2e-3, ge=0, le=0.05,
-        description="relative standard deviation of the printed pattern's scale about the "
-                    "stated square size (0.002: within about 0.2 %)")
-    speaker_diameter_m: float | None = Field(
-        default=None, gt=0, le=0.5,
-        description="the speakers' diameter: their off-axis roll-off is then taken out of "
-                    "the microphones' estimated gains")
+RigEntry = RigDescription
+"""The calibration rig of a capture: the rig of the calibration's description (one model, so
+that a capture states its board's colours and tolerances exactly as an import does)."""
 
 
 class CameraEntry(ConfigModel):
@@ -145,7 +126,81 @@ class CaptureConfig(ConfigModel):
                 )
         if (self.reference.board, self.reference.channel) not in inputs:
             raise ValueError("the reference microphone's channel is not a configured input")
+        problems = self._calibration_problems()
+        if problems:
+            raise ValueError("\n".join(problems))
         return self
+
+    def _calibration_problems(self) -> list[str]:
+        """What would keep calibration from reading the capture (its description)."""
+        problems = []
+        for k, s in enumerate(self.speakers):
+            if s.index != k:
+                problems.append(f"speakers[{k}].index: {s.index}; list the speakers in index "
+                                f"order from 0 (write index = {k})")
+            elif k < len(self.rig.speakers_m) and tuple(s.rig_position_m) != tuple(
+                    self.rig.speakers_m[k]):
+                problems.append(f"speakers[{k}].rig_position_m: {list(s.rig_position_m)} "
+                                f"differs from rig.speakers_m[{k}] "
+                                f"{list(self.rig.speakers_m[k])}; write the same position")
+        if len(self.rig.speakers_m) != len(self.speakers):
+            problems.append(f"rig.speakers_m: {len(self.rig.speakers_m)} positions for "
+                            f"{len(self.speakers)} speakers; write one per speaker")
+        if self.rig.reference_mark_m is None:
+            problems.append("rig.reference_mark_m: missing; a capture takes the 'refmic' image, "
+                            "so write the rig point touched to the reference microphone, e.g. "
+                            "reference_mark_m = [-0.09, -0.06, 0.0]")
+        roles = [c.role for c in self.columns]
+        if roles.count("reference") != 1:
+            problems.append(f"columns: {roles.count('reference')} columns have role "
+                            "'reference'; write role = 'reference' on exactly the one that "
+                            "records the reference microphone")
+        for j, c in enumerate(self.columns):
+            if c.role == "mic" and c.mic_id is None:
+                problems.append(f"columns[{j}].mic_id: missing for a 'mic' column; write the "
+                                "microphone's id, e.g. mic_id = 0")
+        return problems
+
+    def description(self, image_sizes: dict[str, tuple[int, int]]) -> RigArrayDescription:
+        """What calibration knows of a session captured with this configuration.
+
+        Args:
+            image_sizes: (width, height) of the cameras' images (a capture configuration names
+                the cameras' devices, not their image sizes; the session's images do). A
+                camera other than camera 0 without images is left out: there is nothing of it
+                to calibrate.
+
+        Raises:
+            ValueError: camera 0 (the calibration's frame) has no image size.
+        """
+        groups: dict[str, list[tuple[int, int]]] = {}
+        for j, c in enumerate(self.columns):
+            if c.role == "mic":
+                groups.setdefault(c.board, []).append((j, int(c.mic_id or 0)))
+        reference_column = [c.role for c in self.columns].index("reference")
+        frame = self.cameras[0].name
+        if frame not in image_sizes:
+            raise ValueError(f"no image of camera {frame}, the calibration's frame: its image "
+                             "size is unknown; capture the poses with it")
+        return RigArrayDescription(
+            sample_rate_hz=self.sample_rate_hz,
+            rig=self.rig,
+            channels=tuple(ChannelGroup(
+                group=board, columns=tuple(j for j, _ in entries),
+                mic_ids=tuple(m for _, m in entries),
+                volts_per_unit=tuple(self.columns[j].volts_per_code for j, _ in entries))
+                for board, entries in groups.items()),
+            reference=ReferenceMicrophone(
+                group=self.reference.board, reference_recordings_column=reference_column,
+                pose_recordings_column=reference_column,
+                distance_from_speaker_m=self.reference.distance_from_speaker_m),
+            burst=BurstLayout(silence_before_samples=self.burst.pre_samples,
+                              mls_order=self.burst.mls_order,
+                              silence_after_samples=self.burst.post_samples),
+            cameras=tuple(CameraDescription(name=c.name, width=image_sizes[c.name][0],
+                                            height=image_sizes[c.name][1])
+                          for c in self.cameras if c.name in image_sizes),
+        )
 
     @classmethod
     def of_session(cls, capture: dict[str, Any], session: Path | str) -> CaptureConfig:

@@ -13,10 +13,12 @@ from collections.abc import Sequence
 from .commands import (
     calibrate,
     capture,
+    config,
     daemon,
     daq,
     evaluate_imaging,
     image,
+    import_session,
     inspect,
     session,
     sessions,
@@ -28,7 +30,8 @@ from .commands import (
 from .errors import UserError
 
 SUBCOMMANDS = (
-    simulate, inspect, calibrate, study, image, evaluate_imaging, daq, daemon, session,
+    simulate, import_session, inspect, calibrate, study, image, evaluate_imaging, daq, daemon,
+    config, session,
     capture, watch, sessions,
     worker,
 )

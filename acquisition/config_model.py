@@ -4,12 +4,14 @@ Every model a configuration file reaches (the daemon's sections, the capture con
 everything nested in it) derives from `ConfigModel`, which refuses unknown keys: a misspelt
 option is an error naming the key, never a setting silently ignored. `describe_problems` turns
 pydantic's ValidationError into one line per problem that names the key, its section, the keys
-the section accepts and the closest one to a misspelling.
+the section accepts and the closest one to a misspelling, and, for a field that gives
+`examples`, what to write instead (`write e.g. key = value (its description)`).
 """
 
 from __future__ import annotations
 
 import difflib
+import json
 from typing import Any, get_args
 
 from pydantic import BaseModel, ConfigDict, ValidationError
@@ -46,7 +48,36 @@ def _describe(error: Any, root: type[BaseModel]) -> str:
     given = error.get("input")
     if error["type"] != "missing" and isinstance(given, str | int | float | bool):
         message += f" (got {given!r})"
-    return f"{where}: {message}"
+    return f"{where}: {message}{_hint(root, loc)}"
+
+
+def _hint(root: type[BaseModel], loc: Loc) -> str:
+    """`; write e.g. key = example (description)` for the field at `loc`, if it has an
+    example (in TOML's notation: JSON's lists, strings and numbers are TOML's too)."""
+    found = _field_at(root, loc)
+    if found is None:
+        return ""
+    name, field = found
+    if not field.examples:
+        return ""
+    text = f"; write e.g. {name} = {json.dumps(field.examples[0])}"
+    return text + (f" ({field.description})" if field.description else "")
+
+
+def _field_at(root: type[BaseModel], loc: Loc) -> tuple[str, Any] | None:
+    """The name and FieldInfo of the last key of `loc` that is a field (list indices and
+    union tags skipped), or None."""
+    model: type[BaseModel] | None = root
+    found = None
+    for part in loc:
+        if isinstance(part, int) or model is None:
+            continue
+        field = model.model_fields.get(part)
+        if field is None:
+            continue
+        found = (part, field)
+        model = _model_in(field.annotation)
+    return found
 
 
 def dotted(loc: Loc) -> str:

@@ -13,12 +13,16 @@ Model (frames of `calibration.cameras`; x_cam = R(rvec) x + t everywhere):
   and OpenCV's 5 distortion coefficients, the board pose k (rig -> camera 0), camera i's
   transform from camera 0 (identity for camera 0) and the print's scale s (1: as stated);
 - time of flight from speaker s of pose k to microphone m (paper eq. 15, extended):
-  tau = (|X_m - (R_k (P_s + D_s) + t_k)| - d_ref) / c_k + d_ref / c_tof + delta_b(m) + e_m,
-  with D_s the speaker's offset on the rig from its stated position P_s (build tolerance and
-  acoustic centre), c_k the speed of sound during pose k, delta_b the board latency, e_m the
-  microphone's own delay, and d_ref the reference microphone's distance from the diaphragm
-  during the reference recording (measured delays are relative to that recording; the TOFs
-  handed in had d_ref / c_tof added, so the model takes it out again at the fitted c);
+  tau = (|v| - b (1 - cos theta) cos theta - d_ref) / c_k + d_ref / c_tof + delta_b(m) + e_m,
+  v = X_m - (R_k (P_s + D_s) + t_k), with D_s the speaker's offset on the rig from its stated
+  position P_s (build tolerance and acoustic centre), theta the angle between the rig's normal
+  R_k z and v, b how far the acoustic centre moves forward off the speaker's axis (a driver's
+  acoustic centre depends on frequency, and off axis its high frequencies roll off: the
+  centre a correlation sees moves with the angle, by tens of micrometres at 50 degrees), c_k
+  the speed of sound during pose k, delta_b the board latency, e_m the microphone's own
+  delay, and d_ref the reference microphone's distance from the diaphragm during the
+  reference recording (measured delays are relative to that recording; the TOFs handed in
+  had d_ref / c_tof added, so the model takes it out again at the fitted c);
 - time of flight from the same source to the reference microphone on its stand (position an
   unknown; no latency or own delay: its board is the latency gauge and its capsule is the
   reference recording's).
@@ -33,7 +37,8 @@ speed of sound (a thermometer). The covariance carries what is left of it.
 Unknowns: every camera's 9 intrinsics, the other cameras' extrinsics (6 each), every board
 pose including the reference-microphone step (6 each), the microphones (3 each), the reference
 microphone (3), c (one, or one per pose), the latencies, and with their priors (`BundlePriors`)
-the microphones' own delays, the speakers' rig offsets and the print scale. Residuals are
+the microphones' own delays, the speakers' rig offsets, the off-axis move b and the print
+scale. Residuals are
 whitened: corner pixels by a per-camera sigma, times of flight by their predicted std times a
 per-kind scale; both are estimated from the residual scatter (median absolute deviation) at
 the start and again after each pass. The priors are Gaussian pseudo-observations with the
@@ -165,20 +170,28 @@ class BundlePriors:
         speaker_offset_std_m: (n_speaker, 3) its standard deviation per axis (in-plane: the
             build tolerance; along Z: the acoustic centre's uncertainty).
         print_scale_std: relative standard deviation of the printed pattern's scale.
+        off_axis_std_m: standard deviation of b, the acoustic centre's move off axis
+            (prior mean 0).
         mic_delay_std_s: standard deviation of each microphone's own delay (capsule and
             channel group delay) about the mean of its board.
         speed_of_sound: (c, std) a known speed of sound (a thermometer), m/s, as a prior on
             the session's mean c; None: unknown.
         speed_of_sound_step_m_s: standard deviation of the change of c from one pose to the
             next, when c is fitted per pose (the air drifting).
+        intrinsics_mean, intrinsics_std: (n_camera, 9) intrinsics known from elsewhere and
+            their standard deviations (0: FIXED; NaN: nothing known, fitted freely); None:
+            every camera fitted freely.
     """
 
     speaker_offset_mean_m: np.ndarray
     speaker_offset_std_m: np.ndarray
     print_scale_std: float = FIXED
+    off_axis_std_m: float = FIXED
     mic_delay_std_s: float = FIXED
     speed_of_sound: tuple[float, float] | None = None
     speed_of_sound_step_m_s: float = 0.01
+    intrinsics_mean: np.ndarray | None = None
+    intrinsics_std: np.ndarray | None = None
 
     @classmethod
     def none(cls, n_speaker: int) -> BundlePriors:
@@ -202,6 +215,8 @@ class BundleState:
         speaker_offsets_m: (n_speaker, 3) each speaker's offset from its stated rig position,
             rig frame (empty: zeros).
         print_scale: the printed pattern's scale relative to the stated one.
+        off_axis_m: b, how far the speakers' acoustic centre moves forward off axis (at
+            theta: b (1 - cos theta) along the normal).
     """
 
     intrinsics: np.ndarray
@@ -214,6 +229,7 @@ class BundleState:
     mic_delays_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     speaker_offsets_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     print_scale: float = 1.0
+    off_axis_m: float = 0.0
 
     @property
     def speed_of_sound_m_s(self) -> float:
@@ -242,7 +258,8 @@ class BundleSolution:
         covariance: full covariance of the parameter vector (see `parameter_slices`).
         parameter_slices: name -> slice of the parameter vector ("intrinsics", "extrinsics",
             "poses", "microphones", "reference", "c", "latencies", "mic_delays",
-            "speaker_offsets", "print_scale"); fixed unknowns have zero variance.
+            "speaker_offsets", "print_scale", "off_axis"); fixed unknowns have zero
+            variance.
         sigmas: noise group -> estimated sigma: pixels per coordinate for a camera's corners,
             a factor on the predicted std for the times of flight.
         corner_residuals_px: (n_view, n_corner, 2) detected minus modelled corners.
@@ -306,6 +323,7 @@ class _Layout:
             "reference": (3,), "c": state.speeds_of_sound_m_s.shape,
             "latencies": state.latencies_s.shape, "mic_delays": state.mic_delays_s.shape,
             "speaker_offsets": state.speaker_offsets_m.shape, "print_scale": (1,),
+            "off_axis": (1,),
         }  # fmt: skip
         slices, start = {}, 0
         for name, shape in shapes.items():
@@ -316,20 +334,21 @@ class _Layout:
 
     @property
     def size(self) -> int:
-        return self.slices["print_scale"].stop
+        return self.slices["off_axis"].stop
 
     def pack(self, s: BundleState) -> np.ndarray:
         return np.concatenate([s.intrinsics.ravel(), s.extrinsics.ravel(), s.poses.ravel(),
                                s.microphones_m.ravel(), s.reference_m, s.speeds_of_sound_m_s,
                                s.latencies_s, s.mic_delays_s, s.speaker_offsets_m.ravel(),
-                               [s.print_scale]])  # fmt: skip
+                               [s.print_scale], [s.off_axis_m]])  # fmt: skip
 
     def unpack(self, x: np.ndarray) -> BundleState:
         part = {n: x[sl].reshape(self.shapes[n]) for n, sl in self.slices.items()}
         return BundleState(part["intrinsics"], part["extrinsics"], part["poses"],
                            part["microphones"], part["reference"], part["c"],
                            part["latencies"], part["mic_delays"], part["speaker_offsets"],
-                           float(part["print_scale"][0]))  # fmt: skip
+                           float(part["print_scale"][0]),
+                           float(part["off_axis"][0]))  # fmt: skip
 
     def columns(self, name: str, index: np.ndarray, width: int) -> np.ndarray:
         """(n, width) parameter columns of blocks `index` of the named unknowns."""
@@ -411,7 +430,7 @@ class _Model:
         trip = _Triplets() if jacobian else None
         corners = self._corners(s, trip)
         sources, d_sources = self._sources(s)
-        tofs = self._tofs(s, sources, d_sources, trip)
+        tofs = self._tofs(s, (sources, d_sources, *self._normals(s)), trip)
         residual = np.concatenate([corners, tofs])
         jac = trip.matrix(self.n_rows, self.layout.size) if jacobian else None
         return residual, jac
@@ -491,15 +510,26 @@ class _Model:
                                    np.broadcast_to(np.eye(3), (k.size, 3, 3)), R], axis=2)
         return positions, d_source
 
-    def _tofs(self, s: BundleState, sources: np.ndarray, d_sources: np.ndarray,
+    def _normals(self, s: BundleState) -> tuple[np.ndarray, np.ndarray]:
+        """(n_src, 3) the rig's normal R_k z at every source and (n_src, 3, 3) its derivative
+        by pose k's rvec."""
+        rvec = s.poses[self.p.pose_of_source, :3]
+        z = np.broadcast_to([0.0, 0.0, 1.0], rvec.shape)
+        return Rotation.from_rotvec(rvec).as_matrix()[:, :, 2], rotated_point_jacobian(rvec, z)
+
+    def _tofs(self, s: BundleState,
+              geometry: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
               trip: _Triplets | None) -> np.ndarray:
-        """Modelled minus measured times of flight: array microphones, then the reference."""
+        """Modelled minus measured times of flight: array microphones, then the reference.
+        `geometry`: the sources, their derivatives, the rig's normals and theirs."""
         p, lay = self.p, self.layout
+        sources, d_sources, normals, d_normals = geometry
         parts = []
         start = self.n_corner_rows
         d_ref = (np.zeros(p.pose_of_source.size) if p.reference_distance_m is None
                  else p.reference_distance_m)
         c_of_source = self.c_of_source
+        b = s.off_axis_m
         for src, receiver, lat_col, own, measured, name in (
             (self.src, s.microphones_m[self.mic], p.latency_column[self.mic],
              s.mic_delays_s[self.mic], p.tof_s[self.tof_valid], "microphones"),
@@ -509,23 +539,35 @@ class _Model:
         ):
             diff = receiver - sources[src]
             dist = np.linalg.norm(diff, axis=1)
+            unit = diff / dist[:, None]
+            n = normals[src]
+            cos = np.einsum("ra,ra->r", unit, n)
+            off_axis = (1.0 - cos) * cos  # the acoustic centre's move, per unit of b
             lat = np.append(s.latencies_s, 0.0)[lat_col]  # column -1: the gauge board, 0
             c_col = c_of_source[src]
             c = s.speeds_of_sound_m_s[c_col]
-            flight = dist - d_ref[src]
+            flight = dist - b * off_axis - d_ref[src]
             parts.append(flight / c + d_ref[src] / p.tof_speed_of_sound_m_s + lat + own
                          - measured)
             if trip is not None:
                 rows = start + np.arange(src.size)
-                grad = diff / (dist * c)[:, None]
+                # d(flight)/d(diff): the distance's unit vector, less b d(off_axis)/d(diff)
+                d_cos_d_diff = (n - cos[:, None] * unit) / dist[:, None]
+                d_off = (1.0 - 2.0 * cos)[:, None]
+                grad = (unit - b * d_off * d_cos_d_diff) / c[:, None]
                 index = self.mic if name == "microphones" else np.zeros(src.size, dtype=int)
                 trip.add(rows, lay.columns(name, index, 3), grad)
                 d_src = -np.einsum("ra,raw->rw", grad, d_sources[src])
+                # the normal turns with the pose's rotation: d(cos)/d(n) = unit
+                d_src[:, :3] -= (b / c * d_off[:, 0])[:, None] * np.einsum(
+                    "ra,raw->rw", unit, d_normals[src])
                 trip.add(rows, lay.columns("poses", p.pose_of_source[src], 6), d_src[:, :6])
                 trip.add(rows, lay.columns("speaker_offsets", p.speaker_of_source[src], 3),
                          d_src[:, 6:])
                 trip.add(rows, (lay.slices["c"].start + c_col)[:, None],
                          (-flight / c**2)[:, None])
+                trip.add(rows, np.full((src.size, 1), lay.slices["off_axis"].start),
+                         (-off_axis / c)[:, None])
                 has = lat_col >= 0
                 trip.add(rows[has], lay.slices["latencies"].start + lat_col[has, None],
                          np.ones((has.sum(), 1)))
@@ -582,6 +624,15 @@ class _Priors:
             for a in range(3):
                 prior(offsets + 3 * j + a, float(mean[j, a]), float(std[j, a]))
         prior(layout.slices["print_scale"].start, 1.0, priors.print_scale_std)
+        prior(layout.slices["off_axis"].start, 0.0, priors.off_axis_std_m)
+        if priors.intrinsics_mean is not None and priors.intrinsics_std is not None:
+            start = layout.slices["intrinsics"].start
+            for j, (mu, sd) in enumerate(zip(priors.intrinsics_mean.ravel(),
+                                             priors.intrinsics_std.ravel(), strict=True)):
+                if np.isfinite(sd):
+                    prior(start + j, float(mu), float(sd))
+        if not np.any(np.isfinite(problem.reference_tof_s) & (problem.reference_std_s > 0)):
+            free[layout.slices["reference"]] = False  # no data: the stand is not in the fit
         for m in range(layout.shapes["mic_delays"][0]):
             prior(layout.slices["mic_delays"].start + m, 0.0, priors.mic_delay_std_s)
         c = layout.slices["c"]

@@ -15,8 +15,11 @@ Frames (see DESIGN.md, "Calibration"):
   printed face, so rig Z points towards it). The remaining two differ by a half-turn, the
   checkerboard's 180-degree ambiguity; the paper's speaker layout is symmetric under it (a
   wrong choice swaps speakers 1<->4, 2<->3, 5<->6), so it is resolved from the square colours:
-  the square on the +X +Y side of the rig origin is printed dark (sim.light), the one at the
-  opposite end white (a 6 x 9 grid has an odd number of squares along Y).
+  the square on the +X +Y side of the rig origin is printed in the colour the rig description
+  states (`origin_square`: dark in micam's own print, sim.light), the one at the opposite end
+  in the other colour when corners_x + corners_y is odd (a 6 x 9 grid); a pattern that looks
+  the same after a half-turn needs a marker (a dot of the other colour in one square off the
+  centre, `marker_square`), which the rig description insists on.
 - a board pose (rvec, tvec) maps rig coordinates into the camera's: x_cam = R(rvec) x_rig + t.
 
 Detection is fast where it can be: on a full-size image without a board, OpenCV's classic
@@ -39,6 +42,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from acquisition.rig_description import KnownIntrinsics, RigDescription
 from acquisition.session import SessionReader
 
 from ._cores import default_workers
@@ -77,17 +81,23 @@ class Checkerboard:
         corners_x: inner corners along the rig's X axis (6).
         corners_y: inner corners along the rig's Y axis (9).
         square_m: side of a square, metres.
+        origin_dark: the square between the origin corner and its +X, +Y neighbours is dark.
+        marker_square: (i, j) of a square with a dot of the other colour at its centre, or
+            None.
     """
 
     corners_x: int
     corners_y: int
     square_m: float
+    origin_dark: bool = True
+    marker_square: tuple[int, int] | None = None
 
     @classmethod
-    def from_capture(cls, capture: dict) -> Checkerboard:
-        """The board of a session's capture configuration (SessionReader.capture)."""
-        rig = capture["rig"]
-        return cls(int(rig["corners_x"]), int(rig["corners_y"]), float(rig["square_m"]))
+    def of_rig(cls, rig: RigDescription) -> Checkerboard:
+        """The board of a rig description (`SessionData.rig`)."""
+        marker = None if rig.marker_square is None else tuple(rig.marker_square)
+        return cls(rig.corners_x, rig.corners_y, rig.square_m, rig.origin_square == "dark",
+                   marker)  # type: ignore[arg-type]
 
     @property
     def pattern_size(self) -> tuple[int, int]:
@@ -138,7 +148,7 @@ class BoardView:
         corners_px: (n_corners, 2) refined corner pixels in rig order (X fastest).
         rig_to_cam: the board pose in this camera's frame; its covariance comes from the
             Jacobian of the reprojection scaled by this image's residual variance, and includes
-            the uncertainty of the camera's intrinsics (see `_covariances`).
+            the uncertainty of the camera's intrinsics (see `_pose_covariances`).
         rms_px: RMS reprojection error of the image's corners, pixels.
     """
 
@@ -307,14 +317,15 @@ def _refine(grey: np.ndarray, corners: np.ndarray, board: Checkerboard) -> np.nd
 def _to_rig_order(grey: np.ndarray, corners: np.ndarray, board: Checkerboard) -> np.ndarray:
     """Reorder OpenCV's corners (rows of corners_x) into the rig frame's order.
 
-    Of the four orders that keep the rows (identity, X flip, Y flip, both), the one kept is
-    right-handed with Z towards the camera and has dark squares where the print has them.
+    Of the four orders that keep the rows (identity, X flip, Y flip, both), the two that are
+    right-handed with Z towards the camera differ by a half-turn; the one kept has its colours
+    (and marker) where the print has them.
     """
     grid = corners.reshape(board.corners_y, board.corners_x, 2)
-    for candidate in (grid, grid[:, ::-1], grid[::-1, :], grid[::-1, ::-1]):
-        if _faces_camera(candidate) and _colours_match(grey, candidate):
-            return candidate.reshape(-1, 2)
-    raise AssertionError("no corner order is right-handed with matching colours")  # unreachable
+    handed = [c for c in (grid, grid[:, ::-1], grid[::-1, :], grid[::-1, ::-1])
+              if _faces_camera(c)]
+    best = max(handed, key=lambda c: _colour_score(grey, c, board))
+    return best.reshape(-1, 2)
 
 
 def _faces_camera(grid: np.ndarray) -> bool:
@@ -329,12 +340,14 @@ def _faces_camera(grid: np.ndarray) -> bool:
     return float(step_x[0] * step_y[1] - step_x[1] * step_y[0]) < 0.0
 
 
-def _colours_match(grey: np.ndarray, grid: np.ndarray) -> bool:
-    """True if the squares between the corners are dark where the rig frame prints them.
+def _colour_score(grey: np.ndarray, grid: np.ndarray, board: Checkerboard) -> float:
+    """How well the squares between the corners have the colours the print gives them
+    (positive: they do).
 
-    Square (i, j) between corners (i, j) and (i + 1, j + 1) is dark when i + j is even
-    (sim.light); the grey level at every square centre is correlated with that pattern, so
-    one misread square cannot flip the decision.
+    Square (i, j) between corners (i, j) and (i + 1, j + 1) is dark when i + j is even and the
+    origin square is dark (sim.light), when i + j is odd otherwise; the marker square, if any,
+    shows the other colour at its centre. The grey level at every square centre is correlated
+    with that pattern, so one misread square cannot flip the decision.
     """
     centres = (grid[:-1, :-1] + grid[1:, :-1] + grid[:-1, 1:] + grid[1:, 1:]) / 4
     h, w = grey.shape
@@ -342,8 +355,11 @@ def _colours_match(grey: np.ndarray, grid: np.ndarray) -> bool:
     v = np.clip(np.rint(centres[..., 1]).astype(int), 0, h - 1)
     level = grey[v, u].astype(np.float64)
     j, i = np.indices(level.shape)
-    dark_sign = np.where((i + j) % 2 == 0, -1.0, 1.0)
-    return float(np.sum(dark_sign * (level - level.mean()))) > 0.0
+    dark_sign = np.where((i + j) % 2 == (0 if board.origin_dark else 1), -1.0, 1.0)
+    if board.marker_square is not None:
+        mi, mj = board.marker_square
+        dark_sign[mj, mi] *= -1.0
+    return float(np.sum(dark_sign * (level - level.mean())))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -365,7 +381,12 @@ def _detect(image: np.ndarray, board: Checkerboard) -> Detection:
 
 
 def calibrate_session(
-    reader: SessionReader, min_views: int = MIN_VIEWS, min_shared_views: int = MIN_SHARED_VIEWS
+    reader: SessionReader,
+    board: Checkerboard,
+    cameras: list[str],
+    known: dict[str, KnownIntrinsics] | None = None,
+    min_views: int = MIN_VIEWS,
+    min_shared_views: int = MIN_SHARED_VIEWS,
 ) -> CameraCalibration:
     """Calibrate every camera of a session from all its checkerboard images.
 
@@ -375,18 +396,21 @@ def calibrate_session(
     (the calibration worker, whose live jobs see the same images again with a few more poses
     each time) decodes and searches each image once.
 
+    Args:
+        reader: the session.
+        board: its checkerboard (`Checkerboard.of_rig`).
+        cameras: camera names, camera 0 first.
+        known: intrinsics known from elsewhere, by camera name (see `calibrate_detections`).
+
     Raises:
-        CameraCalibrationError: camera 0 has fewer than `min_views` views with a board.
+        CameraCalibrationError: camera 0 has too few views with a board.
     """
-    capture = reader.capture
-    board = Checkerboard.from_capture(capture)
-    cameras = [c["name"] for c in capture["cameras"]]
     files = {(camera, step): record.files[f"{camera}.png"]
              for step, record in sorted(reader.steps().items())
              for camera in cameras if f"{camera}.png" in record.files}
     with _detections_lock:
-        known = {key: _detections.get((file.sha256, board)) for key, file in files.items()}
-    new = [key for key, found in known.items() if found is None]
+        remembered = {key: _detections.get((file.sha256, board)) for key, file in files.items()}
+    new = [key for key, found in remembered.items() if found is None]
 
     def detect(key: tuple[str, str]) -> Detection:
         camera, step = key
@@ -402,8 +426,8 @@ def calibrate_session(
             _detections.move_to_end((files[key].sha256, board))
         while len(_detections) > DETECTION_CACHE_SIZE:
             _detections.popitem(last=False)
-    detections = {key: known[key] or detected[key] for key in files}
-    return calibrate_detections(detections, cameras, board, min_views, min_shared_views)
+    detections = {key: remembered[key] or detected[key] for key in files}
+    return calibrate_detections(detections, cameras, board, min_views, min_shared_views, known)
 
 
 def calibrate_images(
@@ -412,12 +436,13 @@ def calibrate_images(
     board: Checkerboard,
     min_views: int = MIN_VIEWS,
     min_shared_views: int = MIN_SHARED_VIEWS,
+    known: dict[str, KnownIntrinsics] | None = None,
 ) -> CameraCalibration:
     """Calibrate cameras from images keyed by (camera, step) (see `calibrate_detections`)."""
     with ThreadPoolExecutor(default_workers()) as pool:  # OpenCV releases the lock
         found = list(pool.map(lambda image: _detect(image, board), images.values()))
     return calibrate_detections(dict(zip(images, found, strict=True)), cameras, board,
-                                min_views, min_shared_views)
+                                min_views, min_shared_views, known)
 
 
 def calibrate_detections(
@@ -426,6 +451,7 @@ def calibrate_detections(
     board: Checkerboard,
     min_views: int = MIN_VIEWS,
     min_shared_views: int = MIN_SHARED_VIEWS,
+    known: dict[str, KnownIntrinsics] | None = None,
 ) -> CameraCalibration:
     """Calibrate cameras from the corners found in their images, keyed by (camera, step).
 
@@ -434,12 +460,16 @@ def calibrate_detections(
         cameras: camera names, camera 0 (the reference frame) first.
         board: the checkerboard.
         min_views: fewest views a camera needs; cameras other than camera 0 with fewer are
-            reported in `uncalibrated`.
+            reported in `uncalibrated`. A camera with known intrinsics needs one view.
         min_shared_views: fewest views two cameras must share to link their frames.
+        known: intrinsics known from elsewhere, by camera name: "fixed" ones are used as
+            given (the board poses are fitted with them), a "prior" is combined with the
+            images' own fit, each weighted by its information (see `_combine_with_prior`).
 
     Raises:
         CameraCalibrationError: camera 0 has fewer than `min_views` views with a board.
     """
+    known = known or {}
     corners: dict[tuple[str, str], np.ndarray] = {}
     missed = []
     for (camera, step), (found, _) in detections.items():
@@ -452,9 +482,10 @@ def calibrate_detections(
     uncalibrated: dict[str, str] = {}
     for camera in cameras:
         own = {step: c for (cam, step), c in corners.items() if cam == camera}
-        if len(own) < min_views:
+        needed = 1 if camera in known else min_views
+        if len(own) < needed:
             reason = (
-                f"the board was found in {len(own)} of its images, fewer than the {min_views} "
+                f"the board was found in {len(own)} of its images, fewer than the {needed} "
                 "needed to fit intrinsics and distortion"
             )
             if camera == cameras[0]:
@@ -465,7 +496,8 @@ def calibrate_detections(
             uncalibrated[camera] = reason
             continue
         size = _image_size(detections, camera)
-        intrinsics[camera], camera_views = _calibrate_camera(camera, own, size, board)
+        intrinsics[camera], camera_views = _calibrate_camera(camera, own, size, board,
+                                                             known.get(camera), min_views)
         views.update({(camera, v.step): v for v in camera_views})
     extrinsics = _link_cameras(intrinsics, views, board, min_shared_views)
     for camera in intrinsics:
@@ -488,29 +520,75 @@ def _image_size(detections: dict[tuple[str, str], Detection], camera: str) -> tu
 
 
 def _calibrate_camera(
-    camera: str, corners: dict[str, np.ndarray], size: tuple[int, int], board: Checkerboard
+    camera: str, corners: dict[str, np.ndarray], size: tuple[int, int], board: Checkerboard,
+    known: KnownIntrinsics | None = None, min_views: int = MIN_VIEWS,
 ) -> tuple[CameraIntrinsics, list[BoardView]]:
-    """calibrateCamera on one camera's views, then the covariances and errors of the fit."""
+    """calibrateCamera on one camera's views (or its known intrinsics), then the covariances
+    and errors of the fit."""
     steps = sorted(corners)
     obj = board.object_points().astype(np.float32)
     image_points = [corners[s].astype(np.float32).reshape(-1, 1, 2) for s in steps]
-    rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(
-        [obj] * len(steps), image_points, size, None, None, criteria=_CALIB_CRITERIA
-    )
-    dist = dist.ravel()[:5]
-    fits = [
-        _view_fit(corners[s], r.ravel(), t.ravel(), K, dist, board)
-        for s, r, t in zip(steps, rvecs, tvecs, strict=True)
-    ]
-    intrinsics_cov, pose_covs = _covariances(fits)
+    if known is not None and (known.use == "fixed" or len(steps) < min_views):
+        K, dist = np.array(known.camera_matrix), np.array(known.distortion)
+        intrinsics_cov = (np.diag(np.square(known.std)) if known.std is not None
+                          else np.zeros((9, 9)))
+        fits = _fits_with(K, dist, corners, steps, board)
+    else:
+        flags = cv2.CALIB_USE_INTRINSIC_GUESS if known is not None else 0
+        K0 = np.array(known.camera_matrix) if known is not None else None
+        d0 = np.array(known.distortion) if known is not None else None
+        _, K, dist, rvecs, tvecs = cv2.calibrateCamera(
+            [obj] * len(steps), image_points, size, K0, d0, flags=flags,
+            criteria=_CALIB_CRITERIA
+        )
+        dist = dist.ravel()[:5]
+        fits = [
+            _view_fit(corners[s], r.ravel(), t.ravel(), K, dist, board)
+            for s, r, t in zip(steps, rvecs, tvecs, strict=True)
+        ]
+        intrinsics_cov = np.linalg.inv(_intrinsics_information(fits))
+        if known is not None:
+            K, dist, intrinsics_cov = _combine_with_prior(K, dist, intrinsics_cov, known)
+            fits = _fits_with(K, dist, corners, steps, board)
+    pose_covs = _pose_covariances(fits, intrinsics_cov)
     views = [
         BoardView(camera, s, corners[s], Pose(f.rvec, f.tvec, cov), f.rms_px)
         for s, f, cov in zip(steps, fits, pose_covs, strict=True)
     ]
-    intr = CameraIntrinsics(
-        camera, size[0], size[1], K, dist, intrinsics_cov, float(rms), len(steps)
-    )
+    rms = float(np.sqrt(np.mean([f.rms_px**2 for f in fits])))
+    intr = CameraIntrinsics(camera, size[0], size[1], K, dist, intrinsics_cov, rms, len(steps))
     return intr, views
+
+
+def _fits_with(K: np.ndarray, dist: np.ndarray, corners: dict[str, np.ndarray],
+               steps: list[str], board: Checkerboard) -> list[_ViewFit]:
+    """Every view's board pose fitted with the given intrinsics (solvePnP), and its fit."""
+    obj = board.object_points()
+    fits = []
+    for s in steps:
+        ok, rvec, tvec = cv2.solvePnP(obj, corners[s].reshape(-1, 1, 2), K, dist,
+                                      flags=cv2.SOLVEPNP_ITERATIVE)
+        if not ok:
+            raise CameraCalibrationError(f"no board pose fits the corners of {s} with the "
+                                         "known intrinsics; check the intrinsics file")
+        fits.append(_view_fit(corners[s], rvec.ravel(), tvec.ravel(), K, dist, board))
+    return fits
+
+
+def _combine_with_prior(K: np.ndarray, dist: np.ndarray, cov: np.ndarray,
+                        known: KnownIntrinsics) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The images' intrinsics combined with a prior, each weighted by its information
+    (the linearized maximum a posteriori: x = (S + P)^-1 (S x_images + P x_prior), with S the
+    images' information and P = diag(1 / std^2) the prior's); its covariance (S + P)^-1."""
+    x_images = np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], *dist])
+    Kp = np.array(known.camera_matrix)
+    x_prior = np.array([Kp[0, 0], Kp[1, 1], Kp[0, 2], Kp[1, 2], *known.distortion])
+    S = np.linalg.inv(cov)
+    P = np.diag(1.0 / np.square(known.std))  # type: ignore[arg-type]
+    combined_cov = np.linalg.inv(S + P)
+    x = combined_cov @ (S @ x_images + P @ x_prior)
+    K_new = np.array([[x[0], 0.0, x[2]], [0.0, x[1], x[3]], [0.0, 0.0, 1.0]])
+    return K_new, x[4:], combined_cov
 
 
 @dataclass(frozen=True)
@@ -555,26 +633,37 @@ def _view_fit(
     )
 
 
-def _covariances(fits: list[_ViewFit]) -> tuple[np.ndarray, list[np.ndarray]]:
-    """Covariance (9, 9) of the intrinsics and (6, 6) of every pose, from the joint problem.
+def _intrinsics_information(fits: list[_ViewFit]) -> np.ndarray:
+    """Information matrix (9, 9) of the intrinsics in the joint fit of all views, the poses
+    marginalized out.
 
     The information matrix of the joint fit, each view weighted by its own residual variance
     s_i^2 (a blurred image counts less), is [[U, W], [W^T, V]] with V block-diagonal:
     V_i = J_i^T J_i / s_i^2, W_i = C_i^T J_i / s_i^2, U = sum C_i^T C_i / s_i^2 (J: pose
-    Jacobian, C: intrinsics Jacobian). The intrinsics' covariance is the inverse of the
-    Schur complement S = U - sum W_i V_i^-1 W_i^T, and each pose's marginal covariance is
-    V_i^-1 + V_i^-1 W_i^T S^-1 W_i V_i^-1: its own noise plus the intrinsics' uncertainty.
+    Jacobian, C: intrinsics Jacobian). The intrinsics' information is the Schur complement
+    S = U - sum W_i V_i^-1 W_i^T (its inverse their covariance).
+    """
+    S = sum(f.J_intr.T @ f.J_intr / f.s2 for f in fits)
+    for f in fits:
+        W = f.J_intr.T @ f.J_pose / f.s2
+        S = S - W @ np.linalg.inv(f.J_pose.T @ f.J_pose / f.s2) @ W.T
+    return S
+
+
+def _pose_covariances(fits: list[_ViewFit], intrinsics_cov: np.ndarray) -> list[np.ndarray]:
+    """Each pose's marginal covariance (6, 6): V_i^-1 + V_i^-1 W_i^T C W_i V_i^-1, its own
+    noise plus the intrinsics' uncertainty C (notation of `_intrinsics_information`).
+
     Why the second term: a focal-length error scales every pose's depth; left out, the
     covariance claims depths several times better than they are. (The intrinsics' errors also
     correlate the poses with each other; those cross terms are not returned.)
     """
-    V_inv = [np.linalg.inv(f.J_pose.T @ f.J_pose / f.s2) for f in fits]
-    W = [f.J_intr.T @ f.J_pose / f.s2 for f in fits]
-    S = sum(f.J_intr.T @ f.J_intr / f.s2 for f in fits)
-    S = S - sum(w @ vi @ w.T for w, vi in zip(W, V_inv, strict=True))
-    intrinsics_cov = np.linalg.inv(S)
-    pose_covs = [vi + vi @ w.T @ intrinsics_cov @ w @ vi for w, vi in zip(W, V_inv, strict=True)]
-    return intrinsics_cov, pose_covs
+    covs = []
+    for f in fits:
+        V_inv = np.linalg.inv(f.J_pose.T @ f.J_pose / f.s2)
+        W = f.J_intr.T @ f.J_pose / f.s2
+        covs.append(V_inv + V_inv @ W.T @ intrinsics_cov @ W @ V_inv)
+    return covs
 
 
 # ---------------------------------------------------------------------------------------------

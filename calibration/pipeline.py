@@ -16,7 +16,10 @@ Choices made here, and why (see docs/calibration.md for the figures behind them)
   sees the same camera scale as the speaker positions (so c absorbs a checkerboard or focal
   length scale error, as the paper intends) and is far more precise than the same c fitted
   inside the solver, where it trades off against every microphone's range. The solver's own c
-  is still computed and reported beside it. (The joint fit, on by default, fits c itself:
+  is still computed and reported beside it. Without that fit (no reference microphone on its
+  stand in the pose recordings, or no image of it) a known c (`speed_of_sound_prior`, or the
+  session description's measured air) weights the solver's c; with neither, c is solved. The
+  result says which (`speed_of_sound_from`). (The joint fit, on by default, fits c itself:
   there the cameras' scale is corrected by the times of flight instead of absorbed by c.)
 - joint fit: on by default because, against the simulated truth, it removes the common depth
   offset a frozen camera's focal-length error leaves in the array (0.38 -> 0.01 mm mean error
@@ -34,9 +37,12 @@ from typing import Literal
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from acquisition.rig_description import KnownIntrinsics
+
 from .bundle import (
     FIXED,
     GROUP_TOF,
+    N_INTRINSICS,
     BundlePriors,
     BundleProblem,
     BundleSolution,
@@ -47,7 +53,7 @@ from .bundle import (
     pose_estimate,
     refined_cameras,
 )
-from .cameras import CameraCalibration, calibrate_session
+from .cameras import CameraCalibration, Checkerboard, calibrate_session
 from .plausibility import (
     AIR_RANGE_M_S,
     FitFigures,
@@ -68,6 +74,7 @@ from .result import (
     PoseResult,
     ResidualStats,
     RigFitResult,
+    SpeedOfSoundFrom,
     SpeedOfSoundReference,
     TofQuality,
     TransformResult,
@@ -97,6 +104,12 @@ from .tof import Weighting
 
 NOMINAL_SPEED_OF_SOUND_M_S = 343.0
 """Start value of c when nothing better is known (about 20 degC)."""
+OFF_AXIS_STD_M = 1e-3
+"""Prior standard deviation of b, how far the speakers' acoustic centre moves forward off
+axis (calibration.bundle): a small driver's centre moves with frequency by tenths of a
+millimetre per octave, and what a correlation sees of it off axis by a fraction of that
+(85 um in the simulated lab); 1 mm leaves it to the data without letting it trade freely
+against the latencies when the poses are few."""
 
 JOINT_NOTE = (
     "Final fit: the optical-acoustic bundle adjustment (cameras, board poses, microphones, c "
@@ -105,10 +118,11 @@ JOINT_NOTE = (
     "frame, the checkerboard's printed scale, latency 0 for the reference microphone's board."
 )
 CONFOUND_NOTE = (
-    "The speed of sound and the camera's metric scale are confounded: scaling every source "
-    "position and c by the same factor leaves every time of flight unchanged, so c is "
-    "'scaled' c (paper IV-G). An error in the checkerboard's printed size or in the focal "
-    "length moves c, not the microphones."
+    "The speed of sound and the metric scale are confounded: scaling every length and c by "
+    "one factor leaves every time of flight unchanged. The joint fit takes the scale from the "
+    "absolute references it is given (the print's stated scale and tolerance, the speakers' "
+    "stated positions and tolerance, a measured air state); with none of them measured well, "
+    "c is the paper's 'scaled' c (IV-G)."
 )
 
 
@@ -137,7 +151,8 @@ class CalibrationOptions:
             deviation from it if the prior has a deviation std. Method "micam" only.
         speaker_offsets: the joint fit estimates where each speaker's sound comes from on the
             rig (its offset from the stated position, held to the rig's stated tolerance in
-            the board plane and to its acoustic-centre prior along the normal).
+            the board plane and to its acoustic-centre prior along the normal, and how far
+            the acoustic centre moves forward off axis).
         print_scale: the joint fit estimates the printed pattern's scale (held to the rig's
             stated print tolerance).
         mic_delay_std_s: the joint fit estimates each microphone's own delay (capsule and
@@ -146,9 +161,16 @@ class CalibrationOptions:
             consecutive poses' c held together by `speed_of_sound_step_m_s`.
         speed_of_sound_step_m_s: standard deviation of c's change from pose to pose.
         speed_of_sound_prior: (c, std) in m/s, a known speed of sound (a measured air
-            temperature), as a prior on the session's mean c.
+            temperature or c); it replaces the session description's `air` and the session's
+            air-sensor readings. The joint fit takes it as a prior on the session's mean c;
+            the camera-frozen solver holds its c to it (fixed if the std is 0) when the
+            session has no reference-microphone fit.
+        intrinsics: camera calibrations known from elsewhere, by camera name ("fixed" or a
+            "prior"); they replace the session description's.
         responses: estimate every microphone's complex response against frequency after the
             joint fit (calibration.responses).
+        air_sensor: use the session's air-sensor readings as the known speed of sound (when
+            neither the options nor the description give one).
     """
 
     method: Literal["micam", "paper"] = "micam"
@@ -166,7 +188,9 @@ class CalibrationOptions:
     speed_of_sound_per_pose: bool = True
     speed_of_sound_step_m_s: float = 0.01
     speed_of_sound_prior: tuple[float, float] | None = None
+    intrinsics: dict[str, KnownIntrinsics] | None = None
     responses: bool = True
+    air_sensor: bool = True
 
 
 @dataclass
@@ -244,7 +268,8 @@ def measure(path: Path, options: CalibrationOptions | None = None,
     with _timed(timings, "load", on_stage):
         data = load_session(path, options.allow_interrupted)
     with _timed(timings, "cameras", on_stage):
-        cams = calibrate_session(data.reader)
+        cams = calibrate_session(data.reader, Checkerboard.of_rig(data.rig),
+                                 list(data.camera_names), known_intrinsics(data, options))
     with _timed(timings, "speakers", on_stage):
         speakers = speaker_positions(cams, data.speakers_rig_m, data.pose_steps)
         reference = _reference_position(cams, data)
@@ -307,9 +332,8 @@ def calibrate_measured(m: Measurements, options: CalibrationOptions,
     timings = dict(m.timings_s)
     with _timed(timings, "solver", on_stage):
         solution = solve(m, options, poses)
+    _check_plausible(m, options, _solution_figures(m, solution, options), frozen=True)
     if not (options.joint and options.method == "micam"):
-        if options.method == "micam":
-            _check_plausible(m, options, _solution_figures(m, solution, options))
         return CalibrationRun(_assemble(m, solution, options, timings), m, solution)
     with _timed(timings, "joint fit", on_stage):
         bundle = fit_joint(m, solution, options, poses)
@@ -325,7 +349,8 @@ def calibrate_measured(m: Measurements, options: CalibrationOptions,
     result = _assemble(joint_m, joint_solution, options, timings)
     result = result.model_copy(update={
         "microphones": _with_delays(result.microphones, bundle, solution),
-        "camera_frozen": _frozen_summary(m, solution),
+        "camera_frozen": _frozen_summary(m, solution, options),
+        "speed_of_sound_from": "joint_fit",
         "joint_fit": _joint_summary(m, bundle, options),
         "rig": _rig_summary(m, bundle),
         "microphone_responses": responses,
@@ -334,23 +359,20 @@ def calibrate_measured(m: Measurements, options: CalibrationOptions,
     return CalibrationRun(result, joint_m, joint_solution, solution, bundle)
 
 
-def _known_speed_of_sound(m: Measurements,
-                          options: CalibrationOptions) -> tuple[float, float] | None:
-    """A measured c: the option's, else the session's air sensor's."""
-    return options.speed_of_sound_prior or m.air
-
-
 def _solution_figures(m: Measurements, sol: MicrophoneSolution,
                       options: CalibrationOptions) -> FitFigures:
     return FitFigures(sol.speed_of_sound_m_s, sol.speed_of_sound_std_m_s, sol.residuals_s,
-                      sol.outliers, {}, _known_speed_of_sound(m, options))
+                      sol.outliers, {}, known_speed_of_sound(m, options))
 
 
-def _check_plausible(m: Measurements, options: CalibrationOptions, fig: FitFigures) -> None:
-    """Raise ImplausibleCalibrationError if the solution's figures say its model is wrong;
-    when the times of flight fit with the rig turned by 180 degrees, say so."""
-    acoustic = acoustic_problems(fig)
-    problems = acoustic + optical_problems(fig)
+def _check_plausible(m: Measurements, options: CalibrationOptions, fig: FitFigures,
+                     frozen: bool = False) -> None:
+    """Raise ImplausibleCalibrationError if the solution's figures say its model is wrong
+    (`frozen`: the camera-frozen solution, whose c is held and whose residuals still carry
+    the cameras' errors: only grossly misfitting times of flight count); when the times of
+    flight fit with the rig turned by 180 degrees, say so."""
+    acoustic = acoustic_problems(fig, frozen)
+    problems = acoustic + ([] if frozen else optical_problems(fig))
     cause = _turned_rig_fits(m, options) if acoustic else None
     raise_if_implausible(problems, cause)
 
@@ -359,36 +381,73 @@ def _turned_rig_fits(m: Measurements, options: CalibrationOptions) -> str | None
     """The likely cause when the camera-frozen solver fits the session with the rig's
     pattern origin at the opposite corner (speakers 1-4, 2-3, 5-6 swapped), else None."""
     data = m.data
-    rig = data.config.rig
+    rig = data.rig
     turned = turned_rig(data.speakers_rig_m, rig.corners_x, rig.corners_y, rig.square_m)
-    config = data.config.model_copy(update={"speakers": tuple(
-        s.model_copy(update={"rig_position_m": tuple(float(v) for v in p)})
-        for s, p in zip(data.config.speakers, turned, strict=True))})
-    data_t = replace(data, config=config)
+    rig_t = rig.model_copy(update={"speakers_m": tuple(tuple(float(v) for v in p)
+                                                       for p in turned)})
+    data_t = replace(data, description=data.description.model_copy(update={"rig": rig_t}))
     speakers = speaker_positions(m.cameras, data_t.speakers_rig_m, data.pose_steps)
-    fit, _ = _reference_fit(speakers, m.reference, m.tofs.reference_tof_s[m.located])
+    fit = None
+    if m.reference is not None and data.reference_column is not None:
+        fit, _ = _reference_fit(speakers, m.reference, m.tofs.reference_tof_s[m.located])
     m_t = replace(m, data=data_t, speakers=speakers, reference_fit=fit)
     try:
         sol = solve(m_t, options)
     except ValueError:
         return None
-    if acoustic_problems(_solution_figures(m_t, sol, options)):
+    if acoustic_problems(_solution_figures(m_t, sol, options), frozen=True):
         return None
     return ("the times of flight fit with the rig turned by 180 degrees in its plane (speakers "
             "1-4, 2-3 and 5-6 swapped): the checkerboard's origin is at the other end of the "
-            "pattern from where the description puts it, i.e. its colour convention (which "
-            "colour the square at the origin has) or its corner order is the opposite one; "
-            "correct the rig description and calibrate again")
+            "pattern from where the description puts it, i.e. its colour convention "
+            "(rig.origin_square: the colour of the square at the origin) or its corner order "
+            "is the opposite one; correct the rig description and calibrate again")
 
 
 def _reference_position(cams: CameraCalibration,
                         data: SessionData) -> ReferenceMicrophonePosition | None:
-    if "refmic" not in data.reader.steps():
+    """The reference microphone on its stand, when the pose recordings hold it and the
+    session has its image (and the rig its reference mark); otherwise None."""
+    mark = data.rig.reference_mark_m
+    if data.reference_column is None or mark is None or "refmic" not in data.reader.steps():
         return None
     try:
-        return reference_microphone_position(cams, np.array(data.config.rig.reference_mark_m))
+        return reference_microphone_position(cams, np.array(mark))
     except SpeakerLocationError:
         return None
+
+
+def known_intrinsics(data: SessionData,
+                     options: CalibrationOptions) -> dict[str, KnownIntrinsics]:
+    """The cameras' known intrinsics: the session description's, replaced by the options'."""
+    known = {c.name: c.intrinsics for c in data.description.cameras if c.intrinsics is not None}
+    return {**known, **(options.intrinsics or {})}
+
+
+def speed_of_sound_plan(m: Measurements, options: CalibrationOptions
+                        ) -> tuple[SpeedOfSoundFrom, float, float | None]:
+    """Where the camera-frozen solver's c comes from, its start value and its prior std
+    (None: fixed at the reference-microphone fit, or solved with the solver's default)."""
+    if m.reference_fit is not None and options.speed_of_sound == "reference":
+        return "reference_microphone", m.reference_fit.speed_of_sound_m_s, None
+    known = known_speed_of_sound(m, options)
+    if known is not None:
+        return "known", known[0], known[1]
+    c0 = (m.reference_fit.speed_of_sound_m_s if m.reference_fit is not None
+          else NOMINAL_SPEED_OF_SOUND_M_S)
+    return "solved", c0, None
+
+
+def known_speed_of_sound(m: Measurements,
+                         options: CalibrationOptions) -> tuple[float, float] | None:
+    """The known (c, std) in m/s: the options', else the session description's air (a
+    reading someone wrote down), else the session's air-sensor readings."""
+    if options.speed_of_sound_prior is not None:
+        return options.speed_of_sound_prior
+    air = m.data.description.air
+    if air is not None:
+        return air.speed_of_sound_prior()
+    return m.air if options.air_sensor else None
 
 
 def _rig_sources(data: SessionData, speakers: SpeakerPositions, pose_idx: np.ndarray,
@@ -424,14 +483,13 @@ def solve(m: Measurements, options: CalibrationOptions,
     tof = m.tofs.tof_s[rows][:, spk_idx].reshape(-1, n_mic)
     std = m.tofs.std_s[rows][:, spk_idx].reshape(-1, n_mic)
     sources = _rig_sources(data, m.speakers, pose_idx, spk_idx)
-    c_known = m.reference_fit is not None and options.speed_of_sound == "reference"
-    c0 = (m.reference_fit.speed_of_sound_m_s if m.reference_fit is not None
-          else NOMINAL_SPEED_OF_SOUND_M_S)
+    source, c0, c_std = speed_of_sound_plan(m, options)
     boards, board_of_mic = board_indices(data)
-    ref_board = data.config.reference.board
+    ref_board = data.reference_group
     solver_options = SolverOptions(
         speed_of_sound_m_s=c0,
-        fit_speed_of_sound=not c_known,
+        fit_speed_of_sound=source == "solved" or bool(c_std),
+        speed_of_sound_prior_std_m_s=c_std if source == "known" else 1.0,
         latency=options.latency,
         reference_board=boards.index(ref_board) if ref_board in boards else None,
         refine_poses=options.refine_poses,
@@ -455,7 +513,7 @@ def _latency_layout(data: SessionData, options: CalibrationOptions) -> tuple[np.
     """Latency column of every array board (-1: the gauge board, when it records array
     microphones too) and the number of latency unknowns, for the latency model of `options`."""
     boards, _ = board_indices(data)
-    ref_board = data.config.reference.board
+    ref_board = data.reference_group
     return latency_columns(len(boards), SolverOptions(
         latency=options.latency,
         reference_board=boards.index(ref_board) if ref_board in boards else None))
@@ -465,10 +523,11 @@ def bundle_priors(m: Measurements, options: CalibrationOptions) -> BundlePriors:
     """The joint fit's priors from the rig's stated tolerances and the options: each
     speaker's offset from its stated position (in the board plane: the build tolerance;
     along the normal: the acoustic centre's expected offset and its spread), the print's
-    scale, each microphone's own delay and a known speed of sound (the option's, else the
-    session's air sensor's)."""
+    scale, each microphone's own delay, a known speed of sound (the option's, else the
+    session description's air, else the session's air-sensor readings) and the cameras'
+    known intrinsics (fixed, or a prior with their std)."""
     data = m.data
-    rig = data.config.rig
+    rig = data.rig
     n = data.n_speakers
     mean = np.zeros((n, 3))
     std = np.zeros((n, 3))
@@ -479,11 +538,35 @@ def bundle_priors(m: Measurements, options: CalibrationOptions) -> BundlePriors:
     return BundlePriors(
         speaker_offset_mean_m=mean, speaker_offset_std_m=std,
         print_scale_std=rig.print_scale_std if options.print_scale else FIXED,
+        off_axis_std_m=OFF_AXIS_STD_M if options.speaker_offsets else FIXED,
         mic_delay_std_s=(FIXED if options.mic_delay_std_s is None
                          else options.mic_delay_std_s),
-        speed_of_sound=options.speed_of_sound_prior or m.air,
+        speed_of_sound=known_speed_of_sound(m, options),
         speed_of_sound_step_m_s=options.speed_of_sound_step_m_s,
+        **_intrinsics_priors(m, options),
     )
+
+
+def _intrinsics_priors(m: Measurements, options: CalibrationOptions) -> dict[str, np.ndarray]:
+    """intrinsics_mean / intrinsics_std of `BundlePriors` from the known intrinsics (none:
+    every camera fitted freely)."""
+    known = known_intrinsics(m.data, options)
+    names = list(m.cameras.intrinsics)
+    if not any(n in known for n in names):
+        return {}
+    mean = np.zeros((len(names), N_INTRINSICS))
+    std = np.full((len(names), N_INTRINSICS), np.nan)
+    for i, name in enumerate(names):
+        k = known.get(name)
+        if k is None:
+            continue
+        K = np.array(k.camera_matrix)
+        mean[i] = [K[0, 0], K[1, 1], K[0, 2], K[1, 2], *k.distortion]
+        if k.use == "fixed":
+            std[i] = FIXED
+        elif k.std is not None:
+            std[i] = k.std
+    return {"intrinsics_mean": mean, "intrinsics_std": std}
 
 
 def fit_joint(m: Measurements, frozen: MicrophoneSolution, options: CalibrationOptions,
@@ -511,7 +594,6 @@ def fit_joint(m: Measurements, frozen: MicrophoneSolution, options: CalibrationO
     if options.speed_of_sound_per_pose:
         c_of_pose = np.full(len(board_poses), -1)
         c_of_pose[pose_idx] = np.arange(pose_idx.size)
-    n_src = pose_idx.size * speaker_idx.size
     priors = bundle_priors(m, options)
     problem = BundleProblem(
         board_points_m=m.cameras.board.object_points(),
@@ -525,14 +607,19 @@ def fit_joint(m: Measurements, frozen: MicrophoneSolution, options: CalibrationO
         reference_std_s=m.tofs.reference_std_s[rows][:, speaker_idx].ravel(),
         latency_column=latency_column[solved], n_latency=n_latency,
         camera_names=tuple(m.cameras.intrinsics),
-        reference_distance_m=np.full(n_src, data.config.reference.distance_from_speaker_m),
+        reference_distance_m=data.reference_distances_m[np.tile(speaker_idx, pose_idx.size)],
         tof_speed_of_sound_m_s=NOMINAL_SPEED_OF_SOUND_M_S,
         speed_of_sound_of_pose=c_of_pose,
         priors=priors,
     )  # fmt: skip
     sources = _rig_sources(data, m.speakers, pose_idx, speaker_idx).positions()
-    reference = multilaterate(sources, frozen.speed_of_sound_m_s
-                              * problem.reference_tof_s[:, None])[0]
+    if data.reference_column is not None:
+        reference = multilaterate(sources, frozen.speed_of_sound_m_s
+                                  * problem.reference_tof_s[:, None])[0]
+    else:
+        # Not recorded on the poses: no time of flight reaches the reference unknown, which
+        # stays at this start (the camera) and is reported nowhere.
+        reference = np.zeros(3)
     latencies = np.zeros(n_latency)
     latencies[board_column[board_column >= 0]] = frozen.latency_s[board_column >= 0]
     intrinsics, extrinsics = camera_start(m.cameras)
@@ -607,6 +694,13 @@ def _assemble(m: Measurements, sol: MicrophoneSolution, options: CalibrationOpti
     notes += [f"camera {name} not calibrated: {why}" for name, why in cams.uncalibrated.items()]
     notes += [f"{step}: the board was not found in any calibrated camera; pose skipped"
               for step in speakers.unlocated]
+    source, c0, c_std = speed_of_sound_plan(m, options)
+    notes.append(_speed_of_sound_note(m, options, source, c0, c_std))
+    notes += [f"camera {name}: intrinsics given as {known.use}"
+              + ("" if known.use == "fixed" or known.std is not None
+                 else "; without their std the joint fit refines them freely")
+              for name, known in known_intrinsics(data, options).items()]
+    notes += m.notes
     ref_entry = None
     if reference_fit is not None and reference is not None:
         ref_entry = SpeedOfSoundReference(
@@ -623,6 +717,8 @@ def _assemble(m: Measurements, sol: MicrophoneSolution, options: CalibrationOpti
                                 or reference_fit is None
                                 else reference_fit.speed_of_sound_std_m_s),
         speed_of_sound_reference=ref_entry,
+        speed_of_sound_from=source,
+        speed_of_sound_known_m_s=known_speed_of_sound(m, options),
         latency_s=_per_board(boards, sol.latency_s),
         latency_std_s=_per_board(boards, sol.latency_std_s),
         cameras=[_camera_result(cams, name) for name in cams.intrinsics],
@@ -637,8 +733,28 @@ def _assemble(m: Measurements, sol: MicrophoneSolution, options: CalibrationOpti
             median_predicted_std_s=float(np.median(tofs.std_s[located]))),
         timings_s=dict(timings),
         notes=notes,
-        latency_gauge_board=data.config.reference.board,
+        latency_gauge_board=data.reference_group,
     )
+
+
+def _speed_of_sound_note(m: Measurements, options: CalibrationOptions, source: str, c0: float,
+                         c_std: float | None) -> str:
+    """Where the camera-frozen solver's c came from, for a person."""
+    if source == "reference_microphone":
+        return ("Speed of sound (camera frozen): fixed at the reference-microphone fit (paper "
+                "IV-G, the reference microphone on its stand in every pose recording).")
+    why = ("the pose recordings do not hold the reference microphone"
+           if m.data.reference_column is None else
+           "the session has no located image of the reference microphone on its stand"
+           if m.reference is None else "--speed-of-sound solve")
+    if source == "known":
+        air = m.data.description.air
+        given = ("given" if options.speed_of_sound_prior is not None
+                 else air.source() if air is not None else "the session's air sensor")
+        return (f"Speed of sound (camera frozen): held to the known {c0:.3f} ± {c_std:.3f} m/s "
+                f"({given}), because {why}.")
+    return (f"Speed of sound (camera frozen): solved from the times of flight (no known c), "
+            f"because {why}; give a measured air temperature or c to constrain it.")
 
 
 def _microphone_results(data: SessionData, sol: MicrophoneSolution) -> list[MicrophoneResult]:
@@ -656,12 +772,14 @@ def _microphone_results(data: SessionData, sol: MicrophoneSolution) -> list[Micr
     return mics
 
 
-def _frozen_summary(m: Measurements, sol: MicrophoneSolution) -> CameraFrozenResult:
+def _frozen_summary(m: Measurements, sol: MicrophoneSolution,
+                    options: CalibrationOptions) -> CameraFrozenResult:
     """The camera-frozen solution, for the result beside the joint one."""
     boards, _ = board_indices(m.data)
     intr = m.cameras.intrinsics
     return CameraFrozenResult(
         microphones=_microphone_results(m.data, sol),
+        speed_of_sound_from=speed_of_sound_plan(m, options)[0],
         speed_of_sound_m_s=sol.speed_of_sound_m_s,
         speed_of_sound_std_m_s=(sol.speed_of_sound_std_m_s if m.reference_fit is None
                                 else m.reference_fit.speed_of_sound_std_m_s),
@@ -699,7 +817,7 @@ def flights(m: Measurements, bundle: BundleSolution, frozen: MicrophoneSolution,
     n_mic = len(data.mic_ids)
     shape = (len(pose_indices), data.n_speakers, n_mic)
     delay, distance, sin_axis = (np.full(shape, np.nan) for _ in range(3))
-    d_ref = data.config.reference.distance_from_speaker_m
+    d_ref = data.reference_distances_m[:, None]  # per speaker
     for row, k in enumerate(pose_indices):
         R = Rotation.from_rotvec(s.poses[k, :3]).as_matrix()
         sources = points @ R.T + s.poses[k, 3:]
@@ -720,8 +838,8 @@ def _responses(m: Measurements, bundle: BundleSolution,
     data = m.data
     chosen = evenly_spread([p.step for p in m.speakers.poses])
     est = estimate_responses(data, flights(m, bundle, frozen, chosen),
-                             data.config.reference.distance_from_speaker_m,
-                             bundle.state.speed_of_sound_m_s, data.config.rig.speaker_diameter_m)
+                             data.reference_distances_m, bundle.state.speed_of_sound_m_s,
+                             data.rig.speaker_diameter_m)
     return MicrophoneResponsesResult(
         frequencies_hz=est.frequencies_hz.tolist(), n_sources=est.n_sources,
         microphones=[MicrophoneResponse(
@@ -737,7 +855,9 @@ def _rig_summary(m: Measurements, bundle: BundleSolution) -> RigFitResult:
     return RigFitResult(
         speakers_rig_m=[_vec(p) for p in m.data.speakers_rig_m + offsets],
         speakers_rig_std_m=[_vec(s) for s in std], offsets_m=[_vec(o) for o in offsets],
-        print_scale=bundle.state.print_scale, print_scale_std=float(bundle.std.print_scale))
+        print_scale=bundle.state.print_scale, print_scale_std=float(bundle.std.print_scale),
+        acoustic_centre_off_axis_m=bundle.state.off_axis_m,
+        acoustic_centre_off_axis_std_m=float(bundle.std.off_axis_m))
 
 
 def _joint_summary(m: Measurements, bundle: BundleSolution,
@@ -746,6 +866,7 @@ def _joint_summary(m: Measurements, bundle: BundleSolution,
     names = list(m.cameras.intrinsics)
     view_camera = board_views(m.cameras, _bundle_steps(m)[0])[0]
     per_pose = bundle.state.speeds_of_sound_m_s.size > 1
+    on_stand = m.data.reference_column is not None
     return JointFitResult(
         sigmas=bundle.sigmas,
         corner_outliers={n: int(bundle.corner_outliers[view_camera == i].sum())
@@ -754,13 +875,12 @@ def _joint_summary(m: Measurements, bundle: BundleSolution,
         reference_tof_outliers=int(bundle.reference_outliers.sum()),
         chi2_per_dof=bundle.chi2_per_dof,
         iterations=bundle.iterations,
-        reference_microphone_m=_vec(bundle.state.reference_m),
-        reference_microphone_std_m=_vec(bundle.std.reference_m),
+        reference_microphone_m=(_vec(bundle.state.reference_m) if on_stand else None),
+        reference_microphone_std_m=(_vec(bundle.std.reference_m) if on_stand else None),
         speed_of_sound_per_pose_m_s=(bundle.state.speeds_of_sound_m_s.tolist() if per_pose
                                      else None),
         speed_of_sound_per_pose_std_m_s=(bundle.std.speeds_of_sound_m_s.tolist() if per_pose
                                          else None),
-        speed_of_sound_prior_m_s=options.speed_of_sound_prior or m.air,
     )
 
 
@@ -789,6 +909,6 @@ def _pose_result(data: SessionData, speakers: SpeakerPositions, i: int) -> PoseR
 
 
 __all__ = [
-    "CalibrationInputError", "CalibrationOptions", "CalibrationRun", "Measurements", "calibrate",
-    "calibrate_measured", "measure", "solve",
+    "CalibrationInputError", "CalibrationOptions", "CalibrationRun",
+    "Measurements", "calibrate", "calibrate_measured", "measure", "solve",
 ]

@@ -29,6 +29,11 @@ from .session_data import CalibrationInputError
 AIR_RANGE_M_S = (float(speed_of_sound(-20.0, 0.0)), float(speed_of_sound(50.0, 1.0)))
 """The speed of sound of air between -20 and 50 degC at any humidity (Cramer's formula)."""
 MAX_TOF_SPREAD_S = 5e-6
+MAX_FROZEN_TOF_SPREAD_S = 45e-6
+"""The camera-frozen solution still carries the cameras' errors (a millimetre or two at most):
+its residuals may spread more, but 45 us (15 mm; a median |residual| of 30 us) is beyond any
+acoustic centre, rig tolerance or room, while a half-turned board, speakers or columns in the
+wrong order give hundreds of microseconds. Failing there fails fast, before the joint fit."""
 MAX_OUTLIER_FRACTION = 0.25
 MAX_CORNER_RMS_PX = 1.5
 MAX_PRIOR_DISAGREEMENT = 5.0
@@ -71,26 +76,27 @@ class FitFigures:
         return float(self.tof_outliers[valid].mean()) if valid.any() else 1.0
 
 
-def acoustic_problems(fig: FitFigures) -> list[str]:
-    """What is wrong with the acoustic fit (empty: nothing)."""
+def acoustic_problems(fig: FitFigures, frozen: bool = False) -> list[str]:
+    """What is wrong with the acoustic fit (empty: nothing); `frozen`: the camera-frozen
+    solution (its c held to a measured one, its residuals looser)."""
     problems = []
     lo, hi = AIR_RANGE_M_S
     c = fig.speed_of_sound_m_s
     if not lo <= c <= hi:
         problems.append(f"the speed of sound came out at {c:.1f} m/s, which air cannot have "
                         f"({lo:.0f}-{hi:.0f} m/s between -20 and 50 degC)")
-    if fig.known_speed_of_sound is not None:
+    if fig.known_speed_of_sound is not None and not frozen:
         known, std = fig.known_speed_of_sound
         combined = float(np.hypot(std, fig.speed_of_sound_std_m_s))
         if abs(c - known) > MAX_PRIOR_DISAGREEMENT * combined:
             problems.append(f"the fitted speed of sound {c:.2f} m/s disagrees with the measured "
                             f"{known:.2f} +- {std:.2f} m/s")
     spread = fig.tof_spread_s
-    if spread > MAX_TOF_SPREAD_S:
+    if spread > (MAX_FROZEN_TOF_SPREAD_S if frozen else MAX_TOF_SPREAD_S):
         problems.append(f"the times of flight do not fit: their residuals spread by "
                         f"{spread * 1e6:.1f} us ({spread * 343e3:.1f} mm; a good fit leaves "
                         "0.01-0.1 us)")
-    if fig.outlier_fraction > MAX_OUTLIER_FRACTION:
+    if not frozen and fig.outlier_fraction > MAX_OUTLIER_FRACTION:
         problems.append(f"{100 * fig.outlier_fraction:.0f} % of the times of flight had to be "
                         "left out as outliers")
     return problems

@@ -250,6 +250,7 @@ def _markdown(run: CalibrationRun, truth: dict | None) -> str:
                    f"distance residual RMS {significant(1e3 * ref.residual_rms_m)} mm")
     out.append(f"- used by the solver: {r.speed_of_sound_m_s:.3f} ± "
                f"{significant(r.speed_of_sound_std_m_s)} m/s")
+    out += [f"- {n}" for n in r.notes if n.startswith("Speed of sound")]
     out += ["", "## Cameras", "", "| camera | fx px | fy px | cx px | cy px | RMS px | views |",
             "|---|---|---|---|---|---|---|"]
     for c in r.cameras:

@@ -87,7 +87,7 @@ class MicrophoneResponses:
         return self.gain * np.exp(1j * self.phase_rad)
 
 
-def estimate_responses(data: SessionData, flights: Flights, reference_distance_m: float,
+def estimate_responses(data: SessionData, flights: Flights, reference_distances_m: np.ndarray,
                        speed_of_sound_m_s: float, speaker_diameter_m: float | None = None,
                        centres_hz: np.ndarray = THIRD_OCTAVE_CENTRES_HZ,
                        gate_s: float = GATE_S) -> MicrophoneResponses:
@@ -98,9 +98,8 @@ def estimate_responses(data: SessionData, flights: Flights, reference_distance_m
     sets the frequency resolution (1 / gate_s), so bands far below it are not estimated.
     """
     columns = data.mic_columns
-    volts = data.volts_per_code()[columns]
-    references = data.references().astype(np.float64) * data.volts_per_code()[
-        data.reference_column]
+    volts = data.mic_volts_per_unit()
+    references = data.references().astype(np.float64)
     n_fft = sfft.next_fast_len(references.shape[-1], real=True)
     X = sfft.rfft(references, n_fft, axis=-1)  # (S, F)
     width = max(1, round(SMOOTHING_HZ * n_fft / data.fs))
@@ -126,7 +125,7 @@ def estimate_responses(data: SessionData, flights: Flights, reference_distance_m
         shift = (first - half - delay)[..., None] / data.fs
         spectrum *= np.exp(-2j * np.pi * freqs * shift)
         H = np.stack([spectrum[..., band].mean(axis=-1) for band in in_band], axis=-1)
-        H *= (flights.distance_m[i] / reference_distance_m)[..., None]
+        H *= (flights.distance_m[i] / np.asarray(reference_distances_m)[:, None])[..., None]
         if speaker_diameter_m:
             H /= np.maximum(piston_directivity(centres_hz, flights.sin_off_axis[i],
                                                speaker_diameter_m / 2, speed_of_sound_m_s),

@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
+from typing import Literal
 from xml.sax.saxutils import quoteattr
 
 import numpy as np
@@ -89,11 +90,17 @@ class TofQuality(_Model):
     median_predicted_std_s: float
 
 
+SpeedOfSoundFrom = Literal["reference_microphone", "known", "solved", "joint_fit"]
+"""Where a c comes from: the reference-microphone fit (paper IV-G), a known c (measured air
+temperature or c) weighting the solver's, the solver alone, or the joint fit."""
+
+
 class CameraFrozenResult(_Model):
     """The solution with the cameras calibrated first and then frozen (the joint fit's start),
     kept beside the joint one: their difference is what the cameras' errors cost."""
 
     microphones: list[MicrophoneResult]
+    speed_of_sound_from: SpeedOfSoundFrom | None = None
     speed_of_sound_m_s: float
     speed_of_sound_std_m_s: float
     latency_s: dict[str, float]
@@ -112,6 +119,10 @@ class RigFitResult(_Model):
     offsets_m: list[Vector3] = Field(description="fitted minus stated position, rig frame")
     print_scale: float
     print_scale_std: float
+    acoustic_centre_off_axis_m: float = Field(
+        default=0.0, description="b: off axis at angle theta the speakers' acoustic centre "
+        "sits b (1 - cos theta) further out along the rig's normal")
+    acoustic_centre_off_axis_std_m: float = 0.0
 
 
 class JointFitResult(_Model):
@@ -125,15 +136,14 @@ class JointFitResult(_Model):
     reference_tof_outliers: int
     chi2_per_dof: float
     iterations: int
-    reference_microphone_m: Vector3
-    reference_microphone_std_m: Vector3
+    reference_microphone_m: Vector3 | None = Field(
+        default=None, description="the reference microphone on its stand (None when the pose "
+                                  "recordings do not hold it)")
+    reference_microphone_std_m: Vector3 | None = None
     speed_of_sound_per_pose_m_s: list[float] | None = Field(
         default=None, description="c during each located pose, in the order of `poses`, "
         "when c was fitted per pose (the air drifting)")
     speed_of_sound_per_pose_std_m_s: list[float] | None = None
-    speed_of_sound_prior_m_s: tuple[float, float] | None = Field(
-        default=None, description="(c, std): the known speed of sound the fit was held to "
-        "(the session's air sensor, or given)")
 
 
 class MicrophoneResponse(_Model):
@@ -165,6 +175,9 @@ class CalibrationResult(_Model):
     speed_of_sound_m_s: float
     speed_of_sound_std_m_s: float
     speed_of_sound_reference: SpeedOfSoundReference | None
+    speed_of_sound_from: SpeedOfSoundFrom | None = None
+    speed_of_sound_known_m_s: tuple[float, float] | None = Field(
+        default=None, description="the known c and its std (m/s) the calibration was given")
     latency_s: dict[str, float]
     latency_std_s: dict[str, float]
     cameras: list[CameraResult]

@@ -1,9 +1,12 @@
 """What the calibration reads from a capture session, as plain arrays.
 
 Calibration knows nothing of boards or USB: it reads the session directory through
-`acquisition.session.SessionReader` and the frozen capture configuration stored in it. The
-recordings are large (72 channels x 19 k samples x 6 speakers per pose), so they are loaded one
-pose at a time (`pose_recordings`), never the whole session at once.
+`acquisition.session.SessionReader` and the session's rig and array description
+(acquisition/rig_description.py). A session that `micam import` built stores the description
+itself; a session micam's acquisition captured stores its capture configuration, from which
+the description is derived (`CaptureConfig.description`). The recordings are large (72
+channels x 19 k samples x 6 speakers per pose), so they are loaded one pose at a time
+(`pose_recordings`), never the whole session at once.
 """
 
 from __future__ import annotations
@@ -15,6 +18,13 @@ import numpy as np
 
 from acquisition.air import AIR_FILE, AirReading
 from acquisition.capture_config import CaptureConfig
+from acquisition.rig_description import (
+    DESCRIPTION_KIND,
+    DescriptionError,
+    RigArrayDescription,
+    RigDescription,
+    validate_description,
+)
 from acquisition.session import SessionError, SessionReader
 
 
@@ -28,52 +38,83 @@ class SessionData:
 
     Attributes:
         reader: the session reader.
-        config: the frozen capture configuration.
+        description: what calibration knows of the session (rig, array, cameras, air).
         fs: sample rate, samples per second.
-        mic_ids: (M,) microphone ids (the `mic_id` of the recording columns), in column order.
+        mic_ids: (M,) microphone ids, in column order.
         mic_columns: (M,) recording column of each microphone.
-        mic_boards: (M,) serial of the board that records each microphone.
-        reference_column: the recording column of the reference microphone.
+        mic_boards: (M,) clock/latency group of each microphone (a board's serial in a micam
+            capture).
+        reference_column: the column of the pose recordings that records the reference
+            microphone on its stand, or None if the pose recordings do not hold it.
+        reference_recording_column: its column in the reference recordings.
         pose_steps: the completed pose steps ("pose/0000", ...), in order.
         camera_names: the cameras, cam0 first.
     """
 
     reader: SessionReader
-    config: CaptureConfig
+    description: RigArrayDescription
     fs: float
     mic_ids: np.ndarray
     mic_columns: np.ndarray
     mic_boards: tuple[str, ...]
-    reference_column: int
+    reference_column: int | None
+    reference_recording_column: int
     pose_steps: tuple[str, ...]
     camera_names: tuple[str, ...]
 
     @property
+    def rig(self) -> RigDescription:
+        """The rig: board pattern, speakers and their priors (speaker_tolerance_m,
+        acoustic_centre_m, acoustic_centre_std_m, print_scale_std)."""
+        return self.description.rig
+
+    @property
+    def reference_group(self) -> str:
+        """The clock/latency group of the reference microphone: the latency gauge."""
+        return self.description.reference.group
+
+    @property
     def n_speakers(self) -> int:
-        return len(self.config.speakers)
+        return self.description.n_speakers
+
+    @property
+    def n_samples(self) -> int:
+        """Samples per channel of one recording (the burst layout)."""
+        return self.description.burst.n_samples
 
     @property
     def speakers_rig_m(self) -> np.ndarray:
-        """(n_speakers, 3) speaker positions in the rig frame."""
-        return np.array([s.rig_position_m for s in self.config.speakers])
+        """(n_speakers, 3) nominal speaker positions in the rig frame."""
+        return np.array(self.rig.speakers_m, dtype=np.float64)
 
-    def volts_per_code(self) -> np.ndarray:
-        """(n_columns,) volts per code of every recording column."""
-        return np.array([c.volts_per_code for c in self.config.columns])
+    @property
+    def reference_distances_m(self) -> np.ndarray:
+        """(n_speakers,) the reference microphone's distance from each speaker in the
+        reference recordings."""
+        return np.array(self.description.reference_distances_m())
+
+    def mic_volts_per_unit(self) -> np.ndarray:
+        """(M,) volts per recorded unit of every microphone's column (ones where the
+        description does not say: then every column is taken to have the same)."""
+        scale = {}
+        for group in self.description.channels:
+            if group.volts_per_unit is not None:
+                scale.update(zip(group.columns, group.volts_per_unit, strict=True))
+        return np.array([scale.get(int(c), 1.0) for c in self.mic_columns])
 
     def references(self) -> np.ndarray:
         """(n_speakers, n_samples) float32 reference-microphone recording of every speaker."""
         rows = []
-        for s in self.config.speakers:
-            codes, _ = self.reader.read_recording(f"reference/{s.index}", f"speaker_{s.index}.wav")
-            rows.append(codes[:, self.reference_column])
+        for k in range(self.n_speakers):
+            codes, _ = self.reader.read_recording(f"reference/{k}", f"speaker_{k}.wav")
+            rows.append(codes[:, self.reference_recording_column])
         return np.asarray(rows, dtype=np.float32)
 
     def pose_recordings(self, step: str) -> np.ndarray:
         """(n_speakers, n_columns, n_samples) float32 codes of one pose's recordings."""
         out = []
-        for s in self.config.speakers:
-            codes, _ = self.reader.read_recording(step, f"speaker_{s.index}.wav")
+        for k in range(self.n_speakers):
+            codes, _ = self.reader.read_recording(step, f"speaker_{k}.wav")
             out.append(codes.T)
         return np.asarray(out, dtype=np.float32)
 
@@ -88,6 +129,34 @@ class SessionData:
         files = self.reader.steps()[step].files
         return {name: self.reader.read_image(step, f"{name}.png")
                 for name in self.camera_names if f"{name}.png" in files}
+
+
+def session_description(reader: SessionReader) -> RigArrayDescription:
+    """The rig and array description of a session: stored as it is by `micam import`,
+    derived from the capture configuration of a micam capture.
+
+    Raises:
+        CalibrationInputError: neither validates, with one line per problem.
+    """
+    capture = reader.capture
+    try:
+        if capture.get("kind") == DESCRIPTION_KIND:
+            return validate_description(capture, f"session {reader.path}: its description")
+        config = CaptureConfig.of_session(capture, reader.path)
+        return config.description(_image_sizes(reader))
+    except (SessionError, DescriptionError, ValueError) as exc:
+        raise CalibrationInputError(str(exc)) from None
+
+
+def _image_sizes(reader: SessionReader) -> dict[str, tuple[int, int]]:
+    """(width, height) of each camera's images, from the first completed image of each."""
+    sizes: dict[str, tuple[int, int]] = {}
+    for record in reader.steps().values():
+        for name, file in record.files.items():
+            if file.role == "image":
+                sizes.setdefault(name.removesuffix(".png"),
+                                 (int(file.meta["width"]), int(file.meta["height"])))
+    return sizes
 
 
 def load_session(path: Path, allow_interrupted: bool = False) -> SessionData:
@@ -105,13 +174,10 @@ def load_session(path: Path, allow_interrupted: bool = False) -> SessionData:
             f"session {path} is {reader.status}, not complete; resume the capture first, or "
             "calibrate its completed poses with --allow-interrupted"
         )
-    try:
-        config = CaptureConfig.of_session(reader.capture, path)
-    except SessionError as exc:
-        raise CalibrationInputError(str(exc)) from None
+    description = session_description(reader)
     steps = reader.steps()
-    missing = [f"reference/{s.index}" for s in config.speakers
-               if f"reference/{s.index}" not in steps]
+    missing = [f"reference/{k}" for k in range(description.n_speakers)
+               if f"reference/{k}" not in steps]
     if missing:
         raise CalibrationInputError(
             f"session {path} lacks the reference recordings {', '.join(missing)}; times of "
@@ -120,22 +186,50 @@ def load_session(path: Path, allow_interrupted: bool = False) -> SessionData:
     poses = tuple(sorted(s for s in steps if s.startswith("pose/")))
     if not poses:
         raise CalibrationInputError(f"session {path} has no completed pose to calibrate from")
-    columns = config.columns
-    mics = [(i, c) for i, c in enumerate(columns) if c.role == "mic"]
-    reference = [i for i, c in enumerate(columns) if c.role == "reference"]
-    if len(reference) != 1:
-        raise CalibrationInputError(
-            f"session {path} must have exactly one reference-microphone column; "
-            f"it has {len(reference)}"
-        )
+    _check_recordings(reader, description, poses)
+    mics = description.microphones()
     return SessionData(
         reader=reader,
-        config=config,
-        fs=config.sample_rate_hz,
-        mic_ids=np.array([c.mic_id for _, c in mics]),
-        mic_columns=np.array([i for i, _ in mics]),
-        mic_boards=tuple(c.board for _, c in mics),
-        reference_column=reference[0],
+        description=description,
+        fs=description.sample_rate_hz,
+        mic_ids=np.array([m for m, _, _ in mics]),
+        mic_columns=np.array([c for _, c, _ in mics]),
+        mic_boards=tuple(g for _, _, g in mics),
+        reference_column=description.reference.pose_recordings_column,
+        reference_recording_column=description.reference.reference_recordings_column,
         pose_steps=poses,
-        camera_names=tuple(c.name for c in config.cameras),
+        camera_names=tuple(c.name for c in description.cameras),
     )
+
+
+def _check_recordings(reader: SessionReader, description: RigArrayDescription,
+                      poses: tuple[str, ...]) -> None:
+    """Every recording the calibration reads exists, at the description's sample rate and
+    length, with the columns the description names."""
+    mic_columns = [c for _, c, _ in description.microphones()]
+    pose_columns = max([*mic_columns, description.reference.pose_recordings_column or 0])
+    needs = [(f"reference/{k}", f"speaker_{k}.wav",
+              description.reference.reference_recordings_column)
+             for k in range(description.n_speakers)]
+    needs += [(step, f"speaker_{k}.wav", pose_columns)
+              for step in poses for k in range(description.n_speakers)]
+    steps = reader.steps()
+    for step, name, last_column in needs:
+        file = steps[step].files.get(name)
+        if file is None or file.role != "recording":
+            raise CalibrationInputError(f"session {reader.path}: step {step} has no "
+                                        f"recording {name}")
+        meta = file.meta
+        problem = None
+        if meta.get("n_channels", 0) <= last_column:
+            problem = (f"has {meta.get('n_channels')} columns, but the description reads "
+                       f"column {last_column}")
+        elif meta.get("n_samples") != description.burst.n_samples:
+            problem = (f"has {meta.get('n_samples')} samples, the burst layout "
+                       f"{description.burst.n_samples}")
+        elif meta.get("sample_rate_hz") != round(description.sample_rate_hz):
+            problem = (f"is sampled at {meta.get('sample_rate_hz')} Hz, the description says "
+                       f"{description.sample_rate_hz:g}")
+        if problem:
+            raise CalibrationInputError(f"session {reader.path}: {step}/{name} {problem}; "
+                                        "the session and its description disagree")

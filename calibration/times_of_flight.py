@@ -34,9 +34,8 @@ def _recording_hashes(data: SessionData, step: str) -> tuple[str, ...]:
     gives one step per speaker, e.g. "reference/{}")."""
     hashes = []
     steps = data.reader.steps()
-    for speaker in data.config.speakers:
-        name = step.format(speaker.index)
-        hashes.append(steps[name].files[f"speaker_{speaker.index}.wav"].sha256)
+    for k in range(data.n_speakers):
+        hashes.append(steps[step.format(k)].files[f"speaker_{k}.wav"].sha256)
     return tuple(hashes)
 
 
@@ -67,8 +66,9 @@ class SessionTofs:
         std_s: (P, S, M) predicted standard deviation of each (Cramer-Rao, from the data).
         snr_db: (P, S, M) in-band SNR of each measurement.
         peak_to_sidelobe_db: (P, S, M) correlation peak over its largest sidelobe.
-        reference_tof_s: (P, S) time of flight to the reference microphone on its stand.
-        reference_std_s: (P, S) its predicted standard deviation.
+        reference_tof_s: (P, S) time of flight to the reference microphone on its stand
+            (NaN when the pose recordings do not hold it).
+        reference_std_s: (P, S) its predicted standard deviation (NaN likewise).
     """
 
     tof_s: np.ndarray
@@ -97,12 +97,14 @@ def measure_session_tofs(
     time, correlates every pose once.
     """
     references: np.ndarray | None = None  # read on the first pose not remembered
-    columns = np.append(data.mic_columns, data.reference_column)
-    d_ref = data.config.reference.distance_from_speaker_m
+    on_stand = data.reference_column is not None
+    columns = np.append(data.mic_columns, [data.reference_column] if on_stand else [])
+    columns = columns.astype(int)
+    d_ref = data.reference_distances_m[:, None]  # (S, 1): per speaker, against (S, channels)
     window = (-1e-4, MAX_RANGE_M / speed_of_sound_m_s)
     # Bursts are recorded with silence before and after, so zero-padding to a fast FFT length
     # changes nothing but the speed (19 k samples is 19 x 997: a slow length).
-    n_fft = sfft.next_fast_len(data.config.burst.n_samples, real=True)
+    n_fft = sfft.next_fast_len(data.n_samples, real=True)
     settings = (band_hz, weighting, window, n_fft, tuple(columns.tolist()),
                 _recording_hashes(data, "reference/{}"))
     parts = []
@@ -122,5 +124,8 @@ def measure_session_tofs(
         if on_pose is not None:
             on_pose(step)
     tof, std, snr, psr = (np.stack(p) for p in zip(*parts, strict=True))
+    if not on_stand:  # no reference microphone in the pose recordings: nothing measured
+        missing = np.full(tof.shape[:2], np.nan)
+        return SessionTofs(tof, std, snr, psr, missing, missing.copy())
     return SessionTofs(tof[..., :-1], std[..., :-1], snr[..., :-1], psr[..., :-1],
                        tof[..., -1], std[..., -1])

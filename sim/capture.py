@@ -154,7 +154,8 @@ def capture_config_for(layout: ArrayLayout, rig: Rig, n_poses: int, sample_rate_
         rig=RigEntry(corners_x=rig.corners_x, corners_y=rig.corners_y, square_m=rig.square_m,
                      speakers_m=tuple(tuple(p) for p in rig.speakers_m),
                      reference_mark_m=tuple(rig.reference_mark_m),
-                     speaker_diameter_m=rig.speaker_diameter_m),
+                     speaker_diameter_m=rig.speaker_diameter_m,
+                     origin_square=rig.origin_square),
         cameras=tuple(CameraEntry(name=c.name, device_id=c.device_id) for c in cameras),
         n_poses=n_poses,
     )

@@ -13,6 +13,7 @@ Frames (all right-handed, metres):
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -146,6 +147,9 @@ class Rig:
         plate_m: (x_min, x_max, y_min, y_max) of the white plate in the rig frame.
         reference_mark_m: the rig point placed at the reference microphone for the
             reference-microphone image (paper IV-C): here the plate's corner.
+        origin_square: colour of the printed square between the origin corner and its
+            neighbours along +X and +Y ("dark", micam's own print, or "light", the opposite
+            convention; see sim.light).
     """
 
     corners_x: int = 6
@@ -155,6 +159,7 @@ class Rig:
     speaker_diameter_m: float = 0.026
     plate_m: tuple[float, float, float, float] = (-0.090, 0.240, -0.060, 0.300)
     reference_mark_m: np.ndarray = field(default_factory=lambda: np.array([-0.090, -0.060, 0.0]))
+    origin_square: Literal["dark", "light"] = "dark"
 
     @property
     def n_speakers(self) -> int:
@@ -189,4 +194,5 @@ class Rig:
             "speaker_diameter_m": self.speaker_diameter_m,
             "plate_m": list(self.plate_m),
             "reference_mark_m": self.reference_mark_m.tolist(),
+            "origin_square": self.origin_square,
         }

@@ -11,10 +11,11 @@ then blurred (lens and defocus), made noisy (sensor) and quantized to 8 bits.
 
 Printed pattern, rig frame (see sim.geometry): (corners_x + 1) x (corners_y + 1) squares of
 side s spanning X in [-s, corners_x s] and Y in [-s, corners_y s]. Square (i, j), covering
-[i s, (i + 1) s] x [j s, (j + 1) s] with i, j starting at -1, is dark when i + j is even: the
-square on the +X +Y side of the rig origin is dark, the two pattern corners at Y = -s are
-dark and the two at Y = corners_y s are white, so a 7 x 10 pattern is not symmetric under a
-half-turn.
+[i s, (i + 1) s] x [j s, (j + 1) s] with i, j starting at -1, is dark when i + j is even
+(`Rig.origin_square` "dark", micam's print): the square on the +X +Y side of the rig origin is
+dark, the two pattern corners at Y = -s are dark and the two at Y = corners_y s are white, so a
+7 x 10 pattern is not symmetric under a half-turn. With `origin_square` "light" (the opposite
+convention) every square has the other colour.
 
 Pixel convention: OpenCV's, pixel (row v, column u) is centred on the point (u, v) and covers
 [u - 1/2, u + 1/2] x [v - 1/2, v + 1/2].
@@ -240,12 +241,14 @@ def _dark_fraction(rig: Rig, hits: _BoardHits) -> np.ndarray:
     Along one axis, P is the box-filtered indicator of the pattern's extent and Q the
     box-filtered square wave (+1 on even squares, -1 on odd ones) restricted to that extent;
     (P + Q) / 2 and (P - Q) / 2 are the fractions on even and odd squares, and a square is dark
-    when both indices are even or both odd: dark = (P_X P_Y + Q_X Q_Y) / 2.
+    when both indices are even or both odd: dark = (P_X P_Y + Q_X Q_Y) / 2 (with the opposite
+    convention the odd squares: (P_X P_Y - Q_X Q_Y) / 2).
     """
     s = rig.square_m
     p_x, q_x = _pattern_filters(hits.X, hits.w_x, s, rig.corners_x * s)
     p_y, q_y = _pattern_filters(hits.Y, hits.w_y, s, rig.corners_y * s)
-    return 0.5 * (p_x * p_y + q_x * q_y)
+    parity = 1.0 if rig.origin_square == "dark" else -1.0
+    return 0.5 * (p_x * p_y + parity * q_x * q_y)
 
 
 def _pattern_filters(

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 from ..errors import UserError
@@ -41,6 +40,26 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--prior-std-mm", type=float, default=None,
                    help="let each microphone deviate from the prior by about this much "
                         "(default: the prior is rigid)")
+    p.add_argument("--temperature", type=float, default=None, metavar="DEGC",
+                   help="the air temperature measured during the session, degC (with "
+                        "--temperature-std); replaces the session's own")
+    p.add_argument("--temperature-std", type=float, default=None, metavar="K",
+                   help="its standard deviation, kelvin")
+    p.add_argument("--humidity", type=float, default=None, metavar="RH",
+                   help="the relative humidity measured with --temperature, 0..1 (with "
+                        "--humidity-std); without it any humidity is assumed possible "
+                        "(about +-0.6 m/s at 20 degC)")
+    p.add_argument("--humidity-std", type=float, default=None, metavar="RH",
+                   help="its standard deviation, 0..1")
+    p.add_argument("--known-speed-of-sound", type=float, default=None, metavar="M_S",
+                   help="a measured speed of sound, m/s (with --known-speed-of-sound-std)")
+    p.add_argument("--known-speed-of-sound-std", type=float, default=None, metavar="M_S")
+    p.add_argument("--intrinsics", action="append", default=[], metavar="CAMERA=FILE",
+                   help="a known calibration of a camera (OpenCV YAML/JSON/XML, ROS "
+                        "camera_info or a micam result.json); repeat per camera")
+    p.add_argument("--intrinsics-use", choices=("fixed", "prior"), default="fixed",
+                   help="use --intrinsics as given (default) or as a prior weighted by the "
+                        "file's standard deviations (a micam result.json has them)")
     p.add_argument("--weighting", choices=("compact", "matched", "phat"), default="compact",
                    help="spectral weighting of the TOF correlations: compact (default; robust "
                         "to early reflections), matched (maximum likelihood in free field) "
@@ -48,7 +67,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--allow-interrupted", action="store_true",
                    help="calibrate the completed poses of an interrupted session")
     p.add_argument("--truth", type=Path, default=None,
-                   help="a truth.json to compare with (default: SESSION/truth.json if present)")
+                   help="a micam truth file to compare with: microphones [{id, position_m}], "
+                        "speed_of_sound_m_s, cameras [{name, K}] (default: SESSION/truth.json "
+                        "if present)")
     p.add_argument("--force", action="store_true", help="overwrite an existing result file")
     p.set_defaults(run=run)
 
@@ -76,12 +97,83 @@ def _prior(args: argparse.Namespace):
     return PriorGeometry(positions, std)
 
 
+_AIR_FLAGS = {"temperature_c": "--temperature", "temperature_std_c": "--temperature-std",
+              "relative_humidity": "--humidity", "relative_humidity_std": "--humidity-std",
+              "speed_of_sound_m_s": "--known-speed-of-sound",
+              "speed_of_sound_std_m_s": "--known-speed-of-sound-std"}
+
+
+def _known_air(args: argparse.Namespace) -> tuple[float, float] | None:
+    """The known (c, std) of --temperature or --known-speed-of-sound, checked."""
+    from pydantic import ValidationError
+
+    from acquisition.rig_description import KnownAir
+
+    given = {key: getattr(args, flag[2:].replace("-", "_"))
+             for key, flag in _AIR_FLAGS.items()}
+    given = {k: v for k, v in given.items() if v is not None}
+    if not given:
+        return None
+    for value, std in (("temperature_c", "temperature_std_c"),
+                       ("relative_humidity", "relative_humidity_std"),
+                       ("speed_of_sound_m_s", "speed_of_sound_std_m_s")):
+        if (value in given) != (std in given):
+            raise UserError(f"{_AIR_FLAGS[value]} and {_AIR_FLAGS[std]} go together: write the "
+                            "measured value and how well it is known")
+    if "temperature_c" in given and "speed_of_sound_m_s" in given:
+        raise UserError("--temperature and --known-speed-of-sound: write only the one you "
+                        "measured")
+    try:
+        return KnownAir.model_validate(given).speed_of_sound_prior()
+    except ValidationError as exc:
+        problems = [f"{_AIR_FLAGS.get(str(e['loc'][0]), e['loc'][0])}: {e['msg']}"
+                    for e in exc.errors()]
+        raise UserError("; ".join(problems)) from None
+
+
+def _known_intrinsics(args: argparse.Namespace, data) -> dict:
+    """--intrinsics CAMERA=FILE, read for the session's cameras."""
+    from acquisition.intrinsics_file import IntrinsicsFileError, read_intrinsics
+
+    sizes = {c.name: (c.width, c.height) for c in data.description.cameras}
+    known = {}
+    for item in args.intrinsics:
+        camera, sep, file = item.partition("=")
+        if not sep or not file:
+            raise UserError(f"--intrinsics {item!r}: write CAMERA=FILE, e.g. cam0=cam0.yaml")
+        if camera not in sizes:
+            raise UserError(f"--intrinsics {item!r}: the session has no camera {camera!r} (it "
+                            f"has {', '.join(sizes)}); write one of those names")
+        try:
+            known[camera] = read_intrinsics(Path(file), camera, sizes[camera],
+                                            args.intrinsics_use)
+        except (IntrinsicsFileError, ValueError) as exc:
+            raise UserError(f"--intrinsics {item!r}: {exc}") from None
+    return known
+
+
+def _truth(args: argparse.Namespace, data) -> dict | None:
+    """The truth file, checked against the session before any work (None: there is none)."""
+    from calibration.truth import TruthError, load_truth
+
+    path = args.truth or (args.session / "truth.json")
+    if args.truth is not None and not path.is_file():
+        raise UserError(f"--truth {path} is not a file")
+    if not path.is_file():
+        return None
+    try:
+        return load_truth(path, [int(i) for i in data.mic_ids], list(data.camera_names))
+    except TruthError as exc:
+        raise UserError(str(exc)) from None
+
+
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from calibration.pipeline import CalibrationOptions, calibrate
     from calibration.report import summary_lines, write_report
     from calibration.result import write_acoular_calib_xml, write_acoular_xml
+    from calibration.session_data import load_session
 
     out: Path = args.out
     if out.exists() and not args.force:
@@ -94,14 +186,18 @@ def run(args: argparse.Namespace) -> int:
     if args.acoular_calib is not None and (args.no_joint or args.method == "paper"):
         raise UserError("--acoular-calib needs the joint fit (it estimates the responses); "
                         "leave out --no-joint and --method paper")
-    truth_path = args.truth or (args.session / "truth.json")
-    if args.truth is not None and not truth_path.is_file():
-        raise UserError(f"--truth {truth_path} is not a file")
+    try:
+        data = load_session(args.session, args.allow_interrupted)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    truth = _truth(args, data)
     prior = _prior(args)
     options = CalibrationOptions(
         method=args.method, latency=args.latency, speed_of_sound=args.speed_of_sound,
         refine_poses=args.refine_poses, weighting=args.weighting,
-        allow_interrupted=args.allow_interrupted, joint=not args.no_joint, prior=prior)
+        allow_interrupted=args.allow_interrupted, joint=not args.no_joint,
+        prior=prior, speed_of_sound_prior=_known_air(args),
+        intrinsics=_known_intrinsics(args, data) or None)
     stages = ["load", "cameras", "speakers", "times of flight", "solver", "joint fit",
               "responses"]
     with tqdm(total=len(stages), unit="stage", desc="calibrate") as bar:
@@ -117,7 +213,6 @@ def run(args: argparse.Namespace) -> int:
         bar.n = len(stages)
         bar.refresh()
     run_.result.write(out)
-    truth = json.loads(truth_path.read_text()) if truth_path.is_file() else None
     report = write_report(run_, args.report or out.parent / (out.stem + "-report"), truth,
                           None if prior is None else prior.positions_m)
     if args.acoular_xml is not None:

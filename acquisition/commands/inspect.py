@@ -30,6 +30,7 @@ def _norm(v: list[float]) -> float:
 
 
 def run(args: argparse.Namespace) -> int:
+    from acquisition.rig_description import DESCRIPTION_KIND
     from acquisition.session import SessionError, SessionReader
 
     try:
@@ -43,12 +44,19 @@ def run(args: argparse.Namespace) -> int:
     n_files = sum(len(r.files) for r in steps.values())
     print(f"session   {reader.session_id} at {args.session}")
     print(f"status    {reader.status}")
+    imported = capture.get("kind") == DESCRIPTION_KIND  # `micam import`: no hardware
+    planned = "" if imported else f" of {capture['n_poses']}"
     print(f"steps     {len(refs)} reference recordings, "
           f"{'1' if 'refmic' in steps else 'no'} reference-microphone image set, "
-          f"{len(poses)} of {capture['n_poses']} poses")
-    print(f"channels  {len(capture['columns'])} at {capture['sample_rate_hz']:.0f} S/s on "
-          f"{len(capture['boards'])} boards; cameras "
-          f"{', '.join(c['name'] for c in capture['cameras'])}")
+          f"{len(poses)}{planned} poses")
+    if imported:
+        mics = sum(len(g["columns"]) for g in capture["channels"])
+        where = f"{mics} microphones in {len(capture['channels'])} clock/latency groups"
+    else:
+        where = f"{len(capture['columns'])} on {len(capture['boards'])} boards"
+    print(f"channels  {where} at {capture['sample_rate_hz']:.0f} S/s; cameras "
+          f"{', '.join(c['name'] for c in capture['cameras'])}"
+          f"{' (imported)' if imported else ''}")
     print(f"files     {n_files} ({_megabytes(args.session):.0f} MB)")
     problems = reader.verify()
     print("checksums " + ("all intact" if not problems else f"{len(problems)} problems:"))
@@ -57,6 +65,9 @@ def run(args: argparse.Namespace) -> int:
     truth_path = args.session / "truth.json"
     if truth_path.is_file():
         truth = json.loads(truth_path.read_text())
+        if "poses" not in truth:  # a truth written by hand: the microphones only
+            print(f"truth     {len(truth.get('microphones', []))} microphones")
+            return 0 if not problems else 1
         dist = [_norm(_mean(p["speakers_m"])) for p in truth["poses"]]
         print(f"truth     {len(truth['microphones'])} microphones, c = "
               f"{truth['speed_of_sound_m_s']:.2f} m/s ({truth['temperature_c']:.1f} degC), "

@@ -123,8 +123,8 @@ def fitted(scene: Scene) -> BundleSolution:
 
 def test_jacobian_matches_central_differences() -> None:
     """Every unknown's analytic derivatives, the optional ones included (c per pose, the
-    reference distance, speaker offsets, print scale, microphone delays), away from their
-    neutral values."""
+    reference distance, speaker offsets, print scale, the off-axis move, microphone delays),
+    away from their neutral values."""
     small = make_scene(n_pose=3, seed=1, n_mic=5)
     problem = replace(small.problem, reference_distance_m=np.full(18, 0.002),
                       speed_of_sound_of_pose=np.array([0, 1, 2]))
@@ -132,7 +132,7 @@ def test_jacobian_matches_central_differences() -> None:
                     speeds_of_sound_m_s=np.array([343.1, 343.3, 343.6]),
                     mic_delays_s=np.linspace(-1e-6, 1e-6, 5),
                     speaker_offsets_m=np.linspace(-3e-3, 3e-3, 18).reshape(6, 3),
-                    print_scale=1.001)
+                    print_scale=1.001, off_axis_m=2e-3)
     layout = _Layout.of(start)
     model = _Model(problem, layout)
     x = layout.pack(start)
@@ -230,7 +230,14 @@ def test_pipeline_joint_fit_beats_the_frozen_camera_against_the_truth(session: P
     assert joint["mean_mic_error_m"] < 0.2 * frozen["mean_mic_error_m"]
     assert joint["max_focal_error_rel"] < 3e-4
     assert abs(joint["speed_of_sound_error_m_s"]) < 0.02
-    assert joint["max_latency_error_s"] < 0.1e-6
+    # within 4 of their own sigmas (about 30 ns: they trade against the speakers' acoustic
+    # centres, which the joint fit estimates too)
+    lat = run.result
+    true_lat = truth["board_latencies_s"]
+    gauge = true_lat[lat.latency_gauge_board]
+    for board, value in lat.latency_s.items():
+        assert abs(value - (true_lat[board] - gauge)) < 4 * lat.latency_std_s[board] + 10e-9
+    assert joint["max_latency_error_s"] < 0.15e-6
     cams = {c.name: c for c in run.result.cameras}
     assert set(cams) >= {"cam0", "cam1"}  # a side camera shares views: stereo refined too
     assert all(c.intrinsics_std is not None and c.intrinsics_std[0] > 0 for c in cams.values())

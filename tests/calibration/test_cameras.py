@@ -27,6 +27,7 @@ from calibration.cameras import (
     calibrate_session,
     detect_corners,
 )
+from calibration.session_data import load_session
 
 CAMERAS = ["cam0", "cam1", "cam2"]
 
@@ -41,7 +42,11 @@ def session(tmp_path_factory: pytest.TempPathFactory) -> tuple[SessionReader, di
 
 @pytest.fixture(scope="module")
 def calibration(session: tuple[SessionReader, dict]) -> CameraCalibration:
-    return calibrate_session(session[0])
+    return calibrate_session(session[0], _board(session[0]), CAMERAS)
+
+
+def _board(reader: SessionReader) -> Checkerboard:
+    return Checkerboard.of_rig(load_session(reader.path).rig)
 
 
 def _rotation(rotvec: list[float]) -> np.ndarray:
@@ -132,7 +137,7 @@ def test_half_turned_image_keeps_rig_order(session) -> None:
     """The order does not depend on where OpenCV starts: rotate the image by 180 degrees and
     every rig corner must follow its own pixel."""
     reader, _ = session
-    board = Checkerboard.from_capture(reader.capture)
+    board = _board(reader)
     image = reader.read_image("pose/0000", "cam0.png")
     h, w = image.shape
     upright = detect_corners(image, board)
@@ -183,7 +188,7 @@ def test_camera_with_too_few_views_is_left_out(calibration: CameraCalibration) -
 
 def test_too_few_board_images_is_a_clear_error(session) -> None:
     reader, _ = session
-    board = Checkerboard.from_capture(reader.capture)
+    board = _board(reader)
     images = {("cam0", s): reader.read_image(s, "cam0.png") for s in ("pose/0000", "pose/0001")}
     images[("cam0", "blank")] = np.full((960, 1280), 90, np.uint8)
     with pytest.raises(CameraCalibrationError, match=r"cam0.*found in 2 of its images"):

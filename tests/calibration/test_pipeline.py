@@ -39,7 +39,7 @@ def test_calibration_is_accurate_against_the_truth(session: Path, truth: dict) -
     # Board latencies relative to each other: their common part trades off against the
     # camera's depth scale (a few microseconds here), their differences are well determined.
     true_lat = truth["board_latencies_s"]
-    ref = true_lat[run.data.config.reference.board]
+    ref = true_lat[run.data.reference_group]
     boards = sorted(run.result.latency_s)
     diff = np.array([run.result.latency_s[b] - (true_lat[b] - ref) for b in boards])
     std = np.array([run.result.latency_std_s[b] for b in boards])

@@ -18,7 +18,14 @@ import pytest
 
 from acquisition.cli import main as micam
 from acquisition.session import SessionReader
-from calibration.cameras import CameraCalibration, Extrinsics, Pose, calibrate_session
+from calibration.cameras import (
+    CameraCalibration,
+    Checkerboard,
+    Extrinsics,
+    Pose,
+    calibrate_session,
+)
+from calibration.session_data import load_session
 from calibration.speakers import (
     RigPoseInCam0,
     SpeakerLocationError,
@@ -46,7 +53,8 @@ def setup(tmp_path_factory: pytest.TempPathFactory) -> Setup:
     return Setup(
         reader=reader,
         truth=json.loads(Path(out, "truth.json").read_text()),
-        calibration=calibrate_session(reader),
+        calibration=calibrate_session(reader, Checkerboard.of_rig(load_session(out).rig),
+                                      ["cam0", "cam1", "cam2"]),
         speakers_rig_m=np.array([s["rig_position_m"] for s in speakers]),
         pose_steps=sorted(s for s in reader.steps() if s.startswith("pose/")),
     )

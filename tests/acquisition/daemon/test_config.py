@@ -198,13 +198,18 @@ REPO = Path(__file__).resolve().parents[3]
 
 def test_the_documented_examples_and_shipped_files_load(tmp_path: Path) -> None:
     """Every TOML example of the docs, and every TOML file shipped (pyproject.toml aside), is
-    a valid configuration."""
+    a valid configuration (an example with [recordings] a valid import description)."""
+    from acquisition.importer import load_spec
+
     docs = [*REPO.glob("*.md"), *REPO.glob("docs/*.md")]
     blocks = [b for doc in docs
               for b in re.findall(r"```toml\n(.*?)```", doc.read_text(), flags=re.S)]
-    assert len(blocks) >= 2  # docs/protocol.md: the daemon's example and [workers]
+    assert len(blocks) >= 3  # docs/protocol.md: the daemon's example and [workers]; import.md
     for block in blocks:
-        load_config(_write(tmp_path, block))
+        if "[recordings]" in block:
+            load_spec(_write(tmp_path, block))
+        else:
+            load_config(_write(tmp_path, block))
     shipped = [p for p in REPO.rglob("*.toml") if p.name != "pyproject.toml"
                and not {".venv", ".git", "node_modules"} & set(p.relative_to(REPO).parts)]
     for path in shipped:

@@ -1,0 +1,222 @@
+"""`micam import`: sessions from plain folders, every file format it reads, and refusals that
+name the TOML field, what is wrong and what to write (nothing is written then)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import soundfile as sf
+
+from acquisition.cli import main
+from acquisition.importer import ImportSpecError, import_session, prepare
+from acquisition.intrinsics_file import IntrinsicsFileError, read_intrinsics
+from acquisition.session import SessionReader
+
+FS = 8000
+N = 4 + 63 + 5  # silence before, MLS order 6, silence after
+W, H = 64, 48
+
+TOML = """sample_rate_hz = 8000
+[rig]
+corners_x = 6
+corners_y = 9
+square_m = 0.03
+speakers_m = [[0.0, 0.0, 0.0], [0.1, 0.0, 0.0]]
+[[channels]]
+group = "rme"
+columns = [1, 2]
+mic_ids = [10, 11]
+[reference]
+group = "rme"
+reference_recordings_column = 0
+[burst]
+silence_before_samples = 4
+mls_order = 6
+silence_after_samples = 5
+[[cameras]]
+name = "cam0"
+width = 64
+height = 48
+[recordings]
+references = ["ref0.wav", "ref1.wav"]
+[[recordings.poses]]
+bursts = ["p0s0.wav", "p0s1.wav"]
+images = { cam0 = "p0.png" }
+"""
+
+
+def _folder(tmp_path: Path, toml: str = TOML) -> Path:
+    """A tiny recorder folder: 16-bit WAVs of 3 columns, one image."""
+    rng = np.random.default_rng(0)
+    for name in ("ref0", "ref1", "p0s0", "p0s1"):
+        sf.write(tmp_path / f"{name}.wav", rng.integers(-3000, 3000, (N, 3), dtype=np.int16), FS,
+                 subtype="PCM_16")
+    cv2.imwrite(str(tmp_path / "p0.png"), rng.integers(0, 255, (H, W), dtype=np.uint8))
+    spec = tmp_path / "import.toml"
+    spec.write_text(toml)
+    return spec
+
+
+def test_a_plain_folder_becomes_a_verified_session(tmp_path: Path) -> None:
+    spec = _folder(tmp_path)
+    out = tmp_path / "session"
+    assert main(["import", str(spec), "--out", str(out)]) == 0
+    reader = SessionReader(out)
+    assert reader.status == "complete" and reader.verify() == []
+    assert set(reader.steps()) == {"reference/0", "reference/1", "pose/0000", "import"}
+    codes, rate = reader.read_recording("pose/0000", "speaker_1.wav")
+    original, _ = sf.read(tmp_path / "p0s1.wav", dtype="int16", always_2d=True)
+    assert rate == FS and np.array_equal(codes, original)  # 16-bit: bit for bit
+    meta = reader.steps()["pose/0000"].files["speaker_1.wav"].meta
+    assert meta["import_scale"] is None and meta["source"] == "p0s1.wav"
+    assert np.array_equal(reader.read_image("pose/0000", "cam0.png"),
+                          cv2.imread(str(tmp_path / "p0.png"), cv2.IMREAD_UNCHANGED))
+    record = reader.read_json("import", "import.json")
+    assert record["description_toml"] == spec.read_text()
+    assert set(record["sources_sha256"]) == {"ref0.wav", "ref1.wav", "p0s0.wav", "p0s1.wav",
+                                             "p0.png"}
+    assert reader.capture["kind"] == "rig-and-array"
+    assert reader.capture["channels"] == [{"group": "rme", "columns": [1, 2],
+                                           "mic_ids": [10, 11], "volts_per_unit": None}]
+
+
+def test_other_sample_formats_are_scaled_per_column(tmp_path: Path) -> None:
+    spec = _folder(tmp_path, TOML.replace('"p0s1.wav"', '"p0s1.flac"'))
+    t = np.arange(N) / FS
+    x = np.stack([0.5 * np.sin(2e3 * t), 0.01 * np.cos(3e3 * t), np.zeros(N)], axis=1)
+    sf.write(tmp_path / "p0s1.flac", x, FS, subtype="PCM_24")
+    import_session(spec, tmp_path / "s")
+    reader = SessionReader(tmp_path / "s")
+    codes, _ = reader.read_recording("pose/0000", "speaker_1.wav")
+    scale = reader.steps()["pose/0000"].files["speaker_1.wav"].meta["import_scale"]
+    assert np.abs(codes[:, :2]).max(axis=0).tolist() == [32767, 32767]  # each to full scale
+    source, _ = sf.read(tmp_path / "p0s1.flac", always_2d=True)
+    assert np.abs(codes[:, :2] / np.array(scale[:2]) - source[:, :2]).max() < 1e-4
+    assert scale[2] == 1.0 and not codes[:, 2].any()  # a silent column stays silent
+
+
+def test_acoular_hdf5_and_bursts_inside_one_long_file(tmp_path: Path) -> None:
+    h5py = pytest.importorskip("h5py", reason="h5py is micam's optional HDF5 reader "
+                               "(pip install 'micam[hdf5]')")
+    toml = TOML.replace('bursts = ["p0s0.wav", "p0s1.wav"]',
+                        'bursts = [{ file = "take.h5", start_sample = 100 }, '
+                        '{ file = "take.h5", start_sample = 300 }]')
+    spec = _folder(tmp_path, toml)
+    data = np.random.default_rng(1).normal(0, 0.1, (500, 3)).astype(np.float32)
+    with h5py.File(tmp_path / "take.h5", "w") as f:  # as Acoular's WriteH5 writes it
+        f.create_dataset("time_data", data=data).attrs["sample_freq"] = float(FS)
+    import_session(spec, tmp_path / "s")
+    reader = SessionReader(tmp_path / "s")
+    for k, start in ((0, 100), (1, 300)):
+        codes, _ = reader.read_recording("pose/0000", f"speaker_{k}.wav")
+        scale = np.array(reader.steps()["pose/0000"].files[f"speaker_{k}.wav"]
+                         .meta["import_scale"])
+        assert np.abs(codes / scale - data[start:start + N]).max() < 1e-4
+
+
+REFUSALS = [
+    # (TOML change, or a file to spoil, the words of the message)
+    ('"p0s1.wav"', '"../p0s1.wav"', "recordings.poses[0].bursts[1]: '../p0s1.wav' must be a "
+                                    "path inside"),
+    ('"p0s1.wav"', '"/etc/passwd"', "recordings.poses[0].bursts[1]: '/etc/passwd' must be"),
+    ('"ref1.wav"', '"nope.wav"', "recordings.references[1]: 'nope.wav' does not exist"),
+    ('references = ["ref0.wav", "ref1.wav"]', 'references = ["ref0.wav"]',
+     "recordings.references: 1 files for 2 speakers"),
+    ('images = { cam0 = "p0.png" }', 'images = { cam1 = "p0.png" }',
+     "recordings.poses[0].images: camera 'cam1' is not in cameras"),
+    ("sample_rate_hz = 8000", "sample_rate_hz = 48000",
+     "recordings.references[0]: 'ref0.wav' is sampled at 8000 Hz"),
+    ("columns = [1, 2]", "columns = [1, 3]", "has 3 channels; the description reads column 3"),
+    ("silence_after_samples = 5", "silence_after_samples = 2",
+     "write extra_recorded_samples = 3 in [burst]"),
+    ("width = 64", "width = 640", "is 64 x 48 pixels, camera cam0 is described as 640 x 48"),
+    ("[recordings]", "[recordings]\nrefmic_images = { cam0 = \"p0.png\" }",
+     "recordings.refmic_images: the reference microphone's image on its stand"),
+    ("square_m = 0.03", "square_m = 30", "rig.square_m: Input should be less than or equal"),
+]
+
+
+@pytest.mark.parametrize(("old", "new", "words"), REFUSALS)
+def test_a_wrong_import_names_its_field_and_writes_nothing(
+        tmp_path: Path, old: str, new: str, words: str, capsys: pytest.CaptureFixture) -> None:
+    assert old in TOML
+    spec = _folder(tmp_path, TOML.replace(old, new))
+    out = tmp_path / "session"
+    assert main(["import", str(spec), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert words in err, err
+    assert "write" in err or "should be" in err
+    assert not out.exists()
+
+
+def test_check_reads_every_file_and_writes_nothing(tmp_path: Path,
+                                                   capsys: pytest.CaptureFixture) -> None:
+    spec = _folder(tmp_path)
+    assert main(["import", str(spec), "--out", str(tmp_path / "s"), "--check"]) == 0
+    assert "every file checked" in capsys.readouterr().out
+    assert not (tmp_path / "s").exists()
+    (tmp_path / "p0.png").write_bytes(b"not a png")
+    with pytest.raises(ImportSpecError, match=r"recordings.poses\[0\].images.cam0: 'p0.png' is "
+                                              "not an image"):
+        prepare(spec)
+
+
+def test_an_existing_session_is_never_overwritten(tmp_path: Path,
+                                                  capsys: pytest.CaptureFixture) -> None:
+    spec = _folder(tmp_path)
+    assert main(["import", str(spec), "--out", str(tmp_path / "s")]) == 0
+    journal = (tmp_path / "s" / "journal.jsonl").read_bytes()
+    assert main(["import", str(spec), "--out", str(tmp_path / "s")]) == 2
+    assert "never overwritten" in capsys.readouterr().err
+    assert (tmp_path / "s" / "journal.jsonl").read_bytes() == journal
+
+
+def _opencv_intrinsics(path: Path, dist: np.ndarray, width: int = W) -> Path:
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    fs.write("image_width", width)
+    fs.write("image_height", H)
+    fs.write("camera_matrix", np.array([[80.0, 0, 32], [0, 80.0, 24], [0, 0, 1]]))
+    fs.write("distortion_coefficients", dist.reshape(1, -1))
+    fs.release()
+    return path
+
+
+def test_a_known_camera_calibration_is_read_into_the_session(tmp_path: Path) -> None:
+    _opencv_intrinsics(tmp_path / "cam0.yaml", np.array([-0.1, 0.02, 0.0, 0.0]))
+    toml = TOML.replace('height = 48', 'height = 48\nintrinsics_file = "cam0.yaml"\n'
+                        'intrinsics_use = "fixed"')
+    import_session(_folder(tmp_path, toml), tmp_path / "s")
+    known = SessionReader(tmp_path / "s").capture["cameras"][0]["intrinsics"]
+    assert known["use"] == "fixed" and known["camera_matrix"][0] == [80.0, 0.0, 32.0]
+    assert known["distortion"] == [-0.1, 0.02, 0.0, 0.0, 0.0]  # 4 coefficients: k3 = 0
+
+
+@pytest.mark.parametrize(("dist", "width", "words"), [
+    (np.array([-0.1, 0.02, 0, 0, 0, 0.3, 0, 0]), W, "rational or thin-prism"),
+    (np.zeros(5), 640, "calibrates images of 640 x 48 pixels"),
+])
+def test_an_intrinsics_file_of_another_model_or_size_is_refused(
+        tmp_path: Path, dist: np.ndarray, width: int, words: str) -> None:
+    path = _opencv_intrinsics(tmp_path / "c.json", dist, width)
+    with pytest.raises(IntrinsicsFileError, match=words):
+        read_intrinsics(path, "cam0", (W, H), "fixed")
+
+
+def test_ros_and_micam_result_intrinsics(tmp_path: Path) -> None:
+    ros = tmp_path / "ros.yaml"
+    ros.write_text("image_width: 64\nimage_height: 48\ncamera_matrix:\n  rows: 3\n  cols: 3\n"
+                   "  data: [80, 0, 32, 0, 81, 24, 0, 0, 1]\ndistortion_coefficients:\n"
+                   "  rows: 1\n  cols: 5\n  data: [0.1, 0, 0, 0, 0]\n")
+    assert read_intrinsics(ros, "cam0", (W, H), "fixed").camera_matrix[1][1] == 81.0
+    result = tmp_path / "result.json"
+    result.write_text(json.dumps({"cameras": [{
+        "name": "cam0", "width": W, "height": H, "K": [[80, 0, 32], [0, 80, 24], [0, 0, 1]],
+        "dist": [0, 0, 0, 0, 0], "intrinsics_std": [0.1] * 9}]}))
+    known = read_intrinsics(result, "cam0", (W, H))
+    assert known.use == "prior" and known.std == (0.1,) * 9
+    with pytest.raises(IntrinsicsFileError, match="without camera 'cam1'"):
+        read_intrinsics(result, "cam1", (W, H))

@@ -1,0 +1,106 @@
+"""The board's colour convention, its marker, and known intrinsics in the camera stage.
+
+Images are rendered by sim.light from a pose chosen here; the truth is the projection of the
+rig's inner corners in rig order (X fastest)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from acquisition.rig_description import KnownIntrinsics
+from calibration.cameras import Checkerboard, calibrate_images, detect_corners
+from sim.geometry import Rig, RigidTransform, pinhole
+from sim.light import DARK_GREY, WHITE_GREY, render_rig_image
+from sim.poses import FACING_CAMERA
+
+CAMERA = pinhole("cam0")
+
+
+def _pose(tilt: tuple[float, float, float], depth: float, rig: Rig,
+          half_turn: bool = False) -> RigidTransform:
+    """The rig facing the camera, tilted, its pattern centre at `depth` on the optical axis;
+    `half_turn` turns it by 180 degrees about its normal through that centre."""
+    R = cv2.Rodrigues(np.array(tilt))[0] @ FACING_CAMERA
+    if half_turn:
+        R = R @ np.diag([-1.0, -1.0, 1.0])
+    return RigidTransform(R, np.array([0.0, 0.0, depth]) - R @ rig.centre())
+
+
+def _true_corners(rig: Rig, pose: RigidTransform) -> np.ndarray:
+    return CAMERA.project(pose.apply(rig.corner_points()))
+
+
+def _image(rig: Rig, pose: RigidTransform, marker: tuple[int, int] | None = None) -> np.ndarray:
+    image = render_rig_image(CAMERA, rig, pose, np.random.default_rng(1))
+    if marker is not None:  # a round dot of the other colour at the marker square's centre
+        i, j = marker
+        centre = CAMERA.project(pose.apply(np.array([[(i + 0.5) * rig.square_m,
+                                                      (j + 0.5) * rig.square_m, 0.0]])))[0]
+        dark = ((i + j) % 2 == 0) == (rig.origin_square == "dark")
+        cv2.circle(image, tuple(int(v) for v in np.rint(centre)), 8,
+                   int(WHITE_GREY if dark else DARK_GREY), -1, lineType=cv2.LINE_AA)
+    return image
+
+
+@pytest.mark.parametrize("origin", ["dark", "light"])
+def test_the_stated_colour_puts_the_origin_where_it_is_printed(origin: str) -> None:
+    rig = Rig(origin_square=origin)  # type: ignore[arg-type]
+    pose = _pose((0.3, -0.2, 0.1), 0.7, rig)
+    truth = _true_corners(rig, pose)
+    right = Checkerboard(6, 9, 0.03, origin_dark=origin == "dark")
+    wrong = Checkerboard(6, 9, 0.03, origin_dark=origin != "dark")
+    found = detect_corners(_image(rig, pose), right)
+    assert found is not None and np.abs(found - truth).max() < 0.3
+    turned = detect_corners(_image(rig, pose), wrong)  # the other convention: half a turn
+    assert turned is not None and np.abs(turned - truth[::-1]).max() < 0.3
+
+
+@pytest.mark.parametrize("half_turn", [False, True])
+def test_a_marker_resolves_a_board_that_looks_the_same_turned(half_turn: bool) -> None:
+    rig = Rig(corners_x=6, corners_y=8)  # 7 x 9 squares: the same colours after a half-turn
+    board = Checkerboard(6, 8, 0.03, marker_square=(1, 2))
+    pose = _pose((0.25, 0.2, -0.3), 0.65, rig, half_turn)
+    found = detect_corners(_image(rig, pose, marker=(1, 2)), board)
+    assert found is not None
+    assert np.abs(found - _true_corners(rig, pose)).max() < 0.3
+
+
+def _views(rig: Rig, n: int) -> dict[tuple[str, str], np.ndarray]:
+    tilts = [(0.35, 0.1, 0.0), (-0.3, 0.2, 0.3), (0.1, -0.4, -0.2), (0.2, 0.3, 0.5),
+             (-0.2, -0.3, 0.1), (0.4, -0.1, -0.4)]
+    return {("cam0", f"pose/{k:04d}"): _image(rig, _pose(tilts[k], 0.6 + 0.05 * k, rig))
+            for k in range(n)}
+
+
+def _known(use: str, K: np.ndarray, std: list[float] | None = None) -> KnownIntrinsics:
+    return KnownIntrinsics(use=use, camera_matrix=tuple(map(tuple, K)),  # type: ignore[arg-type]
+                           distortion=tuple(CAMERA.dist), std=std)  # type: ignore[arg-type]
+
+
+def test_fixed_intrinsics_are_used_as_given_even_with_one_view() -> None:
+    rig = Rig()
+    board = Checkerboard(6, 9, 0.03)
+    K = CAMERA.K * np.array([[1.001], [1.001], [1.0]])  # 0.1 % off, held exactly
+    cal = calibrate_images(_views(rig, 1), ["cam0"], board,
+                           known={"cam0": _known("fixed", K)})
+    assert np.array_equal(cal.intrinsics["cam0"].K, K)
+    assert np.all(cal.intrinsics["cam0"].cov == 0)
+    view = cal.views[("cam0", "pose/0000")]
+    assert view.rms_px < 0.3 and np.all(np.isfinite(view.rig_to_cam.cov))
+
+
+def test_a_prior_is_weighed_against_the_images() -> None:
+    rig = Rig()
+    board = Checkerboard(6, 9, 0.03)
+    views = _views(rig, 6)
+    free = calibrate_images(views, ["cam0"], board).intrinsics["cam0"]
+    K_prior = CAMERA.K.copy()
+    K_prior[0, 0] = K_prior[1, 1] = CAMERA.K[0, 0] + 5.0  # 5 px off the truth
+    std = [0.5, 0.5, 0.5, 0.5, 0.01, 0.05, 1e-3, 1e-3, 0.1]
+    cal = calibrate_images(views, ["cam0"], board, known={"cam0": _known("prior", K_prior, std)})
+    combined = cal.intrinsics["cam0"]
+    fx_free, fx_prior, fx = free.K[0, 0], K_prior[0, 0], combined.K[0, 0]
+    assert min(fx_free, fx_prior) < fx < max(fx_free, fx_prior)  # between the two
+    assert combined.std[0] < min(free.std[0], 0.5)  # better known than either alone
