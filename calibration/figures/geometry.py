@@ -28,6 +28,7 @@ from matplotlib.collections import EllipseCollection
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Ellipse
+from matplotlib.ticker import MaxNLocator
 from matplotlib.transforms import Bbox
 
 from .style import MINUS, PAGE_IN, PALETTE, TIMES, new_figure, styled
@@ -258,6 +259,7 @@ def _draw_scene(ax: Axes, picture: ArrayPicture) -> None:
         ax.plot(cam.centre_m[0], cam.centre_m[2], "s", ms=3, mec="k",
                 mfc="k" if cam.calibrated else "white", zorder=3)
     ax.set_aspect("equal", adjustable="datalim")
+    ax.xaxis.set_major_locator(MaxNLocator(5))  # the stretched axis's labels stay inside
     ax.set_xlabel("x (m)")
     ax.set_ylabel("z (m, forward)")
     ax.legend(loc="lower right", markerscale=2)
