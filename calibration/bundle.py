@@ -261,7 +261,8 @@ class BundleSolution:
             "speaker_offsets", "print_scale", "off_axis"); fixed unknowns have zero
             variance.
         sigmas: noise group -> estimated sigma: pixels per coordinate for a camera's corners,
-            a factor on the predicted std for the times of flight.
+            a factor on the predicted std for the times of flight (estimated per microphone;
+            "tof" is their median).
         corner_residuals_px: (n_view, n_corner, 2) detected minus modelled corners.
         tof_residuals_s: (n_src, n_mic) measured minus modelled times of flight, NaN where
             missing.
@@ -418,8 +419,10 @@ class _Model:
             rows = _corner_rows(np.flatnonzero(p.view_camera == i), n_corner)
             groups.append(_Rows(name, rows, np.ones(rows.size), 2))
         start = self.n_corner_rows
-        groups.append(_Rows(GROUP_TOF, start + np.arange(self.src.size),
-                            p.tof_std_s[self.tof_valid], 1))
+        base = p.tof_std_s[self.tof_valid]
+        for m in range(p.tof_s.shape[1]):  # each microphone its own noise level
+            rows = np.flatnonzero(self.mic == m)
+            groups.append(_Rows(f"{GROUP_TOF} {m}", start + rows, base[rows], 1))
         start += self.src.size
         groups.append(_Rows(GROUP_REFERENCE, start + np.arange(self.ref_valid.size),
                             p.reference_std_s[self.ref_valid], 1))
@@ -895,10 +898,16 @@ def _solution(model: _Model, x: np.ndarray, residual: np.ndarray, keep: np.ndarr
     sq = np.where(corner_out, np.nan, np.sum(corner_res**2, axis=2))
     corner_rms = np.array([np.sqrt(np.nanmean(sq[p.view_camera == i]))
                            for i in range(p.n_camera)])
-    sigmas = {}
+    sigmas, per_mic = {}, []
     for g in model.groups:
         if g.index.size:
-            sigmas[g.name] = float(sigma[g.index[0]] / g.base_sigma[0])
+            scale = float(sigma[g.index[0]] / g.base_sigma[0])
+            if g.name.startswith(f"{GROUP_TOF} "):
+                per_mic.append(scale)
+            else:
+                sigmas[g.name] = scale
+    if per_mic:
+        sigmas[GROUP_TOF] = float(np.median(per_mic))
     return BundleSolution(
         state=lay.unpack(x),
         std=lay.unpack(np.sqrt(np.maximum(np.diag(covariance), 0.0))),

@@ -62,7 +62,13 @@ from .plausibility import (
     raise_if_implausible,
     turned_rig,
 )
-from .responses import Flights, estimate_responses, evenly_spread
+from .responses import (
+    Flights,
+    MicrophoneResponses,
+    dispersion_delays,
+    estimate_responses,
+    evenly_spread,
+)
 from .result import (
     CalibrationResult,
     CameraFrozenResult,
@@ -171,6 +177,8 @@ class CalibrationOptions:
             joint fit (calibration.responses).
         air_sensor: use the session's air-sensor readings as the known speed of sound (when
             neither the options nor the description give one).
+        dispersion: with `responses`, take every microphone's measured dispersion (its phase
+            less a delay) out of its times of flight and fit again (calibration.responses).
     """
 
     method: Literal["micam", "paper"] = "micam"
@@ -191,6 +199,7 @@ class CalibrationOptions:
     intrinsics: dict[str, KnownIntrinsics] | None = None
     responses: bool = True
     air_sensor: bool = True
+    dispersion: bool = True
 
 
 @dataclass
@@ -345,7 +354,13 @@ def calibrate_measured(m: Measurements, options: CalibrationOptions,
     responses = None
     if options.responses:
         with _timed(timings, "responses", on_stage):
-            responses = _responses(m, bundle, solution)
+            est = _responses(m, bundle, solution)
+            if options.dispersion:
+                m = _without_dispersion(m, est)
+                bundle = fit_joint(m, solution, options, start=bundle.state)
+                joint_m, joint_solution = joint_measurements(m, bundle, solution, options)
+                est = _responses(m, bundle, solution)
+            responses = _responses_result(m, est)
     result = _assemble(joint_m, joint_solution, options, timings)
     result = result.model_copy(update={
         "microphones": _with_delays(result.microphones, bundle, solution),
@@ -570,9 +585,10 @@ def _intrinsics_priors(m: Measurements, options: CalibrationOptions) -> dict[str
 
 
 def fit_joint(m: Measurements, frozen: MicrophoneSolution, options: CalibrationOptions,
-              poses: np.ndarray | None = None, speakers: np.ndarray | None = None
-              ) -> BundleSolution:
-    """The optical-acoustic bundle adjustment, started from the camera-frozen solution.
+              poses: np.ndarray | None = None, speakers: np.ndarray | None = None,
+              start: BundleState | None = None) -> BundleSolution:
+    """The optical-acoustic bundle adjustment, started from the camera-frozen solution (or
+    from `start`, an earlier joint fit's state of the same problem).
 
     Microphones the frozen solver could not place (too few measurements) are left out. The
     reference microphone's start is multilaterated from its times of flight (its board is the
@@ -629,7 +645,7 @@ def fit_joint(m: Measurements, frozen: MicrophoneSolution, options: CalibrationO
         microphones_m=frozen.positions_m[solved], reference_m=reference,
         speeds_of_sound_m_s=np.array([frozen.speed_of_sound_m_s]), latencies_s=latencies,
         speaker_offsets_m=priors.speaker_offset_mean_m.copy(),
-    )  # fmt: skip
+    ) if start is None else start  # fmt: skip
     return fit_bundle(problem, start)
 
 
@@ -833,13 +849,26 @@ def flights(m: Measurements, bundle: BundleSolution, frozen: MicrophoneSolution,
 
 
 def _responses(m: Measurements, bundle: BundleSolution,
-               frozen: MicrophoneSolution) -> MicrophoneResponsesResult:
+               frozen: MicrophoneSolution) -> MicrophoneResponses:
     """Every microphone's response from the joint fit's geometry (calibration.responses)."""
     data = m.data
     chosen = evenly_spread([p.step for p in m.speakers.poses])
-    est = estimate_responses(data, flights(m, bundle, frozen, chosen),
-                             data.reference_distances_m, bundle.state.speed_of_sound_m_s,
-                             data.rig.speaker_diameter_m)
+    return estimate_responses(m.tofs, [m.located[k] for k in chosen],
+                              flights(m, bundle, frozen, chosen), data.fs,
+                              data.reference_distances_m, bundle.state.speed_of_sound_m_s,
+                              data.rig.speaker_diameter_m)
+
+
+def _without_dispersion(m: Measurements, responses: MicrophoneResponses) -> Measurements:
+    """The measurements with every microphone's measured dispersion taken out of its times
+    of flight (calibration.responses.dispersion_delays)."""
+    shift = dispersion_delays(m.tofs, responses, m.data.fs)
+    return replace(m, tofs=replace(m.tofs, tof_s=m.tofs.tof_s - shift))
+
+
+def _responses_result(m: Measurements, est: MicrophoneResponses) -> MicrophoneResponsesResult:
+    """The responses as result.json carries them."""
+    data = m.data
     return MicrophoneResponsesResult(
         frequencies_hz=est.frequencies_hz.tolist(), n_sources=est.n_sources,
         microphones=[MicrophoneResponse(

@@ -8,14 +8,15 @@ latency fitted, what is left of the transfer from the reference microphone to mi
 once its flight is taken out, is m's response (times the reference's, which is common to
 all microphones and cancels in a response relative to the array).
 
-Per source s and microphone m, the relative impulse response (the recording with the
-reference recording deconvolved out) is gated around its modelled arrival tau_sm (board
-latency included, the microphone's own delay not), transformed, aligned to tau_sm and
-averaged over each third-octave band b: H_smb, times L_sm / d_ref (the spreading) and over
-D_smb, the speaker's piston directivity towards m when the rig states the speakers'
-diameter. The mean over sources (room reflections and noise average out) relative to the
-array's median gain and mean phase is the response: recorded = H_mb x ideal. It carries the
-microphone's own delay (result.json's `delay_s`): apply one or the other, not both.
+Per source s and microphone m, the relative impulse response that the times of flight kept
+around the direct peak (the recording with the reference recording deconvolved out) is gated
+around its modelled arrival tau_sm (board latency included, the microphone's own delay not),
+transformed, aligned to tau_sm and averaged over each third-octave band b: H_smb, times
+L_sm / d_ref (the spreading) and over D_smb, the speaker's piston directivity towards m when
+the rig states the speakers' diameter. The mean over sources (room reflections and noise
+average out) relative to the array's median gain and mean phase is the response: recorded =
+H_mb x ideal. It carries the microphone's own delay (result.json's `delay_s`): apply one or
+the other, not both.
 """
 
 from __future__ import annotations
@@ -23,24 +24,20 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import fft as sfft
-from scipy.ndimage import uniform_filter1d
-from scipy.signal import windows
 
 from acquisition.air import piston_directivity
 
-from .session_data import SessionData
+from .times_of_flight import SessionTofs
 
 THIRD_OCTAVE_CENTRES_HZ = 10.0 ** (np.arange(30, 43) / 10.0)
 """1 kHz to 16 kHz, the base-10 third-octave centres (above the gate's resolution)."""
 GATE_S = 1e-3
 """Half-width of the gate around the direct arrival: 1 kHz of resolution; it leaves out the
 floor's and the walls' reflections, not those of a table right below the array."""
-SMOOTHING_HZ = 40.0
-"""Width of the moving average of the reference's power spectrum divided out (as the TOFs'
-compact weighting: the dips of a burst's spectrum must not amplify the noise)."""
-MAX_POSES = 30
-"""Poses used at most (evenly spread): 180 sources per microphone average the room out."""
+_FREQUENCIES_PER_BAND = 4
+"""Frequencies of each third octave the gated spectrum is averaged over."""
+MAX_POSES = 40
+"""Poses used at most (evenly spread): 240 sources per microphone average the room out."""
 
 
 @dataclass(frozen=True)
@@ -87,44 +84,34 @@ class MicrophoneResponses:
         return self.gain * np.exp(1j * self.phase_rad)
 
 
-def estimate_responses(data: SessionData, flights: Flights, reference_distances_m: np.ndarray,
-                       speed_of_sound_m_s: float, speaker_diameter_m: float | None = None,
+def estimate_responses(tofs: SessionTofs, rows: list[int], flights: Flights, fs: float,
+                       reference_distances_m: np.ndarray, speed_of_sound_m_s: float,
+                       speaker_diameter_m: float | None = None,
                        centres_hz: np.ndarray = THIRD_OCTAVE_CENTRES_HZ,
                        gate_s: float = GATE_S) -> MicrophoneResponses:
-    """The microphones' responses from the poses of `flights` (see the module docstring).
+    """The microphones' responses (see the module docstring) from the impulses the times of
+    flight kept (`SessionTofs.impulses`, rows `rows` of `tofs`, the poses of `flights`).
 
-    Each transfer is the reference-deconvolved impulse response gated to +-gate_s around the
-    modelled arrival (a Tukey window), so that the room's later reflections drop out; the gate
-    sets the frequency resolution (1 / gate_s), so bands far below it are not estimated.
+    Each impulse is gated to +-gate_s around the modelled arrival by a Tukey window (the
+    room's later reflections drop out; the gate sets the frequency resolution, 1 / gate_s),
+    and its spectrum taken at `_FREQUENCIES_PER_BAND` frequencies of each third octave. The
+    weighting the impulses were correlated with (a window over the band, the reference's
+    spectrum) is common to every microphone of a source, so it cancels in responses relative
+    to the array.
     """
-    columns = data.mic_columns
-    volts = data.mic_volts_per_unit()
-    references = data.references().astype(np.float64)
-    n_fft = sfft.next_fast_len(references.shape[-1], real=True)
-    X = sfft.rfft(references, n_fft, axis=-1)  # (S, F)
-    width = max(1, round(SMOOTHING_HZ * n_fft / data.fs))
-    inverse = np.conj(X) / uniform_filter1d(np.abs(X) ** 2, width, axis=-1, mode="nearest")
-    half = int(np.ceil(gate_s * data.fs))
-    offsets = np.arange(-half, half)
-    taper = windows.tukey(offsets.size, 0.5)
-    n_gate = sfft.next_fast_len(4 * offsets.size, real=True)
-    freqs = np.fft.rfftfreq(n_gate, 1.0 / data.fs)
-    edges = centres_hz[:, None] * 10.0 ** (np.array([-1.0, 1.0]) / 20.0)
-    in_band = [(freqs >= lo) & (freqs < hi) for lo, hi in edges]
+    step = tofs.impulse_step
+    n_lag = tofs.impulses.shape[-1]
+    spread = 10.0 ** (np.linspace(-1.0, 1.0, _FREQUENCIES_PER_BAND) / 20.0)
+    freqs = (centres_hz[:, None] * spread).ravel()  # (n_band x per band,)
     per_source: list[np.ndarray] = []
-    for i, step in enumerate(flights.steps):
-        recordings = data.pose_recordings(step)[:, columns, :].astype(np.float64)
-        Y = sfft.rfft(recordings * volts[None, :, None], n_fft, axis=-1, workers=-1)
-        impulse = sfft.irfft(Y * inverse[:, None, :], n_fft, axis=-1, workers=-1)
-        delay = np.nan_to_num(flights.delay_s[i]) * data.fs  # samples
-        first = np.floor(delay).astype(np.int64)
-        lags = (first[..., None] + offsets) % n_fft
-        gated = np.take_along_axis(impulse, lags, axis=-1) * taper
-        spectrum = sfft.rfft(gated, n_gate, axis=-1)
-        # the segment starts at first - half: put the modelled arrival back at 0
-        shift = (first - half - delay)[..., None] / data.fs
-        spectrum *= np.exp(-2j * np.pi * freqs * shift)
-        H = np.stack([spectrum[..., band].mean(axis=-1) for band in in_band], axis=-1)
+    for i, row in enumerate(rows):
+        t = (tofs.impulse_first_lag[row][..., None] + step * np.arange(n_lag)) / fs
+        shift = t - np.nan_to_num(flights.delay_s[i])[..., None]  # time from the arrival
+        gate = _tukey(shift / gate_s)
+        values = tofs.impulses[row].astype(np.float64) * gate
+        spectrum = np.einsum("smn,smnf->smf", values,
+                             np.exp(-2j * np.pi * shift[..., None] * freqs))
+        H = spectrum.reshape(*spectrum.shape[:2], centres_hz.size, -1).mean(axis=-1)
         H *= (flights.distance_m[i] / np.asarray(reference_distances_m)[:, None])[..., None]
         if speaker_diameter_m:
             H /= np.maximum(piston_directivity(centres_hz, flights.sin_off_axis[i],
@@ -132,6 +119,7 @@ def estimate_responses(data: SessionData, flights: Flights, reference_distances_
                             0.05)
         per_source.append(H)
     stack = np.concatenate(per_source)  # (n_src, n_mic, n_band)
+    stack /= np.median(np.abs(stack), axis=1, keepdims=True)  # each source's own level
     mean = stack.mean(axis=0)
     n = stack.shape[0]
     reference_gain = np.median(np.abs(mean), axis=0)
@@ -143,6 +131,44 @@ def estimate_responses(data: SessionData, flights: Flights, reference_distances_
     gain_std = gain * np.std(np.abs(relative), axis=0) / np.sqrt(n)
     phase_std = np.std(np.angle(relative), axis=0) / np.sqrt(n)
     return MicrophoneResponses(centres_hz.copy(), gain, phase, gain_std, phase_std, n)
+
+
+def dispersion_delays(tofs: SessionTofs, responses: MicrophoneResponses, fs: float,
+                      gate_s: float = GATE_S) -> np.ndarray:
+    """(P, S, M) what each microphone's dispersion did to each of its times of flight, to be
+    subtracted from them.
+
+    A capsule whose phase is not linear in frequency (a resonance, a filter) moves the peak of
+    a correlation by an amount that depends on that measurement's own spectrum, which the
+    speaker's directivity and the room change from source to source: no single delay per
+    microphone takes it out. To first order a phase perturbation psi(f) on the correlation
+    moves its peak by -sum_f w omega psi / sum_f w omega^2, w the correlation's magnitude. Here
+    psi is the microphone's measured phase less its best line through the origin (the line is
+    the microphone's delay, which the joint fit keeps as an unknown), and w is read from each
+    measurement's own impulse (gated around its peak), band by band.
+    """
+    f = responses.frequencies_hz
+    omega = 2 * np.pi * f
+    width = f * (10 ** 0.05 - 10 ** -0.05)  # the bands' widths: the integral's weights
+    phase = responses.phase_rad
+    delay = -np.sum(phase * omega * width, axis=1) / np.sum(omega**2 * width)  # LS line
+    psi = phase + omega * delay[:, None]  # (M, n_band): the microphones' dispersion
+    n_lag = tofs.impulses.shape[-1]
+    t = (np.arange(n_lag) - (n_lag - 1) / 2) * tofs.impulse_step / fs  # centred on the peak
+    kernel = _tukey(t / gate_s)[:, None] * np.exp(-2j * np.pi * np.outer(t, f))  # (n_lag, B)
+    out = np.zeros(tofs.tof_s.shape)
+    for p in range(tofs.impulses.shape[0]):
+        w = np.abs(tofs.impulses[p].astype(np.float64) @ kernel) * width  # (S, M, B)
+        out[p] = -np.sum(w * omega * psi, axis=-1) / np.sum(w * omega**2, axis=-1)
+    return out
+
+
+def _tukey(u: np.ndarray, flat: float = 0.5) -> np.ndarray:
+    """A Tukey window over u in [-1, 1] (zero outside), cosine tapers over the outer
+    (1 - flat) of each side."""
+    a = np.abs(u)
+    edge = (a - flat) / (1.0 - flat)
+    return np.where(a <= flat, 1.0, np.where(a < 1.0, 0.5 * (1.0 + np.cos(np.pi * edge)), 0.0))
 
 
 def evenly_spread(steps: tuple[str, ...] | list[str], n: int = MAX_POSES) -> list[int]:

@@ -48,7 +48,8 @@ def _remembered(key: tuple) -> TofEstimate | None:
 
 
 def _remember(key: tuple, est: TofEstimate) -> None:
-    for array in (est.delay_s, est.std_s, est.snr_db, est.peak_to_sidelobe_db):
+    for array in (est.delay_s, est.std_s, est.snr_db, est.peak_to_sidelobe_db, est.impulses,
+                  est.impulse_first_lag):
         array.flags.writeable = False  # shared by every later reader of the same pose
     with _estimates_lock:
         _estimates[key] = est
@@ -69,6 +70,10 @@ class SessionTofs:
         reference_tof_s: (P, S) time of flight to the reference microphone on its stand
             (NaN when the pose recordings do not hold it).
         reference_std_s: (P, S) its predicted standard deviation (NaN likewise).
+        impulses: (P, S, M, n_lag) float32, every array channel's weighted correlation
+            around its direct peak (`calibration.tof.TofEstimate.impulses`).
+        impulse_first_lag: (P, S, M) full-rate lag (samples) of impulses[..., 0].
+        impulse_step: full-rate samples between the impulses' values.
     """
 
     tof_s: np.ndarray
@@ -77,6 +82,9 @@ class SessionTofs:
     peak_to_sidelobe_db: np.ndarray
     reference_tof_s: np.ndarray
     reference_std_s: np.ndarray
+    impulses: np.ndarray
+    impulse_first_lag: np.ndarray
+    impulse_step: int
 
 
 def measure_session_tofs(
@@ -120,12 +128,17 @@ def measure_session_tofs(
                                   delay_window_s=window, n_fft=n_fft)
             _remember(key, est)
         parts.append((tof_from_delay(est.delay_s, d_ref, speed_of_sound_m_s), est.std_s,
-                      est.snr_db, est.peak_to_sidelobe_db))
+                      est.snr_db, est.peak_to_sidelobe_db, est.impulses,
+                      est.impulse_first_lag))
+        step_of_lags = est.impulse_step
         if on_pose is not None:
             on_pose(step)
-    tof, std, snr, psr = (np.stack(p) for p in zip(*parts, strict=True))
+    tof, std, snr, psr, impulses, first = (np.stack(p) for p in zip(*parts, strict=True))
+    n_mic = data.mic_columns.size
     if not on_stand:  # no reference microphone in the pose recordings: nothing measured
         missing = np.full(tof.shape[:2], np.nan)
-        return SessionTofs(tof, std, snr, psr, missing, missing.copy())
+        return SessionTofs(tof, std, snr, psr, missing, missing.copy(), impulses, first,
+                           step_of_lags)
     return SessionTofs(tof[..., :-1], std[..., :-1], snr[..., :-1], psr[..., :-1],
-                       tof[..., -1], std[..., -1])
+                       tof[..., -1], std[..., -1], impulses[:, :, :n_mic],
+                       first[:, :, :n_mic], step_of_lags)

@@ -55,6 +55,8 @@ converges quadratically, so what is left after such a step is of its square, 1e-
 _PHASOR_BLOCK = 64  # see _phasors
 _SINC_HALF_WIDTH = 24
 """Lags either side of the integer peak that the time-domain start (`_sinc_peak`) uses."""
+IMPULSE_HALF_WIDTH_S = 1e-3
+"""Half-width of the correlation kept around every direct peak (`TofEstimate.impulses`)."""
 _COMPACT_SMOOTHING_HZ = 40.0
 """Width of the moving average of the reference's power spectrum that "compact" divides by
 (about 7 x fs / burst length for an order-14 MLS at 96 kHz): it keeps the dips of a burst's
@@ -77,12 +79,22 @@ class TofEstimate:
         peak_to_sidelobe_db: (n_rec, n_ch) correlation peak over the largest |correlation|
             farther than `sidelobe_guard_s` from the peak, in dB. Low values flag reflections
             or interference of similar strength to the direct path.
+        impulses: (n_rec, n_ch, n_lag) float32, the weighted correlation around the direct
+            peak (+-`IMPULSE_HALF_WIDTH_S`): with the "compact" weighting, the relative impulse
+            response seen through the band's window. What the microphones' responses are
+            estimated from once the geometry is known (calibration.responses), without reading
+            the recordings again.
+        impulse_first_lag: (n_rec, n_ch) the full-rate lag (samples, signed) of impulses[..., 0].
+        impulse_step: full-rate samples between the impulses' values (1 or 2).
     """
 
     delay_s: np.ndarray
     std_s: np.ndarray
     snr_db: np.ndarray
     peak_to_sidelobe_db: np.ndarray
+    impulses: np.ndarray
+    impulse_first_lag: np.ndarray
+    impulse_step: int
 
 
 def band_bins(n_fft: int, fs: float, band: tuple[float, float]) -> np.ndarray:
@@ -171,7 +183,8 @@ def estimate_delays(
         )
         for i in range(0, n_rec, chunk)
     ]
-    return TofEstimate(*(np.concatenate(field) for field in zip(*parts, strict=False)))
+    fields = [np.concatenate(field) for field in zip(*parts, strict=True)]
+    return TofEstimate(*fields, impulse_step=lags.step)
 
 
 @dataclass(frozen=True)
@@ -221,8 +234,9 @@ def _estimate_chunk(
     weighting: Weighting,
     lags: _Lags,
     first_arrival: float,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """estimate_delays on a chunk of recordings; returns (delay, std, snr_db, psr_db)."""
+) -> tuple[np.ndarray, ...]:
+    """estimate_delays on a chunk of recordings; returns (delay, std, snr_db, psr_db,
+    impulses, impulse_first_lag)."""
     X = sfft.rfft(ref, n_fft, axis=-1, workers=-1)[:, None, bins].astype(np.complex128)
     Y = sfft.rfft(rec, n_fft, axis=-1, workers=-1)[..., bins].astype(np.complex128)
     cross = Y * np.conj(X)
@@ -239,7 +253,11 @@ def _estimate_chunk(
     tau = _newton_peak(weighted, bins, n_fft, start)
 
     std_s, snr_db = _quality(X, Y, cross, bins, n_fft, tau, fs)
-    return tau / fs, std_s, snr_db, psr_db
+    half = int(np.ceil(IMPULSE_HALF_WIDTH_S * fs / lags.step))
+    around = peak[..., None] + np.arange(-half, half + 1)
+    impulses = np.take_along_axis(corr, around % lags.length, axis=-1).astype(np.float32)
+    signed = np.where(peak >= (lags.length + 1) // 2, peak - lags.length, peak)
+    return tau / fs, std_s, snr_db, psr_db, impulses, lags.step * (signed - half)
 
 
 def _first_arrival(corr: np.ndarray, window: np.ndarray, fraction: float) -> np.ndarray:
