@@ -47,6 +47,11 @@ from calibration.pipeline import calibrate
 from sim.capture import SimulationOptions
 
 
+def mm(metres: float | None) -> float:
+    """Metres as millimetres to 4 decimals (NaN when there is no value)."""
+    return float("nan") if metres is None else round(1e3 * metres, 4)
+
+
 def scaled_error(n_mics: int, std_deg: float, seed: int) -> ChannelResponses:
     """The seed's unit phase error scaled to std_deg (so that the levels differ in size only)."""
     unit = np.angle(simulated_phase_error(n_mics, 1.0, seed).responses)
@@ -78,7 +83,7 @@ def capsule_rows(session: Path, args: argparse.Namespace, skip: set) -> list[dic
                              truth=truth).overall()
         rows.append({"imaging": name, "count": s.count, "mean_mm": round(1e3 * s.mean_m, 4),
                      "p95_mm": round(1e3 * s.p95_m, 4),
-                     "truth_mean_mm": round(1e3 * s.truth_mean_m, 4)})
+                     "truth_mean_mm": mm(s.truth_mean_m)})
         print(f"capsules  {name:>26}  mean {rows[-1]['mean_mm']:.3f} mm  p95 "
               f"{rows[-1]['p95_mm']:.3f} mm  from the truth {rows[-1]['truth_mean_mm']:.3f} mm",
               flush=True)
@@ -127,7 +132,7 @@ def main() -> None:
             rows.append({"phase_error_deg": deg, "correction": correction, "count": s.count,
                          "mean_mm": round(1e3 * s.mean_m, 4),
                          "p95_mm": round(1e3 * s.p95_m, 4),
-                         "truth_mean_mm": round(1e3 * s.truth_mean_m, 4),
+                         "truth_mean_mm": mm(s.truth_mean_m),
                          "peak_db": round(float(np.mean(level)), 4)})
             r = rows[-1]
             print(f"{deg:5.1f} deg  {correction:>9}  mean {r['mean_mm']:.3f} mm  p95 "
