@@ -38,11 +38,14 @@ class Loop:
                  seed: int = 1, live_min_poses: int = 4) -> None:
         self.root = Path(root).resolve()
         self.root.mkdir(parents=True, exist_ok=True)
-        self.control = f"ipc://{self.root}/control"
+        sockets = self.root / "run"  # private: the daemon refuses sockets others may reach
+        sockets.mkdir(exist_ok=True)
+        sockets.chmod(0o700)
+        self.control = f"ipc://{sockets}/control"
         self.config = self.root / "daemon.toml"
         self.config.write_text(
             f'session_root = "{self.root}/sessions"\n'
-            f"[sockets]\ncontrol = \"{self.control}\"\nevents = \"ipc://{self.root}/events\"\n"
+            f"[sockets]\ncontrol = \"{self.control}\"\nevents = \"ipc://{sockets}/events\"\n"
             f"[simulation]\narray = \"{array}\"\nposes = {poses}\nmls_order = {mls_order}\n"
             f"seed = {seed}\n[workers]\nlive_min_poses = {live_min_poses}\n")
         self._procs: list[subprocess.Popen] = []

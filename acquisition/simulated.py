@@ -9,24 +9,29 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 from collections.abc import Callable
 from pathlib import Path
 
 from sim.capture import SimulatedCapture, SimulationOptions, build_simulated_capture, truth_document
 
 from .sequencer import CaptureSequencer, Progress
-from .session import SessionWriter
+from .session import SessionError, SessionWriter
 
 TRUTH_FILE = "truth.json"
 
 
 def _write_json_atomic(path: Path, data: dict) -> None:
     tmp = path.with_name(path.name + ".partial")
-    with open(tmp, "w") as f:
-        json.dump(data, f, indent=1)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "w") as f:
+            json.dump(data, f, indent=1)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def prepare_simulated_capture(out: Path, options: SimulationOptions | None,
@@ -34,8 +39,10 @@ def prepare_simulated_capture(out: Path, options: SimulationOptions | None,
     """A sequencer ready to run: a new session in `out` for `options`, or (options None) the
     interrupted simulated session in `out` resumed with the options it was started with.
 
-    Raises SessionError (the directory holds a session already, or none to resume) and
-    FileNotFoundError (resuming a directory without truth.json).
+    Raises SessionError (the directory holds a session already, or none to resume; or the
+    new session's truth.json cannot be written, in which case the session, which holds no
+    recording yet, is removed again), FileNotFoundError (resuming a directory without
+    truth.json) and OSError (the directory cannot be created).
     """
     if options is None:
         truth_path = out / TRUTH_FILE
@@ -49,7 +56,14 @@ def prepare_simulated_capture(out: Path, options: SimulationOptions | None,
     else:
         sim = build_simulated_capture(options)
         writer = SessionWriter.create(out, capture=sim.config.model_dump(mode="json"))
-        _write_json_atomic(out / TRUTH_FILE, truth_document(sim))
+        try:
+            _write_json_atomic(out / TRUTH_FILE, truth_document(sim))
+        except OSError as exc:  # without its truth the session could never be resumed
+            writer.close()
+            shutil.rmtree(out, ignore_errors=True)
+            raise SessionError(f"cannot write {out / TRUTH_FILE} ({exc}); the new session was "
+                               "removed again (it held no recording): fix the cause (disk "
+                               "full? read-only?) and start again") from None
     return sim, CaptureSequencer(sim.config, sim.group, sim.cameras, sim.operator, writer,
                                  air_sensor=sim.air_sensor)
 

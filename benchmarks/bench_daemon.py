@@ -31,6 +31,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from _figures import report
+
 from acquisition.daemon.client import DaemonClient
 from acquisition.sequencer import CaptureSequencer, Progress
 from acquisition.session import SessionWriter
@@ -135,11 +137,7 @@ def main() -> None:
         "daemon_cpu_s_per_pose": round(cpu / args.poses, 3),
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version()},
     }
-    for key, value in figures.items():
-        print(f"{key:32s} {value}")
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(figures, indent=2) + "\n")
-    print(f"written to {args.out}")
+    report(figures, args.out)
 
 
 if __name__ == "__main__":

@@ -344,6 +344,12 @@ def calibrate_measured(m: Measurements, options: CalibrationOptions,
     _check_plausible(m, options, _solution_figures(m, solution, options), frozen=True)
     if not (options.joint and options.method == "micam"):
         return CalibrationRun(_assemble(m, solution, options, timings), m, solution)
+    if options.responses and options.dispersion:
+        with _timed(timings, "dispersion", on_stage):
+            # the capsules' dispersion, measured on the camera-frozen geometry (its errors
+            # are delays, which the line through the origin takes out), out of the TOFs
+            m = _without_dispersion(m, _responses(
+                m, lambda k: frozen_flights(m, solution, k), solution.speed_of_sound_m_s))
     with _timed(timings, "joint fit", on_stage):
         bundle = fit_joint(m, solution, options, poses)
         joint_m, joint_solution = joint_measurements(m, bundle, solution, options)
@@ -354,12 +360,8 @@ def calibrate_measured(m: Measurements, options: CalibrationOptions,
     responses = None
     if options.responses:
         with _timed(timings, "responses", on_stage):
-            est = _responses(m, bundle, solution)
-            if options.dispersion:
-                m = _without_dispersion(m, est)
-                bundle = fit_joint(m, solution, options, start=bundle.state)
-                joint_m, joint_solution = joint_measurements(m, bundle, solution, options)
-                est = _responses(m, bundle, solution)
+            est = _responses(m, lambda k: joint_flights(m, bundle, solution, k),
+                             bundle.state.speed_of_sound_m_s)
             responses = _responses_result(m, est)
     result = _assemble(joint_m, joint_solution, options, timings)
     result = result.model_copy(update={
@@ -820,42 +822,73 @@ def _with_delays(mics: list[MicrophoneResult], bundle: BundleSolution,
     return out
 
 
-def flights(m: Measurements, bundle: BundleSolution, frozen: MicrophoneSolution,
-            pose_indices: list[int]) -> Flights:
-    """The joint fit's modelled flights from the chosen located poses' sources to every
-    microphone it placed (NaN for the others): for estimating responses."""
+def _flights(m: Measurements, mics_m: np.ndarray, solved: np.ndarray, mic_latency_s: np.ndarray,
+             pose_indices: list[int],
+             pose_geometry: Callable[[int], tuple[np.ndarray, np.ndarray, float]],
+             off_axis_m: float = 0.0) -> Flights:
+    """The modelled flights from the chosen located poses' sources to the microphones
+    `solved` (NaN for the others). `pose_geometry(k)`: pose k's sources (S, 3), the rig's
+    normal (3,) and c."""
     data = m.data
-    solved = np.flatnonzero(np.all(np.isfinite(frozen.positions_m), axis=1))
-    s = bundle.state
-    points = data.speakers_rig_m + s.speaker_offsets_m
-    board_column, _ = _latency_layout(data, CalibrationOptions())
-    mic_latency = np.append(s.latencies_s, 0.0)[board_column[board_indices(data)[1]]][solved]
-    n_mic = len(data.mic_ids)
-    shape = (len(pose_indices), data.n_speakers, n_mic)
+    shape = (len(pose_indices), data.n_speakers, len(data.mic_ids))
     delay, distance, sin_axis = (np.full(shape, np.nan) for _ in range(3))
     d_ref = data.reference_distances_m[:, None]  # per speaker
     for row, k in enumerate(pose_indices):
-        R = Rotation.from_rotvec(s.poses[k, :3]).as_matrix()
-        sources = points @ R.T + s.poses[k, 3:]
-        diff = s.microphones_m[None] - sources[:, None]
+        sources, normal, c = pose_geometry(k)
+        diff = mics_m[None] - sources[:, None]
         dist = np.linalg.norm(diff, axis=2)
-        c = s.speeds_of_sound_m_s[k] if s.speeds_of_sound_m_s.size > 1 else s.speed_of_sound_m_s
-        delay[row][:, solved] = (dist - d_ref) / c + mic_latency
+        cos = diff @ normal / dist
+        flight = dist - off_axis_m * (1.0 - cos) * cos
+        delay[row][:, solved] = (flight - d_ref) / c + mic_latency_s
         distance[row][:, solved] = dist
-        sin_axis[row][:, solved] = np.linalg.norm(np.cross(diff / dist[..., None], R[:, 2]),
-                                                  axis=2)
+        sin_axis[row][:, solved] = np.sqrt(np.maximum(1.0 - cos**2, 0.0))
     steps = tuple(m.speakers.poses[k].step for k in pose_indices)
     return Flights(steps, delay, distance, sin_axis)
 
 
-def _responses(m: Measurements, bundle: BundleSolution,
-               frozen: MicrophoneSolution) -> MicrophoneResponses:
-    """Every microphone's response from the joint fit's geometry (calibration.responses)."""
+def _mic_latency(data: SessionData, per_column: np.ndarray, solved: np.ndarray) -> np.ndarray:
+    """Each solved microphone's board latency from per-latency-column values (the gauge 0)."""
+    board_column, _ = _latency_layout(data, CalibrationOptions())
+    return np.append(per_column, 0.0)[board_column[board_indices(data)[1]]][solved]
+
+
+def joint_flights(m: Measurements, bundle: BundleSolution, frozen: MicrophoneSolution,
+                  pose_indices: list[int]) -> Flights:
+    """`_flights` of the joint fit's geometry."""
+    solved = np.flatnonzero(np.all(np.isfinite(frozen.positions_m), axis=1))
+    s = bundle.state
+    points = m.data.speakers_rig_m + s.speaker_offsets_m
+
+    def geometry(k: int) -> tuple[np.ndarray, np.ndarray, float]:
+        R = Rotation.from_rotvec(s.poses[k, :3]).as_matrix()
+        c = s.speeds_of_sound_m_s[k] if s.speeds_of_sound_m_s.size > 1 else s.speed_of_sound_m_s
+        return points @ R.T + s.poses[k, 3:], R[:, 2], float(c)
+
+    return _flights(m, s.microphones_m, solved, _mic_latency(m.data, s.latencies_s, solved),
+                    pose_indices, geometry, s.off_axis_m)
+
+
+def frozen_flights(m: Measurements, frozen: MicrophoneSolution,
+                   pose_indices: list[int]) -> Flights:
+    """`_flights` of the camera-frozen solution (camera-given sources)."""
+    solved = np.flatnonzero(np.all(np.isfinite(frozen.positions_m), axis=1))
+    boards, board_of_mic = board_indices(m.data)
+    latency = np.broadcast_to(frozen.latency_s, (len(boards),))[board_of_mic][solved]
+
+    def geometry(k: int) -> tuple[np.ndarray, np.ndarray, float]:
+        R = Rotation.from_rotvec(m.speakers.poses[k].rig_to_cam0.rvec).as_matrix()
+        return m.speakers.positions_m[k], R[:, 2], frozen.speed_of_sound_m_s
+
+    return _flights(m, frozen.positions_m[solved], solved, latency, pose_indices, geometry)
+
+
+def _responses(m: Measurements, flights: Callable[[list[int]], Flights],
+               speed_of_sound_m_s: float) -> MicrophoneResponses:
+    """Every microphone's response (calibration.responses) from the flights of a geometry."""
     data = m.data
     chosen = evenly_spread([p.step for p in m.speakers.poses])
-    return estimate_responses(m.tofs, [m.located[k] for k in chosen],
-                              flights(m, bundle, frozen, chosen), data.fs,
-                              data.reference_distances_m, bundle.state.speed_of_sound_m_s,
+    return estimate_responses(m.tofs, [m.located[k] for k in chosen], flights(chosen),
+                              data.fs, data.reference_distances_m, speed_of_sound_m_s,
                               data.rig.speaker_diameter_m)
 
 

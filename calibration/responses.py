@@ -104,13 +104,14 @@ def estimate_responses(tofs: SessionTofs, rows: list[int], flights: Flights, fs:
     spread = 10.0 ** (np.linspace(-1.0, 1.0, _FREQUENCIES_PER_BAND) / 20.0)
     freqs = (centres_hz[:, None] * spread).ravel()  # (n_band x per band,)
     per_source: list[np.ndarray] = []
+    # exp(-j w (t - delay)) = exp(-j w (first lag / fs - delay)) exp(-j w n step / fs):
+    # one table for the lags, one phasor per measurement and frequency
+    lag_table = np.exp(-2j * np.pi * np.outer(step * np.arange(n_lag) / fs, freqs))
     for i, row in enumerate(rows):
-        t = (tofs.impulse_first_lag[row][..., None] + step * np.arange(n_lag)) / fs
-        shift = t - np.nan_to_num(flights.delay_s[i])[..., None]  # time from the arrival
-        gate = _tukey(shift / gate_s)
-        values = tofs.impulses[row].astype(np.float64) * gate
-        spectrum = np.einsum("smn,smnf->smf", values,
-                             np.exp(-2j * np.pi * shift[..., None] * freqs))
+        start = tofs.impulse_first_lag[row] / fs - np.nan_to_num(flights.delay_s[i])
+        shift = start[..., None] + step * np.arange(n_lag) / fs  # time from the arrival
+        values = tofs.impulses[row].astype(np.float64) * _tukey(shift / gate_s)
+        spectrum = (values @ lag_table) * np.exp(-2j * np.pi * start[..., None] * freqs)
         H = spectrum.reshape(*spectrum.shape[:2], centres_hz.size, -1).mean(axis=-1)
         H *= (flights.distance_m[i] / np.asarray(reference_distances_m)[:, None])[..., None]
         if speaker_diameter_m:

@@ -237,8 +237,9 @@ def _estimate_chunk(
 ) -> tuple[np.ndarray, ...]:
     """estimate_delays on a chunk of recordings; returns (delay, std, snr_db, psr_db,
     impulses, impulse_first_lag)."""
-    X = sfft.rfft(ref, n_fft, axis=-1, workers=-1)[:, None, bins].astype(np.complex128)
-    Y = sfft.rfft(rec, n_fft, axis=-1, workers=-1)[..., bins].astype(np.complex128)
+    # single precision stays single (1e-7 of rounding: a thousandth of a nanosecond of delay)
+    X = sfft.rfft(ref, n_fft, axis=-1, workers=-1)[:, None, bins]
+    Y = sfft.rfft(rec, n_fft, axis=-1, workers=-1)[..., bins]
     cross = Y * np.conj(X)
     weighted = _weighted(cross, X, weighting,
                          max(1, round(_COMPACT_SMOOTHING_HZ * n_fft / fs)))
@@ -291,7 +292,8 @@ def _weighted(cross: np.ndarray, X: np.ndarray, weighting: Weighting,
         hann = 0.5 - 0.5 * np.cos(2.0 * np.pi * (np.arange(k) + 0.5) / k)
         power = uniform_filter1d(X.real**2 + X.imag**2, smoothing_bins, axis=-1, mode="nearest")
         scale = np.mean(power, axis=-1, keepdims=True)  # keeps the values' magnitude
-        return cross * (hann * scale / np.maximum(power, tiny * scale + tiny))
+        weight = hann * scale / np.maximum(power, tiny * scale + tiny)
+        return cross * weight.astype(power.dtype)  # single precision stays single
     raise ValueError(f"unknown weighting {weighting!r}; choose compact, matched or phat")
 
 
@@ -356,25 +358,26 @@ def _sinc_derivatives(d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray
     return f, f1, f2
 
 
-def _phasors(tau: np.ndarray, bins: np.ndarray, n_fft: int) -> np.ndarray:
+def _phasors(tau: np.ndarray, bins: np.ndarray, n_fft: int,
+             dtype: type = np.complex128) -> np.ndarray:
     """exp(j omega_k tau) (..., K) for omega_k = 2 pi bins_k / n_fft, tau (...) in samples.
 
     For consecutive bins (a band), k = k_0 + a B + b and the phasor is the product of three
     small tables of exact exponentials, exp(j k_0 w tau) exp(j a B w tau) exp(j b w tau) with
     w = 2 pi / n_fft: one complex multiplication per element instead of an exponential (8x
-    faster), with a phase error of about 1e-13 rad.
+    faster), with a phase error of about 1e-13 rad (1e-7 in complex64, which `dtype` may
+    ask for: the tables are exact, only their product is rounded).
     """
     step = 2.0 * np.pi / n_fft
     t = np.asarray(tau, dtype=np.float64)[..., None]
     k = bins.size
     if k < 2 or np.any(np.diff(bins) != 1):
-        return np.exp(1j * (step * bins) * t)
+        return np.exp(1j * (step * bins) * t).astype(dtype, copy=False)
     block = _PHASOR_BLOCK
     blocks = -(-k // block)
     base = np.exp(1j * (step * bins[0]) * t)
-    coarse = np.exp(1j * (step * block) * np.arange(blocks) * t)
-    coarse *= base
-    fine = np.exp(1j * step * np.arange(block) * t)
+    coarse = (np.exp(1j * (step * block) * np.arange(blocks) * t) * base).astype(dtype)
+    fine = np.exp(1j * step * np.arange(block) * t).astype(dtype)
     full = coarse[..., :, None] * fine[..., None, :]
     return full.reshape(*t.shape[:-1], blocks * block)[..., :k]
 
@@ -391,13 +394,15 @@ def _newton_peak(weighted: np.ndarray, bins: np.ndarray, n_fft: int, tau: np.nda
     shape = tau.shape
     tau = tau.astype(np.float64).ravel()
     c = weighted.reshape(tau.size, -1)
-    omega = 2.0 * np.pi * bins / n_fft
+    real = np.float32 if c.dtype == np.complex64 else np.float64
+    omega = (2.0 * np.pi * bins / n_fft).astype(real)
     omega2 = omega**2
     active = np.arange(tau.size)
     for _ in range(_NEWTON_ITERATIONS):
-        z = c * _phasors(tau[active], bins, n_fft)
+        z = c * _phasors(tau[active], bins, n_fft, c.dtype.type)
         d1 = -(z.imag @ omega)
         d2 = -(z.real @ omega2)
+        d1, d2 = d1.astype(np.float64), d2.astype(np.float64)
         step = np.where(d2 < 0, -d1 / np.where(d2 < 0, d2, -1.0), 0.5 * np.sign(d1))
         step = np.clip(step, -0.5, 0.5)
         tau[active] += step
@@ -422,10 +427,11 @@ def _quality(
     g^2 |X_k|^2. The residual contains the reference's noise (scaled by g) too, as it should.
     """
     omega = 2.0 * np.pi * bins / n_fft  # rad per sample
-    r = np.sum((cross * _phasors(tau, bins, n_fft)).real, axis=-1)
-    x_power = X.real**2 + X.imag**2
+    r = np.sum((cross * _phasors(tau, bins, n_fft, cross.dtype.type)).real, axis=-1,
+               dtype=np.float64)
+    x_power = (X.real**2 + X.imag**2).astype(np.float64)
     ex = np.sum(x_power, axis=-1)
-    ey = np.sum(Y.real**2 + Y.imag**2, axis=-1)
+    ey = np.sum(Y.real**2 + Y.imag**2, axis=-1, dtype=np.float64)
     signal = np.maximum(r, 0.0) ** 2 / ex
     residual = np.maximum(ey - signal, np.finfo(float).tiny * ey + np.finfo(float).tiny)
     noise_per_bin = residual / omega.size

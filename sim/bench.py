@@ -24,6 +24,7 @@ import numpy as np
 from daq import CODE_FULL_SCALE, InputChannel, board_model, volts_to_codes
 
 from .arrivals import SpeakerState, linear_phase, transfer_functions
+from .setups import Key, Setups
 from .sound import creeping_path_length, fft_length, propagate
 from .world import World
 
@@ -49,7 +50,8 @@ class AnalogBench(Protocol):
 
 NOISE_CHUNK = 4096
 """Noise is drawn in chunks of this many samples, each from its own seeded generator, so that
-any read pattern sees the same noise."""
+any read pattern sees the same noise. The generators are keyed by the scan's set-up and its
+number within it (sim.setups), so a resumed capture records what an uninterrupted one does."""
 
 TAIL_SAMPLES = 4096
 """Samples rendered after the last output sample plus the longest path: the speaker's decay."""
@@ -68,6 +70,7 @@ class _Scan:
     """Everything needed to produce the inputs of one scan."""
 
     number: int
+    noise_key: Key  # the set-up and the scan's number within it (sim.setups)
     drives: dict[int, np.ndarray]  # speaker index -> drive volts from sample 0
     rig_pose_speakers: np.ndarray  # (n_speakers, 3) speaker diaphragms at trigger time
     rig_normal: np.ndarray  # (3,) out of the rig's printed face at trigger time
@@ -83,8 +86,9 @@ class AcousticBench:
     Thread-safe: boards may read from several threads (the USB emulator does).
     """
 
-    def __init__(self, world: World) -> None:
+    def __init__(self, world: World, setups: Setups | None = None) -> None:
         self.world = world
+        self.setups = setups or Setups()
         layout = world.layout
         self._board_index = {b.serial: i for i, b in enumerate(layout.boards)}
         self._speaker_of_output = {(r.board, r.channel): k
@@ -122,8 +126,8 @@ class AcousticBench:
             n = self._scan_number
             w = self.world
             self._scans[n] = _Scan(
-                n, self._pending, w.speaker_positions(), w.rig_normal(),
-                None if w.reference_mic_m is None else w.reference_mic_m.copy(),
+                n, self.setups.next_scan(), self._pending, w.speaker_positions(),
+                w.rig_normal(), None if w.reference_mic_m is None else w.reference_mic_m.copy(),
                 w.reference_near_speaker, w.speed_of_sound_m_s)
             self._pending = {}
             for old in [k for k in self._scans if k < n - 2]:
@@ -151,7 +155,7 @@ class AcousticBench:
                 raise ValueError(f"scan {scan} is unknown or too old to read")
             if record.signals is None:
                 record.signals = self._render(record)
-        volts = self._noise(scan, b, start, n_samples)
+        volts = self._noise(record.noise_key, b, start, n_samples)
         out = np.empty((n_samples, len(channels)), dtype=np.int16)
         for col, ch in enumerate(channels):
             v = volts[:, ch.channel].copy()
@@ -162,7 +166,7 @@ class AcousticBench:
             out[:, col] = volts_to_codes(v, ch.range_v)
         return out
 
-    def _noise(self, scan: int, board: int, start: int, n: int) -> np.ndarray:
+    def _noise(self, key: Key, board: int, start: int, n: int) -> np.ndarray:
         """Input noise in volts (n, n_inputs of the board) for samples start .. start + n - 1."""
         model_inputs = board_model(self.world.layout.boards[board].model).n_inputs
         sigma = np.full(model_inputs, self.world.noise.array_noise_v)
@@ -171,7 +175,7 @@ class AcousticBench:
             sigma[ref.channel] = self.world.noise.reference_noise_v
         first, last = start // NOISE_CHUNK, (start + n - 1) // NOISE_CHUNK
         chunks = [
-            np.random.default_rng([self.world.seed, 2, scan, board, c]).standard_normal(
+            np.random.default_rng([self.world.seed, 2, *key, board, c]).standard_normal(
                 (NOISE_CHUNK, model_inputs))
             for c in range(first, last + 1)
         ]
@@ -281,7 +285,7 @@ class AcousticBench:
         w = self.world
         amb = w.lab.ambient_noise
         assert amb is not None
-        rng = np.random.default_rng([w.seed, 6, scan.number])
+        rng = np.random.default_rng([w.seed, 6, *scan.noise_key])  # what is captured (sim.setups)
         shape = 1.0 / (1.0 + (freqs / amb.corner_hz) ** 2)
         shape[0] = 0.0
         # time-domain variance of irfft(Z * shape) for unit complex Gaussian Z per bin

@@ -10,6 +10,7 @@ from acquisition.camera import CameraTimeoutError, Frame
 
 from .geometry import CameraModel
 from .light import render_rig_image
+from .setups import Setups
 from .world import World
 
 
@@ -18,13 +19,16 @@ class SimulatedCamera:
     world's current pose.
 
     `fail_next_grabs` makes the next grabs time out, as a camera that returns no frame does.
+    The sensor noise of a frame is keyed by the set-up and the frame's number in it
+    (sim.setups), so a resumed capture renders what an uninterrupted one does.
     """
 
-    def __init__(self, model: CameraModel, world: World, index: int) -> None:
+    def __init__(self, model: CameraModel, world: World, index: int,
+                 setups: Setups | None = None) -> None:
         self.model = model
         self.world = world
-        self._rng_key = (world.seed, 3, index)
-        self._grabs = 0
+        self.index = index
+        self.setups = setups or Setups()
         self.fail_next_grabs = 0
 
     @property
@@ -41,8 +45,8 @@ class SimulatedCamera:
             raise CameraTimeoutError(
                 f"camera {self.name} ({self.device_id}) returned no frame within {timeout_s} s"
             )
-        self._grabs += 1
-        rng = np.random.default_rng([*self._rng_key, self._grabs])
+        key = self.setups.next_frame(self.index)
+        rng = np.random.default_rng([self.world.seed, 3, self.index, *key])
         w = self.world
         image = render_rig_image(
             self.model, w.physical_rig, w.rig_pose if w.rig_in_view else None, rng,

@@ -34,6 +34,7 @@ from .geometry import Rig, RigidTransform
 from .lab import EFFECTS, LabEffects
 from .operator import SimulatedOperator, reference_stand_position
 from .poses import sample_poses
+from .setups import Setups
 from .world import NoiseModel, World
 
 
@@ -180,12 +181,15 @@ def build_simulated_capture(options: SimulationOptions) -> SimulatedCapture:
     world = World(layout=layout, rig=rig, temperature_c=options.temperature_c,
                   noise=NoiseModel(scale=options.noise), seed=options.seed,
                   body_diffraction=options.body_diffraction, lab=options.lab_effects())
-    bench = AcousticBench(world)
+    setups = Setups()  # the noise is keyed by what is captured (sim.setups)
+    bench = AcousticBench(world, setups)
     hardware = _boards_for(options, layout, bench)
-    cameras: list[Camera] = [SimulatedCamera(m, world, i) for i, m in enumerate(layout.cameras)]
+    cameras: list[Camera] = [SimulatedCamera(m, world, i, setups)
+                             for i, m in enumerate(layout.cameras)]
     poses = sample_poses(layout.cameras[0], rig, options.poses, options.distance_m,
                          np.random.default_rng([options.seed, 4]))
-    operator = SimulatedOperator(world, poses, reference_stand_position(layout.cameras[0]))
+    operator = SimulatedOperator(world, poses, reference_stand_position(layout.cameras[0]),
+                                 setups)
     stated_rig = rig.turned() if options.description_mistake == "turned-pattern" else rig
     stated_rate = world.sample_rate_hz * (1.1 if options.description_mistake == "sample-rate"
                                           else 1.0)

@@ -10,6 +10,7 @@ from acquisition.operator import Instruction, InstructionKind
 
 from .geometry import CameraModel, RigidTransform
 from .poses import FACING_CAMERA
+from .setups import Setups
 from .world import World
 
 
@@ -23,14 +24,20 @@ def reference_stand_position(camera: CameraModel, depth_m: float = 0.8) -> np.nd
     return camera.from_cam0.inverse().apply(depth_m * ray / ray[2])
 
 
+_SETUP_CODE = {InstructionKind.REFERENCE_AT_SPEAKER: 1, InstructionKind.REFERENCE_ON_STAND: 2,
+               InstructionKind.RIG_AT_POSE: 3}
+
+
 class SimulatedOperator:
-    """Moves the rig through a list of poses and places the reference microphone."""
+    """Moves the rig through a list of poses and places the reference microphone; tells
+    `setups` which set-up it made (the key of the noise that follows, see sim.setups)."""
 
     def __init__(self, world: World, poses: Sequence[RigidTransform],
-                 stand_position_m: np.ndarray) -> None:
+                 stand_position_m: np.ndarray, setups: Setups | None = None) -> None:
         self.world = world
         self.poses = list(poses)
         self.stand_position_m = np.asarray(stand_position_m, dtype=np.float64)
+        self.setups = setups or Setups()
 
     def rig_pose_on_stand(self) -> RigidTransform:
         """The rig pose with its reference mark at the stand, facing camera 0."""
@@ -57,3 +64,6 @@ class SimulatedOperator:
             w.place_rig(self.poses[instruction.pose])
         else:  # pragma: no cover - every kind is handled above
             raise ValueError(f"unknown instruction {instruction.kind}")
+        which = {InstructionKind.REFERENCE_AT_SPEAKER: instruction.speaker,
+                 InstructionKind.RIG_AT_POSE: instruction.pose}.get(instruction.kind)
+        self.setups.begin((_SETUP_CODE[instruction.kind], which or 0))

@@ -80,6 +80,7 @@ def _prior(args: argparse.Namespace):
         if args.prior_std_mm is not None:
             raise UserError("--prior-std-mm needs --prior")
         return None
+    from acquisition.session import SessionError
     from calibration.result import load_prior_positions
     from calibration.session_data import load_session
     from calibration.solver import PriorGeometry
@@ -91,10 +92,26 @@ def _prior(args: argparse.Namespace):
     try:
         data = load_session(args.session, args.allow_interrupted)
         positions = load_prior_positions(args.prior, data.mic_ids)
-    except ValueError as exc:
+    except (ValueError, SessionError) as exc:
         raise UserError(str(exc)) from None
     std = None if args.prior_std_mm is None else args.prior_std_mm / 1000.0
     return PriorGeometry(positions, std)
+
+
+def _check_files(session: Path) -> None:
+    """Every file of the session against the journal's checksum, before any work (the
+    calibration remembers detections by checksum, so it might not read a damaged file)."""
+    from acquisition.session import SessionError, SessionReader
+
+    try:
+        problems = SessionReader(session).verify()
+    except SessionError as exc:
+        raise UserError(str(exc)) from None
+    if problems:
+        more = f" (and {len(problems) - 1} more: `micam inspect {session}`)" \
+            if len(problems) > 1 else ""
+        raise UserError(f"{session} is damaged: {problems[0]}{more}; restore the file from a "
+                        "copy of the session, nothing was calibrated")
 
 
 _AIR_FLAGS = {"temperature_c": "--temperature", "temperature_std_c": "--temperature-std",
@@ -170,6 +187,7 @@ def _truth(args: argparse.Namespace, data) -> dict | None:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
+    from acquisition.session import SessionError
     from calibration.pipeline import CalibrationOptions, calibrate
     from calibration.report import summary_lines, write_report
     from calibration.result import write_acoular_calib_xml, write_acoular_xml
@@ -186,6 +204,7 @@ def run(args: argparse.Namespace) -> int:
     if args.acoular_calib is not None and (args.no_joint or args.method == "paper"):
         raise UserError("--acoular-calib needs the joint fit (it estimates the responses); "
                         "leave out --no-joint and --method paper")
+    _check_files(args.session)
     try:
         data = load_session(args.session, args.allow_interrupted)
     except ValueError as exc:
@@ -198,8 +217,8 @@ def run(args: argparse.Namespace) -> int:
         allow_interrupted=args.allow_interrupted, joint=not args.no_joint,
         prior=prior, speed_of_sound_prior=_known_air(args),
         intrinsics=_known_intrinsics(args, data) or None)
-    stages = ["load", "cameras", "speakers", "times of flight", "solver", "joint fit",
-              "responses"]
+    stages = ["load", "cameras", "speakers", "times of flight", "solver", "dispersion",
+              "joint fit", "responses"]
     with tqdm(total=len(stages), unit="stage", desc="calibrate") as bar:
         def on_stage(name: str) -> None:
             bar.set_postfix_str(name)
@@ -209,6 +228,8 @@ def run(args: argparse.Namespace) -> int:
         try:
             run_ = calibrate(args.session, options, on_stage)
         except ValueError as exc:  # CalibrationInputError and the cameras' own errors
+            raise UserError(str(exc)) from None
+        except SessionError as exc:  # a damaged file: every read is checked against the journal
             raise UserError(str(exc)) from None
         bar.n = len(stages)
         bar.refresh()

@@ -29,16 +29,35 @@ def _norm(v: list[float]) -> float:
     return sum(x * x for x in v) ** 0.5
 
 
+def _truth_line(path: Path) -> str:
+    """The ground truth in one line, or why it cannot be read (it is a file like any other)."""
+    try:
+        truth = json.loads(path.read_text())
+        if "poses" not in truth:  # a truth written by hand: the microphones only
+            return f"{len(truth.get('microphones', []))} microphones"
+        dist = [_norm(_mean(p["speakers_m"])) for p in truth["poses"]]
+        return (f"{len(truth['microphones'])} microphones, c = "
+                f"{truth['speed_of_sound_m_s']:.2f} m/s ({truth['temperature_c']:.1f} degC), "
+                f"rig centre {min(dist):.2f}-{max(dist):.2f} m from camera 0")
+    except (OSError, ValueError, KeyError, TypeError, IndexError, AttributeError) as exc:
+        return f"{path.name} is not readable ({type(exc).__name__}: {exc})"
+
+
 def run(args: argparse.Namespace) -> int:
-    from acquisition.rig_description import DESCRIPTION_KIND
+    from acquisition.capture_config import CaptureConfig
+    from acquisition.rig_description import DESCRIPTION_KIND, DescriptionError, validate_description
     from acquisition.session import SessionError, SessionReader
 
     try:
         reader = SessionReader(args.session)
-    except SessionError as exc:
+        capture = reader.capture
+        if capture.get("kind") == DESCRIPTION_KIND:  # checked before its keys are read
+            validate_description(capture, f"session {args.session}: its description")
+        else:
+            CaptureConfig.of_session(capture, args.session)
+    except (SessionError, DescriptionError) as exc:
         raise UserError(str(exc)) from None
     steps = reader.steps()
-    capture = reader.capture
     poses = [s for s in steps if s.startswith("pose/")]
     refs = [s for s in steps if s.startswith("reference/")]
     n_files = sum(len(r.files) for r in steps.values())
@@ -64,12 +83,5 @@ def run(args: argparse.Namespace) -> int:
         print(f"  - {problem}")
     truth_path = args.session / "truth.json"
     if truth_path.is_file():
-        truth = json.loads(truth_path.read_text())
-        if "poses" not in truth:  # a truth written by hand: the microphones only
-            print(f"truth     {len(truth.get('microphones', []))} microphones")
-            return 0 if not problems else 1
-        dist = [_norm(_mean(p["speakers_m"])) for p in truth["poses"]]
-        print(f"truth     {len(truth['microphones'])} microphones, c = "
-              f"{truth['speed_of_sound_m_s']:.2f} m/s ({truth['temperature_c']:.1f} degC), "
-              f"rig centre {min(dist):.2f}-{max(dist):.2f} m from camera 0")
+        print(f"truth     {_truth_line(truth_path)}")
     return 0 if not problems else 1

@@ -68,6 +68,10 @@ def _options_from_args(args: argparse.Namespace):
         raise UserError(f"invalid simulation options: {problems}") from None
 
 
+def _first_line(exc: BaseException) -> str:
+    return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+
+
 def run(args: argparse.Namespace) -> int:
     from acquisition.camera import CameraError
     from acquisition.session import SessionError, SessionExistsError
@@ -84,16 +88,22 @@ def run(args: argparse.Namespace) -> int:
                         "choose a new --out") from None
     except (SessionError, FileNotFoundError) as exc:
         raise UserError(str(exc)) from None
+    except OSError as exc:  # the directory cannot be made: read-only, no permission, full
+        raise UserError(f"cannot create the session {out}: {exc}; choose a --out on a "
+                        "writable disk with free space") from None
     remaining = len(sequencer.remaining_steps())
     try:
         with tqdm(total=remaining, unit="step", disable=args.quiet, desc="capture") as bar:
             sequencer.on_progress = lambda p: (bar.set_postfix_str(p.step), bar.update(1))
             sequencer.run()
-    except (DaqError, CameraError) as exc:
-        print(f"micam: capture interrupted: {exc}\n"
-              f"Every completed step in {out} is safe; fix the cause and continue with\n"
+    except (DaqError, CameraError, SessionError, OSError) as exc:
+        print(f"micam: capture interrupted: {_first_line(exc)}\n"
+              f"Every completed step in {out} is safe; fix the cause (for a full or read-only "
+              f"disk: free space, or make it writable) and continue with\n"
               f"  micam simulate --resume --out {out}", file=sys.stderr)
         return 3
+    finally:
+        sequencer.writer.close()
     if not args.quiet:
         print(f"session written to {out} ({sim.options.poses} poses, "
               f"{len(sim.config.speakers)} speakers, {len(sim.config.columns)} channels); "

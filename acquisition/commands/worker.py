@@ -8,20 +8,21 @@ import signal
 from pathlib import Path
 from types import FrameType
 
-from acquisition.daemon.endpoints import DEFAULT_CONTROL, beside
+from acquisition.daemon.endpoints import beside, default_control
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     env = os.environ.get
+    control = default_control()
     p = sub.add_parser(
         "worker", help="calibrate the daemon's poses and sessions (ZeroMQ worker)",
         description="Connect to a micam daemon, take its calibration jobs one at a time (a "
                     "live calibration after each pose, the full one when a session closes), "
                     "fetch the session files over ZeroMQ into a local cache, and send the "
                     "results back. Runs until SIGTERM or Ctrl-C.")
-    p.add_argument("--connect", default=env("MICAM_CONTROL", DEFAULT_CONTROL), metavar="ENDPOINT",
+    p.add_argument("--connect", default=env("MICAM_CONTROL", control), metavar="ENDPOINT",
                    help="the daemon's control endpoint; the jobs and file endpoints are beside "
-                        f"it (default $MICAM_CONTROL or {DEFAULT_CONTROL})")
+                        f"it (default $MICAM_CONTROL or {control})")
     p.add_argument("--jobs", metavar="ENDPOINT", help="the daemon's jobs endpoint, if not beside")
     p.add_argument("--files", metavar="ENDPOINT", help="the daemon's file endpoint, if not beside")
     p.add_argument("--name", help="this worker's name in the daemon's events (default host-pid)")

@@ -10,21 +10,28 @@ and Majordomo patterns:
   to pending; so does a job leased longer than `job_timeout_s`;
 - every lease increments the job's `attempt`, and only the current attempt's answer counts
   (fencing): a late answer of a dead or timed-out lease is acknowledged as stale and ignored;
-- results are stored once, beside the session (calibration/result.json for the final job, the
-  latest calibration/live.json for live ones), before the job is marked done.
+- results are checked against their session (result_check.py: a rogue or broken worker
+  cannot replace a calibration with nonsense), then stored once, beside the session
+  (calibration/result.json for the final job, the latest calibration/live.json for live
+  ones), before the job is marked done. If result.json is there already (an earlier attempt
+  stored it and the daemon stopped before marking the job done) that file is kept and its own
+  checksum recorded, so the outbox always describes the file on disk;
+- a message of another protocol version, or with none, is answered with `refused` and why.
 
-Every state change is in the outbox on disk before it is acted on (see outbox.py). The broker
-runs in the daemon's one loop thread: `serve` reads waiting messages, `tick` does the timed work.
+Every lease is in the outbox on disk before it is sent; when the outbox's disk refuses writes
+the other changes wait in memory and nothing is lost (see outbox.py). Finished records are
+pruned after `keep_finished_days`. The broker runs in the daemon's one loop thread: `serve`
+reads waiting messages, `tick` does the timed work.
 """
 
 from __future__ import annotations
 
 import hashlib
-import json
 import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from datetime import timedelta
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +39,7 @@ import zmq
 from pydantic import BaseModel, ValidationError
 
 from ..session import SessionError
-from ..session._atomic import fsync_dir, write_atomic
+from ..session._atomic import fsync_dir, partial_path, sha256_file, write_atomic
 from .config import WorkersConfig
 from .job_messages import (
     WORKER_MESSAGE,
@@ -46,8 +53,10 @@ from .job_messages import (
     Progress,
     Ready,
     Reconnect,
+    Refused,
     WorkerError,
     encode,
+    version_problem,
 )
 from .outbox import JobRecord, Outbox
 from .protocol import (
@@ -58,7 +67,9 @@ from .protocol import (
     LiveCalibrationEvent,
     WorkerEvent,
     WorkerSummary,
+    utc_now,
 )
+from .result_check import ResultRejected, SessionFacts, check_live, check_result, parse_result
 
 log = logging.getLogger("micam.daemon")
 
@@ -66,6 +77,11 @@ CALIBRATION_DIR = "calibration"
 RESULT_FILE = "result.json"
 LIVE_FILE = "live.json"
 MAX_MESSAGES_PER_TURN = 100
+FLUSH_INTERVAL_S = 1.0  # how often records kept in memory are offered to the disk again
+PRUNE_INTERVAL_S = 3600.0
+JOBS_QUEUE = 16
+"""Frames queued per worker connection on the jobs socket (x `max_result_bytes`: its memory
+bound). A worker sends a handful of messages between two turns of the loop."""
 
 Publish = Callable[..., Any]
 
@@ -93,6 +109,10 @@ class Broker:
         self._publish = publish
         self.workers: dict[bytes, _Worker] = {}
         self._next_heartbeat = 0.0
+        self._next_flush = 0.0
+        self._next_prune = 0.0
+        self._outbox_failing = False
+        self._facts: dict[str, SessionFacts] = {}  # by session path, read on first need
 
     @property
     def silence_s(self) -> float:
@@ -113,6 +133,7 @@ class Broker:
                 self._job_event(old, "superseded", reason=f"by {job.job_id}")
         self.outbox.add(job)
         self._job_event(job, "queued")
+        self._check_outbox()
         self._dispatch()
 
     def status(self) -> CalibrationStatus:
@@ -151,7 +172,31 @@ class Broker:
             self._next_heartbeat = now + self.config.heartbeat_interval_s
             for worker in list(self.workers.values()):
                 self._send(worker, Heartbeat())
+        if self.outbox.unsaved and now >= self._next_flush:
+            self._next_flush = now + FLUSH_INTERVAL_S
+            self.outbox.flush()
+            self._check_outbox()
+        if now >= self._next_prune:
+            self._next_prune = now + PRUNE_INTERVAL_S
+            self.prune()
         self._dispatch()
+
+    def prune(self) -> None:
+        """Forget the records of jobs finished more than `keep_finished_days` ago."""
+        cutoff = utc_now() - timedelta(days=self.config.keep_finished_days)
+        for job_id in self.outbox.prune(cutoff):
+            log.info("pruned the finished job %s from the outbox", job_id)
+
+    def _check_outbox(self) -> None:
+        """Tell the operator once when the outbox's disk starts or stops refusing writes."""
+        failing = bool(self.outbox.unsaved)
+        if failing and not self._outbox_failing:
+            self._publish(ErrorEvent, message=f"the outbox {self.outbox.directory} refuses "
+                          "writes (disk full or read-only?); calibration jobs are kept in memory "
+                          "and written, then offered to workers, once it takes writes again")
+        elif self._outbox_failing and not failing:
+            log.info("the outbox takes writes again")
+        self._outbox_failing = failing
 
     def close(self) -> None:
         self.sock.close(linger=0)
@@ -162,12 +207,17 @@ class Broker:
         worker = self.workers.get(identity)
         if worker is not None:
             worker.last_seen = time.monotonic()
-        try:
-            message = WORKER_MESSAGE.validate_json(frames[0]) if frames else None
-        except ValidationError as exc:
-            message = None
-            log.warning("unreadable message from a worker: %s", exc.errors()[0]["msg"])
+        problem = version_problem(frames[0]) if frames else "an empty message"
+        message = None
+        if problem is None:
+            try:
+                message = WORKER_MESSAGE.validate_json(frames[0])
+            except ValidationError as exc:
+                problem = "; ".join(f"{'.'.join(map(str, e['loc'])) or 'message'}: {e['msg']}"
+                                    for e in exc.errors()[:3])
         if message is None:
+            log.warning("refused a message from a worker: %s", problem)
+            self._send_raw(identity, Refused(reason=f"unreadable message: {problem}"))
             return
         if isinstance(message, Ready):
             self._ready(identity, worker, message)
@@ -245,9 +295,14 @@ class Broker:
                                reason=reason))
 
     def _store_live(self, job: JobRecord, worker: _Worker, message: Live) -> str:
-        directory = _calibration_dir(job)
+        try:
+            check_live(message.update, self._session_facts(job))
+        except ResultRejected as exc:
+            self._requeue(job, f"worker {worker.name} sent a live update that does not describe "
+                               f"the session: {exc}")
+            return f"rejected: {exc}"
         text = message.update.model_dump_json(indent=1).encode()
-        write_atomic(directory / LIVE_FILE, lambda fh: fh.write(text), replace=True)
+        _replace(_calibration_dir(job) / LIVE_FILE, text)
         self._publish(LiveCalibrationEvent, session_id=job.session_id, job_id=job.job_id,
                       update=message.update)
         self._job_event(job, "done", worker=worker.name)
@@ -262,22 +317,35 @@ class Broker:
                                f"{digest}, announced {message.result_sha256})")
             return "result checksum mismatch"
         try:
-            summary = _summarize(json.loads(result))
-        except (ValueError, KeyError, TypeError) as exc:
-            self._give_up(job, f"worker {worker.name} sent a result that is not a calibration "
-                               f"result: {exc}")
-            return "not a calibration result"
+            check_result(parse_result(result), self._session_facts(job))
+        except ResultRejected as exc:
+            self._requeue(job, f"worker {worker.name} sent a result that does not describe the "
+                               f"session: {exc}")
+            return f"rejected: {exc}"
         path = _calibration_dir(job) / RESULT_FILE
+        partial_path(path).unlink(missing_ok=True)  # a crash mid-write; this is its one writer
         try:
             write_atomic(path, lambda fh: fh.write(result))
         except SessionError:  # stored by an earlier attempt whose ack was lost: keep that one
             log.warning("%s already exists; keeping it", path)
-        job = self.outbox.update(job, state="done", result_sha256=digest, reason="")
+            result = path.read_bytes()
+            digest = sha256_file(path).sha256
+        summary = _summarize(parse_result(result))
+        job = self.outbox.record(job, state="done", result_sha256=digest, reason="")
+        self._check_outbox()
         self._job_event(job, "done", worker=worker.name)
         self._publish(CalibrationEvent, session_id=job.session_id, job_id=job.job_id,
                       attempt=job.attempt, worker=worker.name, path=str(path), sha256=digest,
                       **summary)
         return ""
+
+    def _session_facts(self, job: JobRecord) -> SessionFacts:
+        """What the job's answers must agree with (read once per session; ResultRejected if
+        the session cannot be read)."""
+        facts = self._facts.get(job.session_path)
+        if facts is None or not _pose_steps(job) <= facts.poses:  # new poses since: read again
+            facts = self._facts[job.session_path] = SessionFacts.read(Path(job.session_path))
+        return facts
 
     def _failed(self, job: JobRecord, worker: _Worker, message: Failed) -> str:
         reason = f"on worker {worker.name}: {message.reason}"
@@ -294,12 +362,22 @@ class Broker:
         idle = sorted((w for w in self.workers.values() if w.job is None),
                       key=lambda w: w.idle_since)
         for job, worker in zip(self.outbox.pending(), idle, strict=False):
-            job = self.outbox.update(job, state="leased", attempt=job.attempt + 1,
-                                     worker=worker.name, reason="")
+            try:
+                offer = Job(job_id=job.job_id, attempt=job.attempt + 1, kind=job.kind,
+                            session_id=job.session_id, poses=job.poses, journal=job.journal,
+                            files=job.files)
+            except ValidationError as exc:  # outbox records are validated; never seen
+                self._give_up(job, f"the job cannot be offered: {exc}")
+                continue
+            try:
+                job = self.outbox.update(job, state="leased", attempt=offer.attempt,
+                                         worker=worker.name, reason="")
+            except OSError as exc:  # a lease is sent only once it is on disk
+                log.error("cannot lease %s: %s; trying again later", job.job_id, exc)
+                self.outbox.unsaved.add(job.job_id)  # flush retries, then leases follow
+                self._check_outbox()
+                return
             worker.job = job.job_id
-            offer = Job(job_id=job.job_id, attempt=job.attempt, kind=job.kind,
-                        session_id=job.session_id, poses=job.poses, journal=job.journal,
-                        files=job.files)
             if self._send(worker, offer):
                 self._job_event(job, "leased", worker=worker.name)
 
@@ -308,11 +386,13 @@ class Broker:
         if job.attempt >= self.config.max_attempts:
             self._give_up(job, f"{reason}; gave up after {job.attempt} attempts")
             return
-        job = self.outbox.update(job, state="pending", worker=None, reason=reason)
+        job = self.outbox.record(job, state="pending", worker=None, reason=reason)
+        self._check_outbox()
         self._job_event(job, "requeued", reason=reason)
 
     def _give_up(self, job: JobRecord, reason: str) -> None:
-        job = self.outbox.update(job, state="failed", worker=None, reason=reason)
+        job = self.outbox.record(job, state="failed", worker=None, reason=reason)
+        self._check_outbox()
         self._job_event(job, "failed", reason=reason)
         log.error("calibration job %s failed: %s", job.job_id, reason)
         if job.kind == "live":
@@ -358,6 +438,23 @@ def _calibration_dir(job: JobRecord) -> Path:
         directory.mkdir()
         fsync_dir(directory.parent)
     return directory
+
+
+def _replace(path: Path, data: bytes) -> None:
+    """Write `path` atomically over its previous content (a `.partial` a crash left is
+    dropped first: this process is its only writer)."""
+    partial_path(path).unlink(missing_ok=True)
+    write_atomic(path, lambda fh: fh.write(data), replace=True)
+
+
+def _pose_steps(job: JobRecord) -> set[str]:
+    """The pose steps a job's files belong to ("poses/0003-a1/..." -> "pose/0003")."""
+    steps = set()
+    for file in job.files:
+        folder = file.path.split("/", 1)[0]
+        if folder == "poses":
+            steps.add("pose/" + file.path.split("/")[1].rsplit("-a", 1)[0])
+    return steps
 
 
 def _summarize(result: dict) -> dict[str, Any]:

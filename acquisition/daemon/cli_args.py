@@ -6,16 +6,16 @@ import argparse
 import os
 from pathlib import Path
 
-from .endpoints import DEFAULT_CONTROL
+from .endpoints import default_control
 
 
 def add_client_arguments(parser: argparse.ArgumentParser) -> None:
     """--control, --events, --timeout and the CURVE keys, with environment defaults."""
     env = os.environ.get
-    parser.add_argument("--control", default=env("MICAM_CONTROL", DEFAULT_CONTROL),
+    control = default_control()
+    parser.add_argument("--control", default=env("MICAM_CONTROL", control),
                         metavar="ENDPOINT",
-                        help=f"the daemon's control socket (default $MICAM_CONTROL or "
-                             f"{DEFAULT_CONTROL})")
+                        help=f"the daemon's control socket (default $MICAM_CONTROL or {control})")
     parser.add_argument("--events", default=env("MICAM_EVENTS"), metavar="ENDPOINT",
                         help="the daemon's event socket (default: as the daemon reports)")
     parser.add_argument("--timeout", type=float, default=5.0, metavar="S",

@@ -21,7 +21,7 @@ import zmq
 from pydantic import ValidationError
 
 from ..errors import UserError
-from .endpoints import DEFAULT_CONTROL
+from .endpoints import default_control
 from .keys import secure_client
 from .protocol import EVENT_ADAPTER, PROTOCOL_VERSION, Event, Reply, StatusResult
 
@@ -54,13 +54,13 @@ class EventStream:
 class DaemonClient:
     """Talks to one daemon: `request` for control, `subscribe` for events."""
 
-    def __init__(self, control: str = DEFAULT_CONTROL, events: str | None = None,
+    def __init__(self, control: str | None = None, events: str | None = None,
                  timeout_s: float = 5.0, server_key: Path | None = None,
                  client_key: Path | None = None) -> None:
         if (server_key is None) != (client_key is None):
             raise UserError("CURVE needs both --server-key (the daemon's public key) and "
                             "--client-key (your secret key)")
-        self.control = control
+        self.control = control or default_control()
         self.events = events
         self.timeout_s = timeout_s
         self._keys = (server_key, client_key)

@@ -25,7 +25,7 @@ from sim.capture import SimulationOptions
 from ..capture_config import CaptureConfig
 from ..config_model import ConfigModel, describe_problems
 from ..errors import UserError
-from .endpoints import DEFAULT_CONTROL, DEFAULT_EVENTS, beside
+from .endpoints import beside, default_control, default_events
 
 ENV_PREFIX = "MICAM_DAEMON_"
 DOCS = "docs/protocol.md, section Configuration"
@@ -52,10 +52,16 @@ class CurveConfig(ConfigModel):
 
 
 class SocketsConfig(ConfigModel):
-    """Where the daemon listens: ZeroMQ endpoints (tcp://127.0.0.1:PORT or ipc://PATH)."""
+    """Where the daemon listens (ZeroMQ endpoints) and who may reach it (docs/security.md).
 
-    control: str = Field(default=DEFAULT_CONTROL, description="request/reply control socket")
-    events: str = Field(default=DEFAULT_EVENTS, description="publish socket for events")
+    By default: ipc sockets in the runtime directory (mode 0750, made by the daemon), socket
+    files of mode `ipc_mode`, so the daemon's user and group may connect and nobody else.
+    """
+
+    control: str = Field(default_factory=default_control,
+                         description="request/reply control socket (default: ipc in the "
+                                     "runtime directory, see endpoints.default_runtime_dir)")
+    events: str = Field(default_factory=default_events, description="publish socket for events")
     jobs: str | None = Field(
         default=None, description="ROUTER socket calibration workers connect to for jobs "
                                   "(default: beside control, see `beside`)")
@@ -65,7 +71,20 @@ class SocketsConfig(ConfigModel):
     curve: CurveConfig | None = None
     max_message_bytes: int = Field(
         default=65_536, ge=1024, le=16 * 2**20,
-        description="larger requests get a 'too_large' error reply")
+        description="larger control requests get a 'too_large' error reply; beyond 16 times "
+                    "this (1 MiB by default) ZeroMQ drops the connection")
+    max_result_bytes: int = Field(
+        default=8 * 2**20, ge=65_536, le=256 * 2**20,
+        description="the largest frame the jobs socket accepts (a worker's result.json); the "
+                    "files socket accepts requests of at most 4 KiB")
+    ipc_mode: int = Field(
+        default=0o660, ge=0o600, le=0o770,
+        description="mode of the ipc socket files (0o660: the daemon's user and group may "
+                    "connect; 0o600: its user only)")
+    allow_tcp_loopback: bool = Field(
+        default=False,
+        description="accept tcp://127.0.0.1 without CURVE, although every account on this "
+                    "machine can then drive the daemon")
 
     @property
     def jobs_endpoint(self) -> str:
@@ -152,6 +171,11 @@ class WorkersConfig(ConfigModel):
     live: bool = Field(default=True, description="calibrate the poses so far after each pose")
     live_min_poses: int = Field(
         default=4, ge=1, description="the first pose after which a live calibration runs")
+    keep_finished_days: float = Field(
+        default=7.0, gt=0,
+        description="records of done and failed final jobs stay in the outbox this long; a "
+                    "session completed within this time whose final job is neither in the "
+                    "outbox nor stored (the outbox's disk was full) gets one at start-up")
 
 
 class HandsFreeConfig(ConfigModel):
@@ -187,6 +211,10 @@ class DaemonConfig(BaseSettings):
     workers: WorkersConfig = WorkersConfig()
     poll_interval_s: float = Field(default=0.1, gt=0, le=1.0,
                                    description="longest wait of the service loop")
+    resume_at_start: Literal["offer", "auto"] = Field(
+        default="offer",
+        description="an interrupted session found at start-up (a crash, SIGTERM, a power cut): "
+                    "offer it (log, `status.resumable`), or resume it at once (auto)")
     camera_timeout_s: float = Field(default=2.0, gt=0, le=30)
 
     @classmethod

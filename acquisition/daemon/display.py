@@ -103,6 +103,9 @@ def format_status(status: StatusResult) -> str:
     s = status.session
     if s is None:
         lines.append("session   none (start one with `micam session start`)")
+        if status.resumable:
+            lines.append(f"resumable {status.resumable} was interrupted: continue it with "
+                         f"`micam session start --resume {status.resumable}`")
         return "\n".join(lines)
     lines += [f"session   {s.id} at {s.path}",
               f"progress  {s.steps_done}/{s.steps_total} steps, {s.poses_done}/{s.n_poses} poses"]

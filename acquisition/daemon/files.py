@@ -1,9 +1,11 @@
 """The file-serving endpoint: byte ranges of a job's session files, for workers without the disk.
 
 A worker may fetch only what its job names (the journaled files of the job's steps, and the
-journal prefix), so a request can never read anything else of the machine. Each request is
-answered with one chunk, read with `pread` from a file that is never rewritten once journaled;
-the worker checks each whole file against the journal's SHA-256.
+journal prefix), so a request can never read anything else of the machine: the names are safe
+relative paths (the journal and the outbox are validated when read), and the file opened must
+still resolve inside the session directory, without following a symbolic link out of it.
+Each request is answered with one chunk, read with `pread` from a file that is never rewritten
+once journaled; the worker checks each whole file against the journal's SHA-256.
 """
 
 from __future__ import annotations
@@ -16,10 +18,13 @@ from pathlib import Path
 import zmq
 from pydantic import ValidationError
 
-from .job_messages import FETCH, Chunk, FetchError, encode
+from .job_messages import FETCH, Chunk, FetchError, encode, version_problem
 from .outbox import JobRecord
 
 log = logging.getLogger("micam.daemon")
+
+MAX_FETCH_BYTES = 4096
+"""The largest frame the files socket accepts: a `fetch` is a few hundred bytes of JSON."""
 
 
 class FileServer:
@@ -51,6 +56,9 @@ class FileServer:
     def _answer(self, frames: list[bytes]) -> list[bytes]:
         if len(frames) != 1:
             return [encode(FetchError(path="", reason=f"a fetch is one frame; got {len(frames)}"))]
+        problem = version_problem(frames[0])
+        if problem is not None:
+            return [encode(FetchError(path="", reason=problem))]
         try:
             fetch = FETCH.validate_json(frames[0])
         except ValidationError as exc:
@@ -64,10 +72,9 @@ class FileServer:
         if fetch.offset > size:
             return [encode(FetchError(path=fetch.path,
                                       reason=f"offset {fetch.offset} is past the end ({size})"))]
-        session = Path(job.session_path)
         length = min(fetch.length, size - fetch.offset)
         try:
-            fd = os.open(session / fetch.path, os.O_RDONLY)
+            fd = _open_inside(Path(job.session_path), fetch.path)
         except OSError as exc:
             return [encode(FetchError(path=fetch.path, reason=f"cannot open it: {exc}"))]
         try:
@@ -75,3 +82,13 @@ class FileServer:
         finally:
             os.close(fd)
         return [encode(Chunk(path=fetch.path, offset=fetch.offset)), data]
+
+
+def _open_inside(session: Path, relative: str) -> int:
+    """A read-only descriptor of `session/relative`, refusing (OSError) a path that resolves
+    outside the session directory or ends in a symbolic link."""
+    path = session / relative
+    root = os.path.realpath(session)
+    if os.path.commonpath([root, os.path.realpath(path)]) != root:
+        raise OSError(f"{relative} leads outside the session directory")
+    return os.open(path, os.O_RDONLY | os.O_NOFOLLOW)

@@ -11,15 +11,21 @@ Two sockets, both bound by the daemon (ROUTER) and connected to by each worker (
   requests in flight (credit-based flow control, zguide ch.7), so no high-water mark matters.
 
 Every message is one frame of JSON (plus the data frame of `done` and `chunk`), validated by
-pydantic on both ends. This module is light (pydantic only) because workers on machines
-without boards import it. docs/protocol.md documents the exchange.
+pydantic on both ends. Its `v` is read first (`version_problem`): a message of another protocol
+version, or with none, is refused with a reason the peer can log (`refused` on the jobs socket,
+`fetch_error` on the files socket), never read as this version. Every id and path is a safe
+name or relative path (acquisition.safe_names). This module is light (pydantic only) because
+workers on machines without boards import it. docs/protocol.md documents the exchange.
 """
 
 from __future__ import annotations
 
+import json
 from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter
+
+from ..safe_names import SafeName, SafeRelativePath
 
 JOB_PROTOCOL_VERSION = 1
 
@@ -28,8 +34,12 @@ JobKind = Literal["live", "final"]
 of a closed session, stored beside it as calibration/result.json."""
 
 Sha256 = Annotated[str, Field(pattern=r"^[0-9a-f]{64}$")]
-RelPath = Annotated[str, Field(min_length=1, max_length=512, pattern=r"^[A-Za-z0-9_.\-/]+$")]
-JobId = Annotated[str, Field(min_length=1, max_length=200, pattern=r"^[A-Za-z0-9_.\-]+$")]
+RelPath = SafeRelativePath
+"""A session-relative path: it names a file on the daemon's disk and in the worker's cache."""
+JobId = SafeName
+"""A job id or a session id: each names a file or a directory (outbox, cache)."""
+PersonName = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[^\x00-\x1f\x7f]+$")]
+"""A name shown to people (in logs and events): no control characters."""
 
 
 class _Msg(BaseModel):
@@ -74,7 +84,7 @@ class PoseSuggestion(_Msg):
 class LiveUpdate(_Msg):
     """The calibration so far, published after each pose (see calibration.worker.live)."""
 
-    session_id: str
+    session_id: JobId
     poses: int = Field(description="poses used")
     microphones: list[LiveMicrophone]
     mean_uncertainty_m: float = Field(
@@ -90,7 +100,7 @@ class LiveUpdate(_Msg):
 
 class Ready(_Msg):
     type: Literal["ready"] = "ready"
-    worker: str = Field(min_length=1, max_length=64, description="a name for people")
+    worker: PersonName = Field(description="a name for people")
 
 
 class Heartbeat(_Msg):
@@ -170,6 +180,14 @@ class Ack(_Msg):
     reason: str = ""
 
 
+class Refused(_Msg):
+    """The daemon could not read a worker's message (another protocol version, no version, not
+    a message of this protocol): why, for the worker's log."""
+
+    type: Literal["refused"] = "refused"
+    reason: str
+
+
 class Reconnect(_Msg):
     """The daemon does not know this worker (it restarted, or declared it dead): say ready."""
 
@@ -177,7 +195,8 @@ class Reconnect(_Msg):
     reason: str
 
 
-DaemonMessage = Annotated[Job | Heartbeat | Ack | Reconnect, Field(discriminator="type")]
+DaemonMessage = Annotated[Job | Heartbeat | Ack | Reconnect | Refused,
+                          Field(discriminator="type")]
 DAEMON_MESSAGE: TypeAdapter[DaemonMessage] = TypeAdapter(DaemonMessage)
 
 
@@ -215,6 +234,27 @@ FETCH: TypeAdapter[Fetch] = TypeAdapter(Fetch)
 
 def encode(message: BaseModel) -> bytes:
     return message.model_dump_json().encode()
+
+
+def version_problem(frame: bytes) -> str | None:
+    """Why `frame` is not a message of this protocol version, or None if its `v` is ours (or
+    it is not a JSON object at all: validation then says what it is)."""
+    try:
+        data = json.loads(frame)
+    except (ValueError, RecursionError):
+        return None
+    if not isinstance(data, dict):
+        return None
+    if "v" not in data:
+        return (f"the message carries no protocol version `v`; this side speaks version "
+                f"{JOB_PROTOCOL_VERSION} of the job protocol and reads nothing unversioned")
+    version = data["v"]
+    if version != JOB_PROTOCOL_VERSION or isinstance(version, bool):
+        shown = str(version)[:20] if isinstance(version, int | float | str) else "a " + type(
+            version).__name__
+        return (f"job protocol version {shown} is not supported; this side "
+                f"speaks version {JOB_PROTOCOL_VERSION}: run micam versions that match")
+    return None
 
 
 def job_schemas() -> dict[str, dict]:

@@ -1,8 +1,9 @@
 """Start the daemon: configuration, hardware, sockets, signals; then serve until SIGTERM.
 
-The first SIGTERM (or SIGINT) ends the current burst, closes any open session as aborted and
-exits with status 0. A second one exits at once (status 1); the session is then left
-interrupted, which a later `session start --resume` continues.
+The first SIGTERM (or SIGINT) ends the current burst, journals the step in progress as
+abandoned, leaves the session interrupted (resumable, as after a crash, never closed) and exits
+with status 0. A second one exits at once (status 1); the session is then left interrupted too.
+Either way the next start offers the session for resuming (or resumes it: `resume_at_start`).
 """
 
 from __future__ import annotations
@@ -56,7 +57,8 @@ def run_daemon(config_path: Path | None) -> int:
             log.warning("second %s: exiting now; the session stays resumable",
                         signal.Signals(signum).name)
             raise SystemExit(1)
-        log.info("%s: ending the current burst, then stopping", signal.Signals(signum).name)
+        log.info("%s: ending the current burst, then stopping; the session stays resumable",
+                 signal.Signals(signum).name)
         daemon.terminate()
 
     signal.signal(signal.SIGTERM, on_signal)

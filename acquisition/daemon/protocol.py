@@ -210,12 +210,18 @@ class StatusResult(_Message):
     events_endpoint: str
     last_event_seq: int
     calibration: CalibrationStatus = CalibrationStatus()
+    resumable: str | None = Field(
+        default=None, description="the newest interrupted session, which `session.start` "
+                                  "with `resume` continues (offered while idle)")
 
 
 class SessionsResult(_Message):
     root: str
     sessions: list[SessionSummary]
     problems: list[str] = Field(default=[], description="session directories that cannot be read")
+    complete: bool = Field(
+        default=True, description="False while the daemon is still reading sessions it has not "
+                                  "indexed yet: the list may lack some")
 
 
 class CaptureResult(_Message):

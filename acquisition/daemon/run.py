@@ -44,13 +44,16 @@ QUALITY_FILE = "quality.json"
 
 
 class SessionEnding(Exception):
-    """Unwinds the sequencer to close the session with `exit_status` ("success"/"aborted").
+    """Unwinds the sequencer to end the session: close it for good with `exit_status`
+    "success" or "aborted", or ("interrupted", on SIGTERM) release it without a stop record,
+    resumable exactly as after a crash.
 
-    `after_burst`: interrupt a step in progress after its current burst (abort, SIGTERM);
-    otherwise the session ends before the next step begins (stop).
+    `after_burst`: interrupt a step in progress after its current burst (abort, SIGTERM: the
+    sequencer journals the attempt as abandoned); otherwise the session ends before the next
+    step begins (stop).
     """
 
-    def __init__(self, exit_status: Literal["success", "aborted"], reason: str,
+    def __init__(self, exit_status: Literal["success", "aborted", "interrupted"], reason: str,
                  after_burst: bool) -> None:
         super().__init__(reason)
         self.exit_status = exit_status
@@ -181,7 +184,10 @@ class SessionRun:
                 raise self.ending
             self.sequencer.run()  # stops the session as complete after the last step
         except SessionEnding as ending:
-            self.writer.stop(ending.exit_status, ending.reason)
+            if ending.exit_status == "interrupted":
+                self.writer.close()
+            else:
+                self.writer.stop(ending.exit_status, ending.reason)
             return True
         except (CaptureInterrupted, CameraError, DaqError) as exc:
             self._failed(exc)

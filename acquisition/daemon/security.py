@@ -1,9 +1,15 @@
 """The daemon side of security: refuse an exposed bind without CURVE, run the CURVE server.
 
-A loopback TCP address or an ipc socket is reachable only from this machine (and, for ipc, only
-by users the file permissions let in). Any other bind exposes the daemon's control of the
-hardware to the network, so the daemon refuses it unless CURVE is configured: traffic is then
-encrypted, and only clients whose public key is in the authorised directory get an answer.
+An ipc socket file is reachable only by the users its permissions let in (local_access.py
+sets them). Everything else is refused unless CURVE is configured, so that only clients whose
+public key is in the authorised directory get an answer (traffic is then also encrypted):
+
+- any bind that the network may reach (`tcp://*`, an interface, a LAN address);
+- an abstract ipc socket (`ipc://@name`): no file, so no permissions, any local user;
+- loopback TCP (`tcp://127.0.0.1`): any local account, unless `allow_tcp_loopback` says that
+  is intended.
+
+docs/security.md says what is trusted and how to let other users in safely.
 """
 
 from __future__ import annotations
@@ -12,20 +18,35 @@ import zmq
 from zmq.auth.thread import ThreadAuthenticator
 
 from .config import ConfigError, CurveConfig, SocketsConfig
-from .endpoints import is_local_endpoint
+from .endpoints import is_abstract_ipc, is_local_endpoint, is_tcp
 from .keys import load_certificate
 
 
 def check_exposure(sockets: SocketsConfig) -> None:
-    """Refuse a non-local bind without CURVE (ConfigError says what to do)."""
+    """Refuse a bind that strangers could reach without CURVE (ConfigError says what to do)."""
+    if sockets.curve is not None:
+        return
     endpoints = (sockets.control, sockets.events, sockets.jobs_endpoint, sockets.files_endpoint)
+    keys = ("Create keys with `micam daemon --make-keys DIR`, then set [sockets.curve] "
+            "server_secret_key and authorized_clients in the config")
     exposed = [e for e in endpoints if not is_local_endpoint(e)]
-    if exposed and sockets.curve is None:
+    if exposed:
         raise ConfigError(
             f"refusing to bind {', '.join(exposed)} without encryption: a non-loopback address "
-            "needs CURVE keys. Create them with `micam daemon --make-keys DIR`, then set "
-            "[sockets.curve] server_secret_key and authorized_clients in the config, or bind "
-            "tcp://127.0.0.1:PORT or ipc://PATH instead")
+            f"needs CURVE keys. {keys}, or bind ipc://PATH instead")
+    abstract = [e for e in endpoints if is_abstract_ipc(e)]
+    if abstract:
+        raise ConfigError(
+            f"refusing to bind {', '.join(abstract)} without CURVE: an abstract ipc socket has "
+            f"no permissions, so every local user could drive the daemon. {keys}, or use an "
+            "ipc socket file (ipc:///run/micam/control)")
+    loopback = [e for e in endpoints if is_tcp(e)]
+    if loopback and not sockets.allow_tcp_loopback:
+        raise ConfigError(
+            f"refusing to bind {', '.join(loopback)} without CURVE: every account on this "
+            "machine can connect to loopback TCP. Use the default ipc sockets (only the "
+            f"daemon's user and group), or CURVE ({keys}), or set [sockets] "
+            "allow_tcp_loopback = true if every local user may drive the daemon")
 
 
 class CurveServer:

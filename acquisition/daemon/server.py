@@ -1,9 +1,21 @@
-"""The daemon's sockets: a REP control socket answering every request, a PUB event socket.
+"""The daemon's sockets: a control socket answering every request, a PUB event socket.
 
 Every request gets exactly one reply, whatever it holds: a malformed, oversized, unknown or
-refused request gets an error reply and the daemon carries on. A request above the hard
-`MAXMSGSIZE` (16 MiB) is dropped by ZeroMQ itself before it reaches us; below that, the
-configured `max_message_bytes` applies with a clear `too_large` reply.
+refused request gets an error reply and the daemon carries on. The reply is serialised inside
+the same guard as the answer, so even a reply that cannot be encoded (a lone UTF-16 surrogate
+somewhere in it) is replaced by an error reply.
+
+The control socket is a ROUTER that speaks REQ's envelope itself (the peer's identity, the
+routing frames up to an empty delimiter, the request), not a REP: a REP socket keeps a state
+machine that a failed send, or a peer speaking raw bytes (read as ZMTP 1.0 frames), can leave
+sending replies to nobody, so that the daemon goes deaf. A ROUTER reads and writes whole
+messages and has no such state; a REQ or a DEALER client works with it unchanged.
+
+Every socket gets its inbound size limit (`ZMQ_MAXMSGSIZE`, per frame) and queue length before
+`bind`: ZeroMQ copies the options into each listener at bind time, so a limit set after bind
+never applies. A frame above the socket's hard limit makes ZeroMQ drop the connection before
+the daemon sees (or buffers) it; on the control socket a request between `max_message_bytes`
+and the hard limit gets a clear `too_large` reply.
 """
 
 from __future__ import annotations
@@ -17,6 +29,7 @@ import zmq
 from pydantic import BaseModel, ValidationError
 
 from .config import ConfigError, SocketsConfig
+from .local_access import bind_local
 from .protocol import (
     COMMANDS,
     PROTOCOL_VERSION,
@@ -32,8 +45,19 @@ from .security import CurveServer, check_exposure
 
 log = logging.getLogger("micam.daemon")
 
-HARD_MESSAGE_LIMIT = 16 * 2**20
+SUBSCRIPTION_LIMIT = 1024  # bytes: the largest frame a PUB socket accepts (a subscription)
 MAX_TURNS = 1000  # busy turns of one `serve` call before the loop gets control back
+MAX_ROUTING_FRAMES = 8  # REQ sends none (just the delimiter); a proxy chain adds one each
+CONTROL_QUEUE = 16  # frames queued per control connection (x the hard limit: its memory bound)
+UNENCODABLE_REPLY = (b'{"v": 1, "id": "", "ok": false, "result": null, "error": {"code": '
+                     b'"internal", "message": "the reply could not be encoded"}}')
+"""The reply of last resort, when not even an error reply can be encoded (never seen)."""
+
+
+def control_hard_limit(max_message_bytes: int) -> int:
+    """The control socket's `ZMQ_MAXMSGSIZE`, bytes: requests up to 16 x `max_message_bytes`
+    (1 MiB by default) get a `too_large` reply; longer frames are dropped by ZeroMQ."""
+    return min(16 * max_message_bytes, 16 * 2**20)
 
 
 class Refusal(Exception):
@@ -59,7 +83,9 @@ def parse_request(frames: list[bytes], limit: int) -> Request:
         raise Refusal("too_large", f"the request has {len(raw)} bytes; the limit is {limit}")
     try:
         data = json.loads(raw)
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+    except RecursionError:
+        raise Refusal("bad_request", "the request is nested too deeply to be a request") from None
+    except ValueError as exc:  # not UTF-8, not JSON, an integer of thousands of digits
         raise Refusal("bad_request", f"the request is not UTF-8 JSON: {exc}") from None
     if not isinstance(data, dict):
         raise Refusal("bad_request", f"a request is a JSON object, not {type(data).__name__}")
@@ -87,7 +113,31 @@ def _request_id(frames: list[bytes]) -> str:
         value = json.loads(frames[0]).get("id", "")
     except Exception:
         return ""
-    return value if isinstance(value, str) and len(value) <= 64 else ""
+    return value if isinstance(value, str) and len(value) <= 64 and _encodable(value) else ""
+
+
+def _encodable(text: str) -> bool:
+    """Whether `text` can go into a UTF-8 reply (JSON admits lone surrogates; UTF-8 does not)."""
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
+
+
+def encode_reply(reply: Reply) -> bytes:
+    """`reply` as one JSON frame; if it cannot be encoded, an `internal` error reply instead."""
+    try:
+        return reply.model_dump_json().encode()
+    except Exception as exc:  # PydanticSerializationError, a bug in a result
+        log.exception("cannot encode a reply; answering with an error instead")
+        why = str(exc).encode("ascii", "backslashreplace").decode()
+        fallback = Reply(id=reply.id if _encodable(reply.id) else "", ok=False, error=ErrorInfo(
+            code="internal", message=f"internal error: the reply could not be encoded: {why}"))
+    try:
+        return fallback.model_dump_json().encode()
+    except Exception:
+        return UNENCODABLE_REPLY
 
 
 class ControlServer:
@@ -98,35 +148,49 @@ class ControlServer:
         check_exposure(sockets)
         self._handler = handler
         self._limit = sockets.max_message_bytes
+        self._ipc_mode = sockets.ipc_mode
         self._context = zmq.Context()
         self._curve: CurveServer | None = None
         self._seq = -1
         try:
             if sockets.curve is not None:
                 self._curve = CurveServer(self._context, sockets.curve)
-            self._rep = self.bind(zmq.REP, sockets.control)
-            self._rep.maxmsgsize = HARD_MESSAGE_LIMIT
-            self._pub = self.bind(zmq.PUB, sockets.events)
+            self._control = self.bind(zmq.ROUTER, sockets.control,
+                                      control_hard_limit(sockets.max_message_bytes),
+                                      CONTROL_QUEUE)
+            self._control.router_mandatory = 1  # a vanished client is an error we can log
+            # A PUB socket receives only subscriptions (a flag byte and a topic).
+            self._pub = self.bind(zmq.PUB, sockets.events, SUBSCRIPTION_LIMIT)
         except BaseException:
             self.close()
             raise
         self._poller = zmq.Poller()
-        self._poller.register(self._rep, zmq.POLLIN)
+        self._poller.register(self._control, zmq.POLLIN)
         self._watched: dict[zmq.Socket, Callable[[], None]] = {}
 
-    def bind(self, kind: int, endpoint: str) -> zmq.Socket:
-        """A socket of this server's context, CURVE-secured when configured, bound to
-        `endpoint` (ConfigError if that fails). The caller closes it before `close`."""
+    def bind(self, kind: int, endpoint: str, max_frame_bytes: int,
+             queue: int | None = None) -> zmq.Socket:
+        """A socket of this server's context, CURVE-secured when configured, refusing inbound
+        frames above `max_frame_bytes` and queueing at most `queue` frames per connection
+        (both set before bind, see the module docstring), bound to `endpoint` (an ipc socket
+        file with the configured mode; ConfigError if binding fails). The caller closes it
+        before `close`."""
         sock = self._context.socket(kind)
         sock.linger = 0
+        sock.maxmsgsize = max_frame_bytes
+        if queue is not None:
+            sock.rcvhwm = queue
         if self._curve is not None:
             self._curve.secure(sock)
         try:
-            sock.bind(endpoint)
+            bind_local(sock, endpoint, self._ipc_mode)
         except zmq.ZMQError as exc:
             sock.close()
             raise ConfigError(f"cannot bind {endpoint}: {exc}; is another daemon running, or "
                               "is the address mistyped?") from None
+        except BaseException:
+            sock.close()
+            raise
         return sock
 
     @property
@@ -150,19 +214,39 @@ class ControlServer:
             ready = dict(self._poller.poll(timeout_ms))
             if not ready:
                 return
-            if self._rep in ready:
-                frames = self._rep.recv_multipart()
-                self._rep.send(self._answer(frames).model_dump_json().encode())
+            if self._control in ready:
+                self._reply_to(self._control.recv_multipart())
             for sock, on_readable in self._watched.items():
                 if sock in ready:
                     on_readable()
             timeout_ms = 0
+
+    def _reply_to(self, message: list[bytes]) -> None:
+        """Answer one received request: exactly one reply to its sender, whatever went wrong."""
+        identity, *rest = message
+        delimiter = rest.index(b"") + 1 if b"" in rest else 0  # a DEALER may send none
+        envelope, frames = rest[:delimiter], rest[delimiter:]
+        if len(envelope) > MAX_ROUTING_FRAMES:
+            log.warning("dropped a request with %d routing frames", len(envelope))
+            return
+        try:
+            payload = encode_reply(self._answer(frames))
+        except Exception:  # _answer guards itself; this is the last line of defence
+            log.exception("internal error while answering a request")
+            payload = UNENCODABLE_REPLY
+        try:
+            self._control.send_multipart([identity, *envelope, payload], zmq.NOBLOCK)
+        except zmq.ZMQError as exc:  # the client went away, or does not read its replies
+            log.info("cannot send a reply: %s", exc)
 
     def _answer(self, frames: list[bytes]) -> Reply:
         request_id = _request_id(frames)
         try:
             request = parse_request(frames, self._limit)
             result = self._handler(request)
+            if isinstance(result, BaseModel):
+                result = result.model_dump(mode="json")
+            return Reply(id=request.id, ok=True, result=result)
         except Refusal as refusal:
             log.info("refused a request: %s", refusal.message)
             return Reply(id=request_id, ok=False,
@@ -171,9 +255,6 @@ class ControlServer:
             log.exception("internal error while answering a request")
             return Reply(id=request_id, ok=False, error=ErrorInfo(
                 code="internal", message=f"internal error: {type(exc).__name__}: {exc}"))
-        if isinstance(result, BaseModel):
-            result = result.model_dump(mode="json")
-        return Reply(id=request.id, ok=True, result=result)
 
     def publish(self, event_type: type[BaseModel], **fields: Any) -> BaseModel:
         """Send an event of `event_type` (seq and time filled in); return it."""
@@ -184,7 +265,7 @@ class ControlServer:
         return event
 
     def close(self) -> None:
-        for name in ("_rep", "_pub"):
+        for name in ("_control", "_pub"):
             sock = getattr(self, name, None)
             if sock is not None:
                 sock.close(linger=0)

@@ -3,13 +3,21 @@
 There is no second thread to race with: while a session waits for the operator, the run's
 `perform` serves the sockets; while a step is captured, the sockets are served between files.
 So a request is answered within one burst, and a wedged hardware call stops the watchdog
-pings, as systemd's watchdog intends.
+pings, as systemd's watchdog intends. (The session index reads journals on a thread of its
+own, which waits while a step is captured; see index.py.)
+
+The loop never dies of what it serves: each part of a turn (the sockets, the broker, the
+hands-free look) runs inside a guard that logs a bug and carries on. SIGTERM abandons the step
+in progress after its current burst and leaves the session interrupted, exactly as a crash
+would but tidier; at the next start the daemon offers the session for resuming or, with
+`resume_at_start = "auto"`, resumes it.
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import time
 import uuid
 from collections.abc import Callable
 from datetime import UTC, datetime
@@ -23,10 +31,11 @@ from ..capture_config import CaptureConfig
 from ..sequencer import plan_steps
 from ..session import SessionError, SessionReader, SessionWriter
 from ..session._atomic import write_atomic
-from .broker import Broker
+from .broker import CALIBRATION_DIR, JOBS_QUEUE, RESULT_FILE, Broker
 from .config import DaemonConfig
-from .files import FileServer
+from .files import MAX_FETCH_BYTES, FileServer
 from .hardware import Hardware
+from .index import SessionIndex, summarize
 from .jobs import job_for_session
 from .outbox import Outbox
 from .protocol import (
@@ -34,9 +43,7 @@ from .protocol import (
     CaptureResult,
     ErrorEvent,
     Request,
-    SessionsResult,
     SessionStartArgs,
-    SessionSummary,
     StateEvent,
     StatusResult,
 )
@@ -48,15 +55,11 @@ from .translog import TransitionLog
 
 log = logging.getLogger("micam.daemon")
 
-
-def summarize(session_id: str, path: Path, status: str, completed: dict[str, Any],
-              capture: dict, created_utc: datetime) -> SessionSummary:
-    """A session's summary for `status` and `sessions.list`."""
-    return SessionSummary(
-        id=session_id, path=str(path), status=status, steps_done=len(completed),
-        steps_total=len(plan_steps(CaptureConfig.of_session(capture, path))),
-        poses_done=sum(s.startswith("pose/") for s in completed),
-        n_poses=capture["n_poses"], created_utc=created_utc)
+SIGTERM_REASON = "the daemon was stopped (SIGTERM)"
+RECONCILE_LIMIT = 20
+"""At start-up, the newest complete sessions without a calibration or a job get their final
+job again (a full outbox lost it before a restart); at most this many, so that a root of
+sessions copied in does not flood the workers or hold up the loop."""
 
 
 class Daemon:
@@ -72,6 +75,7 @@ class Daemon:
         self.run: SessionRun | None = None
         self.terminating = False
         self._translog: TransitionLog | None = None
+        self._reconciled = False
         self._handlers: dict[str, Callable[[Any], BaseModel | dict[str, Any]]] = {
             "ping": lambda _: {"pong": True, "protocol": PROTOCOL_VERSION},
             "status": lambda _: self.status(),
@@ -84,23 +88,27 @@ class Daemon:
             "capture": lambda _: self._capture(),
             "redo": lambda _: self._redo(),
         }
+        self.index = SessionIndex(self.session_root,
+                                  busy=lambda: self.machine.state is State.CAPTURING)
         self.server = ControlServer(config.sockets, self._handle)
         try:
             self.broker, self.files = self._open_broker()
         except BaseException:
             self.server.close()
             raise
+        self.index.start()
 
     def _open_broker(self) -> tuple[Broker, FileServer]:
         """The calibration hand-off: the outbox, the jobs socket and the file server."""
         workers = self.config.workers
         default = self.session_root.with_name(self.session_root.name + ".outbox")
-        outbox = Outbox((workers.outbox or default).expanduser())
+        outbox = Outbox((workers.outbox or default).expanduser(), self.session_root)
         requeued = outbox.load()
         sockets = self.config.sockets
-        broker = Broker(self.server.bind(zmq.ROUTER, sockets.jobs_endpoint), workers, outbox,
-                        self.publish)
-        files = FileServer(self.server.bind(zmq.ROUTER, sockets.files_endpoint),
+        broker = Broker(self.server.bind(zmq.ROUTER, sockets.jobs_endpoint,
+                                         sockets.max_result_bytes, JOBS_QUEUE),
+                        workers, outbox, self.publish)
+        files = FileServer(self.server.bind(zmq.ROUTER, sockets.files_endpoint, MAX_FETCH_BYTES),
                            outbox.jobs.get)
         self.server.watch(broker.sock, broker.serve)
         self.server.watch(files.sock, files.serve)
@@ -117,12 +125,6 @@ class Daemon:
         log.info("ready: control %s, events %s, sessions in %s", self.config.sockets.control,
                  self.server.events_endpoint, self.session_root)
         try:
-            left = self._find_interrupted().name
-            log.warning("session %s was interrupted; continue it with `micam session start "
-                        "--resume %s`", left, left)
-        except SessionError:
-            pass
-        try:
             while True:
                 run = self.run
                 if run is not None and run.ready():
@@ -135,6 +137,7 @@ class Daemon:
             sd_notify("STOPPING=1")
             if self.run is not None:  # only on a second signal: left resumable
                 self.run.writer.close()
+            self.index.close()
             self.broker.close()
             self.files.sock.close(linger=0)
             self.server.close()
@@ -142,20 +145,25 @@ class Daemon:
             log.info("stopped")
 
     def service(self, timeout_s: float) -> None:
-        """One turn of the loop: watchdog, requests (waiting up to `timeout_s`), hands-free."""
+        """One turn of the loop: watchdog, requests (waiting up to `timeout_s`), the broker's
+        timed work, hands-free, and what the start-up left to do. Never raises (a bug is
+        logged and the loop carries on), so a capture is never interrupted by it."""
         self.watchdog.tick()
         run = self.run
         if self.terminating and run is not None and (run.ending is None
                                                      or not run.ending.after_burst):
-            run.ending = SessionEnding("aborted", "the daemon was stopped (SIGTERM)",
-                                       after_burst=True)
-        self.server.serve(timeout_s)
-        self.broker.tick()
+            run.ending = SessionEnding("interrupted", SIGTERM_REASON, after_burst=True)
+        if not _guarded("serving the sockets", self.server.serve, timeout_s):
+            time.sleep(timeout_s)  # no busy loop on a persistent bug
+        _guarded("the broker's timed work", self.broker.tick)
         if self.run is not None:
-            self.run.hands_free_tick()
+            _guarded("hands-free", self.run.hands_free_tick)
+        if not self._reconciled and self.index.complete:
+            self._reconciled = True
+            _guarded("the start-up checks", self._after_first_scan)
 
     def terminate(self) -> None:
-        """Ask the daemon to end the current burst, close any session as aborted and exit."""
+        """Ask the daemon to end the current burst, leave any session resumable and exit."""
         self.terminating = True
 
     def publish(self, event_type: type, **fields: Any) -> None:
@@ -175,10 +183,50 @@ class Daemon:
             self._close(f"interrupted: {exc}")
             return
         if closed:
-            status = SessionReader(run.path).status
+            status = _status_of(run.path)
             self._close(f"session {status}")
             if status == "complete":
-                self.broker.submit(job_for_session(run.path, "final"))
+                self._submit_final(run.path)
+
+    def _submit_final(self, session: Path) -> None:
+        """Queue the final calibration job of a complete session (never raises)."""
+        try:
+            job = job_for_session(session, "final")
+        except (SessionError, OSError, ValueError) as exc:
+            log.error("cannot make the final calibration job of %s: %s", session, exc)
+            self.publish(ErrorEvent, message=f"session {session.name} is complete, but its "
+                                             f"calibration job cannot be made: {exc}")
+            return
+        self.broker.submit(job)
+
+    def _after_first_scan(self) -> None:
+        """Once every session is indexed: queue the final jobs a full outbox lost, and offer
+        (or resume) the newest interrupted session."""
+        days = self.config.workers.keep_finished_days
+        since = time.time_ns() - int(days * 86400e9)
+        queued = {j.session_id for j in self.broker.outbox.jobs.values() if j.kind == "final"}
+        owed = [s for s in reversed(self.index.completed_since(since))
+                if s.name not in queued and not (s / CALIBRATION_DIR / RESULT_FILE).exists()]
+        for session in owed[:RECONCILE_LIMIT]:
+            log.warning("session %s is complete but has no calibration and no job; queueing "
+                        "its final job again", session.name)
+            self._submit_final(session)
+        if len(owed) > RECONCILE_LIMIT:
+            log.warning("%d more complete sessions of the last %g days have no calibration "
+                        "and no job; they are not queued by themselves",
+                        len(owed) - RECONCILE_LIMIT, days)
+        left = self.index.newest_interrupted()
+        if left is None or self.run is not None or self.terminating:
+            return
+        if self.config.resume_at_start == "auto":
+            log.warning("session %s was interrupted; resuming it (resume_at_start = auto)", left)
+            try:
+                self._start(SessionStartArgs(resume=left))
+            except Refusal as refusal:
+                log.error("cannot resume session %s: %s", left, refusal.message)
+            return
+        log.warning("session %s was interrupted; continue it with `micam session start --resume "
+                    "%s`", left, left)
 
     def step_completed(self, step: str) -> None:
         """After a step's end is journaled: a live calibration job once enough poses are in."""
@@ -187,15 +235,21 @@ class Daemon:
         if run is None or not step.startswith("pose/") or not workers.live:
             return
         if sum(s.startswith("pose/") for s in run.completed()) >= workers.live_min_poses:
-            self.broker.submit(job_for_session(run.path, "live"))
+            try:
+                self.broker.submit(job_for_session(run.path, "live"))
+            except (SessionError, OSError, ValueError) as exc:  # a live job can wait a pose
+                log.error("cannot make a live calibration job of %s: %s", run.session_id, exc)
 
     def _close(self, reason: str) -> None:
+        path = self.run.path if self.run is not None else None
         self.machine.go(State.STOPPING, reason)
         self.machine.go(State.IDLE, reason)
         if self._translog is not None:
             self._translog.close()
             self._translog = None
         self.run = None
+        if path is not None:
+            self.index.update(path)
 
     def _on_transition(self, t: Transition) -> None:
         run = self.run
@@ -235,24 +289,23 @@ class Daemon:
             last_capture=run.last_capture if run else None,
             paused=bool(run and run.paused), hands_free=self.config.hands_free.enabled,
             events_endpoint=self.server.events_endpoint,
-            last_event_seq=self.server.last_event_seq, calibration=self.broker.status())
+            last_event_seq=self.server.last_event_seq, calibration=self.broker.status(),
+            resumable=None if run else self.index.newest_interrupted())
 
-    def list_sessions(self) -> SessionsResult:
-        sessions, problems = [], []
-        for path in sorted(p for p in self.session_root.iterdir() if p.is_dir()):
-            if not (path / "journal.jsonl").is_file():
-                continue
-            if self.run is not None and path == self.run.path:
-                sessions.append(self.status().session)
-                continue
-            try:
-                reader = SessionReader(path)
-                sessions.append(summarize(reader.session_id, path, reader.status,
-                                          reader.steps(), reader.capture, reader.created_utc))
-            except (SessionError, ValueError, KeyError) as exc:
-                problems.append(f"{path.name}: {exc}")
-        return SessionsResult(root=str(self.session_root), sessions=sessions,
-                              problems=problems)
+    def list_sessions(self) -> dict[str, Any]:
+        """The indexed sessions (the open one as `status` describes it); no journal is read."""
+        listing = self.index.listing()
+        sessions = listing.sessions
+        run = self.run
+        if run is not None:
+            current = self.status().session
+            assert current is not None
+            sessions = [current.model_dump(mode="json") if s["path"] == str(run.path) else s
+                        for s in sessions]
+            if not any(s["path"] == str(run.path) for s in listing.sessions):
+                sessions.append(current.model_dump(mode="json"))
+        return {"root": str(self.session_root), "sessions": sessions,
+                "problems": listing.problems, "complete": listing.complete}
 
     def _start(self, args: SessionStartArgs) -> dict[str, Any]:
         config = self.hardware.config
@@ -266,13 +319,23 @@ class Daemon:
             writer = self._reopen(args.resume) if args.resume else self._create(config)
         except SessionError as exc:
             raise Refusal("session_error", str(exc)) from None
-        created = SessionReader(writer.path).created_utc
-        self.run = SessionRun(self, self.hardware, writer, self.config, created)
-        self._translog = TransitionLog(writer.path)
+        except OSError as exc:  # a full or read-only disk under the session root
+            raise Refusal("session_error", f"cannot write the session under "
+                                           f"{self.session_root}: {exc}") from None
+        try:
+            created = SessionReader(writer.path).created_utc
+            self.run = SessionRun(self, self.hardware, writer, self.config, created)
+            self._translog = TransitionLog(writer.path)
+        except BaseException:
+            self.run = None
+            writer.close()
+            raise
         verb = "resumed" if args.resume else "created"
         self.machine.go(State.SESSION_OPEN, f"session {writer.session_id} {verb}")
-        return {"session": self.status().session.model_dump(mode="json"), "resumed":
-                bool(args.resume)}
+        self.index.update(writer.path)
+        session = self.status().session
+        assert session is not None
+        return {"session": session.model_dump(mode="json"), "resumed": bool(args.resume)}
 
     def _create(self, config: CaptureConfig) -> SessionWriter:
         session_id = f"{datetime.now(UTC):%Y-%m-%dT%H-%M-%SZ}_{uuid.uuid4().hex[:8]}"
@@ -301,13 +364,12 @@ class Daemon:
         return writer
 
     def _find_interrupted(self) -> Path:
-        for path in sorted(self.session_root.iterdir(), reverse=True):
-            if (path / "journal.jsonl").is_file():
-                try:
-                    if SessionReader(path).status == "interrupted":
-                        return path
-                except SessionError:
-                    continue
+        name = self.index.newest_interrupted()
+        if name is not None:
+            return self.session_root / name
+        if not self.index.complete:
+            raise SessionError(f"the daemon is still reading the sessions in {self.session_root}"
+                               "; try again in a moment, or name the session to resume")
         raise SessionError(f"no interrupted session in {self.session_root}")
 
     def _stop(self) -> dict[str, Any]:
@@ -351,3 +413,23 @@ class Daemon:
         run = self._open_run()
         run.redo = True
         return {"step": run.step}
+
+
+def _guarded(what: str, work: Callable[..., object], *args: object) -> bool:
+    """Run `work(*args)`; log any exception (a bug) instead of raising. True if it returned."""
+    try:
+        work(*args)
+    except Exception:
+        log.exception("internal error in %s; the daemon carries on", what)
+        return False
+    return True
+
+
+def _status_of(session: Path) -> str:
+    """How a session the daemon just closed reads ("unreadable" if it cannot be read)."""
+    try:
+        return SessionReader(session).status
+    except SessionError as exc:
+        log.error("cannot read the session %s just closed: %s", session, exc)
+        return "unreadable"
+

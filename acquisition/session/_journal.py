@@ -17,7 +17,9 @@ from pathlib import Path
 
 from pydantic import ValidationError
 
+from ..safe_names import is_name
 from ._atomic import fsync_dir
+from ._layout import attempt_dir
 from ._models import (
     RECORD_ADAPTER,
     SCHEMA_VERSION,
@@ -168,7 +170,9 @@ class SessionState:
         match record:
             case SessionStart():
                 return "a journal holds one session_start only"
-            case StepBegin(step=step, attempt=attempt):
+            case StepBegin(step=step, attempt=attempt, dir=directory):
+                if directory != attempt_dir(step, attempt):
+                    return f"its directory {directory!r} is not {attempt_dir(step, attempt)!r}"
                 if self.open is not None:
                     return f"step {self.open.step!r} attempt {self.open.attempt} is still open"
                 if step in self.completed:
@@ -181,8 +185,12 @@ class SessionState:
                     record.attempt,
                 ):
                     return f"step {record.step!r} attempt {record.attempt} is not open"
-                if isinstance(record, FileWritten) and _file_name(record) in self.open.files:
-                    return f"{record.path} is journaled twice"
+                if isinstance(record, FileWritten):
+                    folder, _, name = record.path.rpartition("/")
+                    if folder != self.open.dir or not is_name(name):
+                        return f"{record.path} is not a file of the attempt's {self.open.dir}/"
+                    if name in self.open.files:
+                        return f"{record.path} is journaled twice"
             case SessionResume() | SessionStop():
                 if self.open is not None:
                     return f"step {self.open.step!r} attempt {self.open.attempt} is still open"

@@ -3,7 +3,9 @@
 The journal records are the contract between acquisition and calibration (see
 docs/session-format.md): one model per `kind`, read back through the `Record` discriminated
 union. Every model forbids unknown fields so that a damaged or foreign line is detected instead of
-silently half-read.
+silently half-read, and every id and path in a record is held to the grammar of
+`acquisition.safe_names`, so that an edited journal cannot point outside its session (the replay
+in _journal.py also checks that each path is the one the writer would have used).
 """
 
 from __future__ import annotations
@@ -11,13 +13,25 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Annotated, Any, Literal
 
-from pydantic import AwareDatetime, BaseModel, ConfigDict, Field, TypeAdapter
+from pydantic import AfterValidator, AwareDatetime, BaseModel, ConfigDict, Field, TypeAdapter
+
+from ..safe_names import SafeName, SafeRelativePath, is_step_id
 
 SCHEMA_VERSION = 1
 
 FileRole = Literal["recording", "image", "other"]
 ExitStatus = Literal["success", "aborted", "failed"]
 SessionStatus = Literal["open", "complete", "aborted", "failed", "interrupted"]
+
+
+def _step_id(text: str) -> str:
+    if not is_step_id(text):
+        raise ValueError("a step id is 'name' or 'group/name' of letters, digits, '_', '.', '-'")
+    return text
+
+
+StepId = Annotated[str, AfterValidator(_step_id)]
+Sha256 = Annotated[str, Field(pattern=r"^[0-9a-f]{64}$")]
 
 
 class SessionError(RuntimeError):
@@ -47,7 +61,7 @@ class SessionStart(_RecordBase):
     """First record of every journal. Holds the capture configuration so the journal suffices."""
 
     kind: Literal["session_start"] = "session_start"
-    session_id: str
+    session_id: SafeName
     schema_version: int
     capture: dict[str, Any]
 
@@ -56,19 +70,19 @@ class StepBegin(_RecordBase):
     """A new attempt at a step began; its files go to `dir` (relative to the session)."""
 
     kind: Literal["step_begin"] = "step_begin"
-    step: str
+    step: StepId
     attempt: int = Field(ge=1)
-    dir: str
+    dir: SafeRelativePath
 
 
 class FileWritten(_RecordBase):
     """A file of the open attempt reached its final name, durably; `path` is session-relative."""
 
     kind: Literal["file"] = "file"
-    step: str
+    step: StepId
     attempt: int = Field(ge=1)
-    path: str
-    sha256: str
+    path: SafeRelativePath
+    sha256: Sha256
     bytes: int = Field(ge=0)
     role: FileRole
     meta: dict[str, Any]
@@ -78,7 +92,7 @@ class StepEnd(_RecordBase):
     """The attempt completed: from this record on, the step counts as done with this attempt."""
 
     kind: Literal["step_end"] = "step_end"
-    step: str
+    step: StepId
     attempt: int = Field(ge=1)
 
 
@@ -86,7 +100,7 @@ class StepAbandoned(_RecordBase):
     """The attempt will never complete (a retry, a crash found on resume, or a stop)."""
 
     kind: Literal["step_abandoned"] = "step_abandoned"
-    step: str
+    step: StepId
     attempt: int = Field(ge=1)
     reason: str
 

@@ -3,11 +3,20 @@
 The reader replays the journal once, when it is made (make a new reader to see later records),
 and offers only completed steps: files of attempts that never reached `step_end` are invisible.
 It never writes, so it can read a session while a writer is still recording into it.
+
+Every file is checked against the journal before it is decoded: its bytes are read once,
+their size and SHA-256 compared with the journal's record, and only then decoded from memory,
+so a flipped bit, a truncated or missing file is a `SessionError` naming the file, never a
+calibration of damaged data. What still fails to decode (a file that matches a hand-edited
+journal) is a `SessionError` too, as is a recording or image whose shape is not the one the
+journal recorded.
 """
 
 from __future__ import annotations
 
 import copy
+import hashlib
+import io
 import json
 from datetime import datetime
 from pathlib import Path
@@ -66,28 +75,48 @@ class SessionReader:
 
     def read_recording(self, step: str, name: str) -> tuple[np.ndarray, int]:
         """The raw int16 codes, shape (n_samples, n_channels), and the sample rate in hertz."""
-        path = self._file(step, name, "recording")
+        file, data = self._verified(step, name, "recording")
         try:
-            codes, rate = sf.read(path, dtype="int16", always_2d=True)
-        except (sf.LibsndfileError, RuntimeError) as exc:
-            raise SessionError(f"{path}: cannot read the recording ({exc}); run verify()") from exc
+            codes, rate = sf.read(io.BytesIO(data), dtype="int16", always_2d=True)
+        except Exception as exc:  # libsndfile's errors, and soundfile's own on odd headers
+            raise self._undecodable(file, "a WAV recording", exc) from None
+        expected = (file.meta.get("n_samples"), file.meta.get("n_channels"))
+        if None not in expected and codes.shape != expected:
+            raise SessionError(
+                f"{self._path / file.path}: the recording holds {codes.shape[0]} samples of "
+                f"{codes.shape[1]} channels, the journal recorded {expected[0]} of {expected[1]}; "
+                "the file or the journal was altered"
+            )
         return codes, rate
 
     def read_image(self, step: str, name: str) -> np.ndarray:
         """The image as stored: uint8 (height, width) grey or (height, width, 3) BGR."""
-        path = self._file(step, name, "image")
-        image = cv2.imdecode(np.fromfile(path, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+        file, data = self._verified(step, name, "image")
+        try:
+            image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+        except cv2.error as exc:
+            raise self._undecodable(file, "a PNG image", exc) from None
         if image is None:
-            raise SessionError(f"{path}: not a readable PNG image; run verify()")
+            raise self._undecodable(file, "a PNG image", "OpenCV cannot decode it")
+        expected = (file.meta.get("height"), file.meta.get("width"))
+        if None not in expected and image.shape[:2] != expected:
+            raise SessionError(
+                f"{self._path / file.path}: the image is {image.shape[1]} x {image.shape[0]} "
+                f"pixels, the journal recorded {expected[1]} x {expected[0]}; the file or the "
+                "journal was altered"
+            )
         return image
 
     def read_json(self, step: str, name: str) -> dict[str, Any]:
         """A per-step JSON record as a dict."""
-        path = self._file(step, name, "other")
+        file, data = self._verified(step, name, "other")
         try:
-            return json.loads(path.read_text(encoding="utf-8"))
-        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise SessionError(f"{path}: not valid JSON ({exc}); run verify()") from exc
+            value = json.loads(data.decode("utf-8"))
+        except (ValueError, RecursionError) as exc:  # not UTF-8, not JSON, absurd numbers
+            raise self._undecodable(file, "JSON", exc) from None
+        if not isinstance(value, dict):
+            raise self._undecodable(file, "a JSON object", f"it is a {type(value).__name__}")
+        return value
 
     def verify(self) -> list[str]:
         """Re-hash every file of every completed step; one line per problem, empty when intact."""
@@ -111,8 +140,38 @@ class SessionReader:
             )
         return None
 
-    def _file(self, step: str, name: str, role: FileRole) -> Path:
-        """The path of a journaled file of a completed step, checking that it holds `role`."""
+    def _verified(self, step: str, name: str, role: FileRole) -> tuple[FileRecord, bytes]:
+        """The journal's record of a file and its bytes, once they match the record."""
+        file = self._file(step, name, role)
+        path = self._path / file.path
+        try:
+            data = path.read_bytes()
+        except FileNotFoundError:
+            raise SessionError(
+                f"{path} (step {step!r}) is missing although the journal records it; restore it "
+                "from a copy of the session (`micam inspect` lists every damaged file)"
+            ) from None
+        except OSError as exc:
+            raise SessionError(f"{path} (step {step!r}) cannot be read: {exc}") from None
+        digest = hashlib.sha256(data).hexdigest()
+        if len(data) != file.bytes or digest != file.sha256:
+            raise SessionError(
+                f"{path} (step {step!r}) is damaged: {len(data)} bytes with sha256 {digest}, "
+                f"the journal recorded {file.bytes} bytes with sha256 {file.sha256}. Restore it "
+                "from a copy of the session (`micam inspect` lists every damaged file)"
+            )
+        return file, data
+
+    def _undecodable(self, file: FileRecord, what: str, why: object) -> SessionError:
+        why = " ".join(str(why).split())  # one line (OpenCV's messages end in a newline)
+        return SessionError(
+            f"{self._path / file.path}: not readable as {what} ({why}), although it matches the "
+            "journal's checksum: the journal was altered, or the file was written by another "
+            "program"
+        )
+
+    def _file(self, step: str, name: str, role: FileRole) -> FileRecord:
+        """The journal's record of a file of a completed step, checking that it holds `role`."""
         record = self._state.completed.get(step)
         if record is None:
             raise SessionError(
@@ -126,7 +185,4 @@ class SessionReader:
             )
         if file.role != role:
             raise SessionError(f"{file.path} holds role {file.role!r}, not {role!r}")
-        path = self._path / file.path
-        if not path.is_file():
-            raise SessionError(f"{path} is missing although the journal records it; run verify()")
-        return path
+        return file

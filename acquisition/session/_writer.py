@@ -9,9 +9,9 @@ ever overwritten.
 from __future__ import annotations
 
 import copy
+import io
 import json
 import operator
-import re
 import uuid
 from collections.abc import Callable
 from datetime import UTC, datetime
@@ -22,8 +22,10 @@ import cv2
 import numpy as np
 import soundfile as sf
 
+from ..safe_names import is_name, is_step_id
 from ._atomic import PARTIAL_SUFFIX, fsync_dir, make_dirs, remove_partials, write_atomic
 from ._journal import JournalWriter, SessionState, journal_path, load_state, scan_journal
+from ._layout import attempt_dir
 from ._models import (
     SCHEMA_VERSION,
     ExitStatus,
@@ -47,20 +49,7 @@ MAX_CHANNELS = 1024  # libsndfile's limit for every container
 # Plain WAV sizes are 32-bit; larger recordings go to RF64 (the reader detects the container).
 WAV_MAX_DATA_BYTES = 0xFFFF_FFFF - 1024
 
-_STEP_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*(/[A-Za-z0-9][A-Za-z0-9_.-]*)?")
-_NAME_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
 _EXIT_STATUSES: tuple[ExitStatus, ...] = ("success", "aborted", "failed")
-
-
-def attempt_dir(step: str, attempt: int) -> str:
-    """The session-relative directory of an attempt: the step id made into a path.
-
-    "group/name" -> "groups/name-aN" (an "s" is appended to the group), "name" -> "name-aN".
-    The mapping is one-to-one, and no attempt directory can collide with a group folder (those
-    end in "s", attempt directories in "-a<digits>") or with journal.jsonl / manifest.json.
-    """
-    group, _, name = step.rpartition("/")
-    return f"{group}s/{name}-a{attempt}" if group else f"{name}-a{attempt}"
 
 
 def _utc_now() -> datetime:
@@ -79,7 +68,7 @@ def _json_copy(value: Any, what: str) -> Any:
 
 
 def _check_step_id(step: str) -> None:
-    if not isinstance(step, str) or not _STEP_RE.fullmatch(step):
+    if not is_step_id(step):
         raise SessionError(
             f"invalid step id {step!r}: use 'name' or 'group/name' made of letters, digits, "
             "'_', '.', '-' (e.g. 'refmic', 'reference/4', 'pose/0003')"
@@ -89,7 +78,7 @@ def _check_step_id(step: str) -> None:
 def _check_file_name(name: str, suffix: str) -> None:
     if (
         not isinstance(name, str)
-        or not _NAME_RE.fullmatch(name)
+        or not is_name(name)
         or not name.endswith(suffix)
         or name.endswith(PARTIAL_SUFFIX)
     ):
@@ -174,7 +163,7 @@ class SessionWriter:
             raise SessionError(f"capture must be a dict, got {type(capture).__name__}")
         capture = _json_copy(capture, "the capture configuration")
         session_id = session_id or f"{_utc_now():%Y-%m-%dT%H-%M-%SZ}_{uuid.uuid4().hex[:8]}"
-        if not isinstance(session_id, str) or not _NAME_RE.fullmatch(session_id):
+        if not is_name(session_id):
             raise SessionError(
                 f"invalid session id {session_id!r}: use letters, digits, '_', '.', '-'"
             )
@@ -346,7 +335,11 @@ class SessionWriter:
         data = np.ascontiguousarray(codes)
 
         def fill(fh: BinaryIO) -> None:
-            sf.write(fh, data, rate, subtype="PCM_16", format=container)
+            # Encoded in memory first: libsndfile writing to a Python file would turn a full
+            # disk into an AssertionError of soundfile's; fh.write raises the OSError itself.
+            encoded = io.BytesIO()
+            sf.write(encoded, data, rate, subtype="PCM_16", format=container)
+            fh.write(encoded.getbuffer())
 
         return self._write_file(step, name, fill, "recording", full_meta)
 
@@ -415,8 +408,9 @@ class SessionWriter:
         except OSError as exc:
             self.close()
             raise SessionError(
-                f"cannot append to {journal.path} ({exc}); the writer is closed: fix the cause "
-                f"(disk full?), then SessionWriter.resume({str(self._path)!r})"
+                f"cannot append to {journal.path} ({exc}); the writer is closed and everything "
+                "journaled before is safe: fix the cause (disk full? read-only?), then resume "
+                "the session"
             ) from exc
         self._state.apply(record)
 
@@ -478,8 +472,9 @@ class SessionWriter:
             raise
         except (OSError, RuntimeError) as exc:  # RuntimeError: libsndfile's errors
             raise SessionError(
-                f"cannot write {target} ({exc}); nothing was journaled: fix the cause (disk "
-                f"full?), then abandon_step({step!r}) and capture the step again"
+                f"cannot write {target} ({exc}); nothing was journaled for it and every "
+                "completed step is safe: fix the cause (disk full? read-only?), then capture "
+                f"step {step} again"
             ) from exc
         self._append(
             FileWritten(

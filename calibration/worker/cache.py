@@ -29,6 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 
 from acquisition.daemon.job_messages import Job, JobFile
+from acquisition.safe_names import is_name
 
 JOURNAL = "journal.jsonl"
 DEFAULT_MAX_BYTES = 4 * 2**30
@@ -136,6 +137,11 @@ class FileCache:
         return evicted
 
     def session_dir(self, job: Job) -> Path:
+        """The job's session mirror; ValueError for a session id that is not a plain name
+        (the job message refuses one already: this guards the cache on its own)."""
+        if not is_name(job.session_id):
+            raise ValueError(f"the job names the session {job.session_id!r}, which is not a "
+                             "plain directory name")
         return self.root / job.session_id
 
     def target(self, job: Job, rel: str) -> Path:

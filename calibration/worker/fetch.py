@@ -44,7 +44,11 @@ class _Transfer:
     tries: int = 1
 
 
-def fetch_job_files(sock: zmq.Socket, job: Job, cache: FileCache, chunk_bytes: int = 1 << 20,
+CHUNK_BYTES = 1 << 20
+"""Bytes asked for per `fetch` (the file server answers with at most this many)."""
+
+
+def fetch_job_files(sock: zmq.Socket, job: Job, cache: FileCache, chunk_bytes: int = CHUNK_BYTES,
                     window: int = 8, timeout_s: float = 30.0) -> int:
     """Fetch every file of `job` the cache lacks, over the connected DEALER `sock`; returns the
     bytes fetched. Raises FetchFailed, or ChecksumMismatch if a file is wrong twice."""

@@ -45,18 +45,24 @@ from acquisition.daemon.job_messages import (
     Progress,
     Ready,
     Reconnect,
+    Refused,
     WorkerError,
     encode,
+    version_problem,
 )
 from acquisition.daemon.keys import secure_client
 
 from .cache import DEFAULT_MAX_BYTES, ChecksumMismatch, FileCache
 from .compute import compute
-from .fetch import FetchFailed, fetch_job_files
+from .fetch import CHUNK_BYTES, FetchFailed, fetch_job_files
 
 log = logging.getLogger("micam.worker")
 
 MAX_BACKOFF_FACTOR = 32  # the reconnect back-off doubles up to this many heartbeat intervals
+MAX_JOB_MESSAGE_BYTES = 16 * 2**20
+"""The largest frame the worker takes from the daemon's jobs socket (a job lists its files:
+about 150 bytes each); ZeroMQ drops a connection that sends more, before it is read."""
+MAX_CHUNK_FRAME_BYTES = CHUNK_BYTES + 2**16  # a chunk's bytes, or its JSON header
 
 
 @dataclass(frozen=True)
@@ -156,6 +162,7 @@ class Worker:
         sock.linger = 0
         sock.immediate = 1  # queue nothing for a daemon that is not there (no stale flood)
         sock.identity = f"{self.settings.name}-{uuid.uuid4().hex[:8]}".encode()
+        sock.maxmsgsize = MAX_JOB_MESSAGE_BYTES  # set before connect, or it never applies
         self._secure(sock)
         sock.connect(self.settings.jobs)
         self._sock = sock
@@ -183,11 +190,16 @@ class Worker:
         try:
             if len(frames) != 1:
                 raise ValueError(f"a daemon message is one frame; got {len(frames)}")
+            problem = version_problem(frames[0])
+            if problem is not None:
+                raise ValueError(problem)
             message = DAEMON_MESSAGE.validate_json(frames[0])
         except (ValidationError, ValueError) as exc:
             self._refuse(frames, exc)
             return
-        if isinstance(message, Job):
+        if isinstance(message, Refused):
+            log.error("the daemon refused a message of this worker: %s", message.reason)
+        elif isinstance(message, Job):
             self._start(message)
         elif isinstance(message, Reconnect):
             self._announce = True
@@ -229,6 +241,7 @@ class Worker:
             with self.cache.use(job) as session:  # not evicted while fetched and calibrated
                 files = self._context.socket(zmq.DEALER)
                 files.linger = 0
+                files.maxmsgsize = MAX_CHUNK_FRAME_BYTES
                 self._secure(files)
                 files.connect(self.settings.files)
                 try:

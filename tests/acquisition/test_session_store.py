@@ -477,7 +477,7 @@ def test_a_failed_write_leaves_no_file_and_no_record(
     monkeypatch.setattr(_writer.sf, "write", full_disk)
     n_records = len(journal_records(open_writer.path))
     with pytest.raises(
-        SessionError, match=r"cannot write .*burst.wav.*No space left.*abandon_step"
+        SessionError, match=r"cannot write .*burst.wav.*No space left.*capture step pose/0000"
     ):
         open_writer.write_recording("pose/0000", "burst.wav", _codes("x"), 48000)
     assert list((open_writer.path / "poses" / "0000-a1").iterdir()) == []

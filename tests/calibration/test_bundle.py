@@ -237,7 +237,10 @@ def test_pipeline_joint_fit_beats_the_frozen_camera_against_the_truth(session: P
     gauge = true_lat[lat.latency_gauge_board]
     for board, value in lat.latency_s.items():
         assert abs(value - (true_lat[board] - gauge)) < 4 * lat.latency_std_s[board] + 10e-9
-    assert joint["max_latency_error_s"] < 0.15e-6
+    # The worst board's error itself spreads with the noise realisation (0.03-0.3 us over
+    # seeds 5-10 with the real lab's unknowns, within their 4 sigmas above); a broken
+    # latency fit is off by microseconds.
+    assert joint["max_latency_error_s"] < 0.5e-6
     cams = {c.name: c for c in run.result.cameras}
     assert set(cams) >= {"cam0", "cam1"}  # a side camera shares views: stereo refined too
     assert all(c.intrinsics_std is not None and c.intrinsics_std[0] > 0 for c in cams.values())

@@ -7,6 +7,7 @@ Every wait is bounded in time (and every loop in count).
 
 from __future__ import annotations
 
+import json
 import os
 import socket
 import subprocess
@@ -15,6 +16,8 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+
+import zmq
 
 from acquisition.daemon.client import DaemonClient
 from acquisition.daemon.config import DaemonConfig, SimulationConfig, SocketsConfig
@@ -147,3 +150,34 @@ def capture_all(client: DaemonClient, limit: int = 50) -> StatusResult:
 
 def wait_state(client: DaemonClient, *states: str) -> StatusResult:
     return client.wait_until(lambda s: s.state in states, WAIT_S, interval_s=POLL_S)
+
+
+class FakeWorker:
+    """A raw DEALER on a daemon's jobs (or files) socket: the test speaks for a worker, or for
+    a rogue process pretending to be one."""
+
+    def __init__(self, endpoint: str) -> None:
+        self.context = zmq.Context()
+        self.sock = self.context.socket(zmq.DEALER)
+        self.sock.linger = 0
+        self.sock.connect(endpoint)
+
+    def send(self, message: dict | bytes, *extra: bytes) -> None:
+        frame = message if isinstance(message, bytes) else json.dumps(message).encode()
+        self.sock.send_multipart([frame, *extra])
+
+    def receive(self, kind: str, timeout_s: float = WAIT_S) -> tuple[dict, list[bytes]]:
+        """The next message of type `kind` (heartbeats skipped), with all its frames."""
+        deadline = time.monotonic() + timeout_s
+        for _ in range(100_000):
+            left = deadline - time.monotonic()
+            if left <= 0 or not self.sock.poll(round(left * 1000)):
+                break
+            frames = self.sock.recv_multipart()
+            message = json.loads(frames[0])
+            if message.get("type") == kind:
+                return message, frames
+        raise AssertionError(f"no {kind!r} message within {timeout_s} s")
+
+    def close(self) -> None:
+        self.context.destroy(linger=0)

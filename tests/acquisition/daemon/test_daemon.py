@@ -6,6 +6,7 @@ Component tests: the real daemon code and sockets (ipc), simulated boards and ca
 from __future__ import annotations
 
 import json
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -22,13 +23,6 @@ from sim.capture import SimulationOptions, build_simulated_capture
 from .helpers import ThreadDaemon, capture, small_config, wait_state
 
 REFERENCE_STEPS = 7  # six speakers and the reference-microphone image
-
-
-@pytest.fixture
-def daemon(tmp_path: Path) -> Iterator[ThreadDaemon]:
-    running = ThreadDaemon(small_config(tmp_path))
-    yield running
-    running.stop()
 
 
 @pytest.fixture
@@ -202,9 +196,20 @@ def test_resume_refuses_another_configuration_and_missing_sessions(
     assert "not a micam session" in _refused(client, "session.start", "session_error",
                                              resume="nothing-here")
     (root / "foreign" / "journal.jsonl").write_text("damaged\nlines\n")
-    listed = client.request("sessions.list")
+    listed = _listing_once_rescanned(client)  # a change by others shows after the next scan
     assert listed["sessions"] == [] and "foreign" in listed["problems"][0]
     assert "has 3 poses" in _refused(client, "session.start", "session_error", poses=99)
+
+
+def _listing_once_rescanned(client: DaemonClient) -> dict:
+    """`sessions.list` after the background scan it asks for has run (bounded)."""
+    first = client.request("sessions.list")
+    for _ in range(500):
+        time.sleep(0.01)
+        listed = client.request("sessions.list")
+        if listed != first:
+            return listed
+    return first
 
 
 def test_curve_lets_in_only_authorised_clients(tmp_path: Path) -> None:

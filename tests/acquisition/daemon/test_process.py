@@ -121,7 +121,9 @@ def test_sigkill_then_resume_keeps_every_completed_recording(tmp_path: Path, poi
         assert hashlib.sha256(file.read_bytes()).hexdigest() == digest
 
 
-def test_sigterm_ends_the_burst_and_closes_the_session_as_aborted(tmp_path: Path) -> None:
+def test_sigterm_ends_the_burst_and_leaves_the_session_resumable(tmp_path: Path) -> None:
+    """`systemctl stop` never loses more than a crash: the step in progress is abandoned after
+    its burst, the session stays interrupted, and the next daemon offers it and continues it."""
     process = _start(tmp_path, [sys.executable, str(HARNESS), "burst", "8"])
     with process.client() as client:
         path = Path(client.request("session.start", poses=2)["session"]["path"])
@@ -133,14 +135,45 @@ def test_sigterm_ends_the_burst_and_closes_the_session_as_aborted(tmp_path: Path
     process.wait_message("STOPPING=1")
     assert process.wait_exit() == 0
     reader = SessionReader(path)
-    assert reader.status == "aborted"
+    assert reader.status == "interrupted" and reader.verify() == []
     records = journal_records(path / "journal.jsonl")
-    assert records[-1].kind == "session_stop" and "SIGTERM" in records[-1].reason
+    assert records[-1].kind == "step_abandoned" and "SIGTERM" in records[-1].reason
     pose_files = [r.path for r in records if r.kind == "file" and r.step == "pose/0000"]
     assert pose_files[-1].endswith("speaker_1.wav")  # the burst in progress was finished
-    abandoned = [r for r in records if r.kind == "step_abandoned"]
-    assert [(r.step, r.attempt) for r in abandoned] == [("pose/0000", 1)]
-    assert reader.verify() == []
+    assert [(r.step, r.attempt) for r in records if r.kind == "step_abandoned"] == [
+        ("pose/0000", 1)]
+
+    process = _start(tmp_path)
+    try:
+        with process.client() as client:
+            offered = client.wait_until(lambda s: s.resumable is not None, 30.0)
+            assert offered.resumable == path.name and offered.state == "idle"
+            assert client.request("session.start", resume="last")["session"]["id"] == path.name
+            capture_all(client)
+    finally:
+        _stop(process)
+    reader = SessionReader(path)
+    assert reader.status == "complete" and reader.verify() == []
+    assert reader.steps()["pose/0000"].attempt == 2
+
+
+def test_resume_at_start_auto_continues_the_interrupted_session(tmp_path: Path) -> None:
+    config = write_toml(tmp_path / "daemon.toml", tmp_path, 'resume_at_start = "auto"')
+    process = _start(tmp_path)
+    with process.client() as client:
+        path = Path(client.request("session.start", poses=1)["session"]["path"])
+        capture(client)
+    process.kill()  # a crash; SIGTERM leaves the same interrupted session
+    process = DaemonProcess(config, tmp_path)
+    process.wait_message("READY=1")
+    try:
+        with process.client() as client:
+            status = client.wait_until(lambda s: s.session is not None, 30.0)
+            assert status.session.id == path.name and status.state == "references"
+            capture_all(client)
+    finally:
+        _stop(process)
+    assert SessionReader(path).status == "complete"
 
 
 @pytest.mark.parametrize(

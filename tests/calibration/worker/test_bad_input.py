@@ -14,7 +14,6 @@ from pathlib import Path
 import pytest
 import zmq
 
-from acquisition.cli import main
 from acquisition.daemon.files import FileServer
 from acquisition.daemon.job_messages import (
     WORKER_MESSAGE,
@@ -33,12 +32,9 @@ from calibration.worker import Worker, WorkerSettings
 WAIT_S = 60.0
 
 
-@pytest.fixture(scope="module")
-def session(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    path = tmp_path_factory.mktemp("worker") / "s"
-    assert main(["simulate", "--out", str(path), "--array", "scatter48", "--poses", "3",
-                 "--mls-order", "9", "--seed", "3", "--quiet"]) == 0
-    return path
+@pytest.fixture
+def session(small_session: Path) -> Path:
+    return small_session
 
 
 class ScriptedDaemon:
@@ -91,11 +87,14 @@ class ScriptedDaemon:
 
 
 @pytest.fixture
-def daemon(tmp_path: Path) -> Iterator[ScriptedDaemon]:
+def daemon(tmp_path: Path, request: pytest.FixtureRequest) -> Iterator[ScriptedDaemon]:
+    """A worker and the scripted daemon it talks to; `indirect` parametrisation sets the
+    worker's daemon_timeout_s (default 10 s)."""
     scripted = ScriptedDaemon(tmp_path)
     worker = Worker(WorkerSettings(jobs=f"ipc://{tmp_path}/jobs", files=f"ipc://{tmp_path}/files",
                                    name="w", cache=tmp_path / "cache", heartbeat_interval_s=0.1,
-                                   joint=False))
+                                   joint=False,
+                                   daemon_timeout_s=getattr(request, "param", 10.0)))
     thread = threading.Thread(target=worker.run, daemon=True)
     thread.start()
     try:
@@ -144,3 +143,43 @@ def test_bad_jobs_get_clear_errors_and_the_worker_keeps_serving(
     assert done.job_id == good.job_id
     assert hashlib.sha256(frames[1]).hexdigest() == done.result_sha256
     assert len(json.loads(frames[1])["microphones"]) == 48
+
+
+def test_a_job_that_would_leave_the_cache_is_refused(daemon: ScriptedDaemon, session: Path,
+                                                     tmp_path: Path) -> None:
+    """A rogue daemon's job for session ".." must not make the worker write beside its cache."""
+    good = job_for_session(session, "final")
+    for session_id in ("..", ".", "a/../..", ""):
+        offer = json.loads(encode(Job(job_id=good.job_id, attempt=1, kind="final",
+                                      session_id=good.session_id, poses=good.poses,
+                                      journal=good.journal, files=good.files)))
+        offer["session_id"] = session_id
+        daemon.send(json.dumps(offer).encode())
+        failed, _ = daemon.receive(Failed)
+        assert not failed.retryable and "session_id" in failed.reason
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cache", "files", "jobs"]
+
+
+def test_daemon_messages_of_another_version_or_none_are_refused(daemon: ScriptedDaemon) -> None:
+    for message, words in (({"type": "heartbeat"}, "no protocol version"),
+                           ({"v": 2, "type": "heartbeat"}, "version 2 is not supported")):
+        daemon.send(json.dumps(message).encode())
+        error, _ = daemon.receive(WorkerError)
+        assert words in error.reason
+
+
+@pytest.mark.parametrize("daemon", [1.0], indirect=True)  # it reconnects after 1 s of silence
+def test_an_oversized_frame_from_the_daemon_is_dropped_unread(daemon: ScriptedDaemon) -> None:
+    """The worker's sockets refuse frames above their limit before reading them (a rogue
+    daemon cannot make it buffer gigabytes); it carries on once reconnected."""
+    daemon.send(b"\xff" * (32 * 2**20))
+    deadline = time.monotonic() + WAIT_S
+    answers: list[object] = []
+    while time.monotonic() < deadline and not answers:
+        daemon.send(b'{"v": 1, "type": "nonsense"}')  # to its identity, once it is back
+        while daemon.jobs.poll(100):
+            daemon.worker, *frames = daemon.jobs.recv_multipart()
+            message = WORKER_MESSAGE.validate_json(frames[0])
+            if isinstance(message, WorkerError):
+                answers.append(message)
+    assert answers and "nonsense" in answers[0].reason  # the first answer is to the small one
