@@ -77,7 +77,7 @@ def test_result_responses_take_the_same_path(session: Path, tmp_path: Path,
                         for mic, p in zip(ids, np.angle(error.responses[0]), strict=True)]})
     path = tmp_path / "result.json"
     path.write_text(json.dumps(result))
-    common = [str(session), "--geometry", str(path), "--band-lo", "9000", "--band-hi", "10000",
+    common = [str(session), "--geometry", str(path), "--band-lo", "8000", "--band-hi", "12000",
               "--quiet", "--workers", "1"]
     outputs = {}
     for name, extra in (("clean", []), ("error", ["--mic-phase-error-deg", "2",
