@@ -159,13 +159,12 @@ def wait_final(stream: EventStream, timeout_s: float) -> CalibrationEvent:
 
 
 def report(session: Path, result_path: Path, out: Path) -> list[str]:
-    """A short report against the simulated truth: lines printed, report.md and geometry.png."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
-
+    """A short report against the simulated truth: lines printed, report.md and geometry.png
+    (the array in three views with its errors against the truth magnified, as in the
+    calibration report)."""
+    from calibration.figures.geometry import geometry_figure
+    from calibration.figures.style import save
+    from calibration.report import array_picture, significant
     from calibration.result import CalibrationResult, compare_with_truth
 
     result = CalibrationResult.model_validate_json(result_path.read_text())
@@ -175,28 +174,19 @@ def report(session: Path, result_path: Path, out: Path) -> list[str]:
         f"session         {session}",
         f"result          {result_path}",
         f"microphones     {len(result.microphones)}",
-        f"mean error      {errors['mean_mic_error_m'] * 1e3:.3f} mm against the simulated truth "
-        f"(max {errors['max_mic_error_m'] * 1e3:.3f} mm)",
+        f"mean error      {significant(errors['mean_mic_error_m'] * 1e3)} mm against the "
+        f"simulated truth (max {significant(errors['max_mic_error_m'] * 1e3)} mm)",
         f"speed of sound  {result.speed_of_sound_m_s:.3f} m/s (truth "
-        f"{truth['speed_of_sound_m_s']:.3f}, error {errors['speed_of_sound_error_m_s']:+.3f})",
+        f"{truth['speed_of_sound_m_s']:.3f}, error "
+        f"{significant(errors['speed_of_sound_error_m_s'], signed=True)})",
         f"focal length    largest relative error {errors['max_focal_error_rel']:.2e}",
     ]
-    est = result.positions()
-    true = np.array([m["position_m"] for m in sorted(truth["microphones"], key=lambda m: m["id"])])
-    fig, ax = plt.subplots(1, 2, figsize=(10, 4.5))
-    for axis, (i, j, name) in zip(ax, [(0, 2, "top view (x, z)"), (0, 1, "front view (x, y)")],
-                                  strict=True):
-        axis.scatter(true[:, i], true[:, j], s=40, facecolors="none", edgecolors="k",
-                     label="truth")
-        axis.scatter(est[:, i], est[:, j], s=8, c="r", label="calibrated")
-        axis.set_title(name)
-        axis.set_aspect("equal")
-    ax[0].legend()
-    fig.suptitle(f"micam loop: mean error {errors['mean_mic_error_m'] * 1e3:.3f} mm")
-    fig.savefig(out / "geometry.png", dpi=110)
-    plt.close(fig)
-    (out / "report.md").write_text("# micam: the whole loop\n\n```\n" + "\n".join(lines)
-                                   + "\n```\n\n![geometry](geometry.png)\n")
+    save(geometry_figure(array_picture(result, truth)), out / "geometry.png")
+    (out / "report.md").write_text(
+        "# micam: the whole loop\n\n```\n" + "\n".join(lines) + "\n```\n\n"
+        "The array in three views: each arrow is a microphone's error against the simulated "
+        "truth, magnified by the factor in the legend; the ellipses are the calibration's 95 % "
+        "uncertainty at the same scale.\n\n![geometry](geometry.png)\n")
     return [*lines, f"pictures        {out / 'geometry.png'}, report {out / 'report.md'}"]
 
 

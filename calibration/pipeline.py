@@ -328,10 +328,19 @@ def calibrate(path: Path, options: CalibrationOptions | None = None,
     (calibration.plausibility), naming the likely cause.
     """
     options = options or CalibrationOptions()
-    m = measure(path, options, on_stage)
+    return calibrate_measured(measure(path, options, on_stage), options, on_stage=on_stage)
+
+
+def calibrate_measured(m: Measurements, options: CalibrationOptions,
+                       poses: np.ndarray | None = None,
+                       on_stage: Callable[[str], None] | None = None) -> CalibrationRun:
+    """The solver and the joint fit of `calibrate` on measurements already made, from all
+    located poses or from a subset (`poses`, indices into `m.speakers.poses`: the acoustic
+    sources; every board view still constrains the cameras, and every pose gets a board pose,
+    so the others can be imaged with the result as held-out data)."""
     timings = dict(m.timings_s)
     with _timed(timings, "solver", on_stage):
-        solution = solve(m, options)
+        solution = solve(m, options, poses)
     _check_plausible(m, options, _solution_figures(m, solution, options), frozen=True)
     if not (options.joint and options.method == "micam"):
         return CalibrationRun(_assemble(m, solution, options, timings), m, solution)
@@ -342,7 +351,7 @@ def calibrate(path: Path, options: CalibrationOptions | None = None,
             m = _without_dispersion(m, _responses(
                 m, lambda k: frozen_flights(m, solution, k), solution.speed_of_sound_m_s))
     with _timed(timings, "joint fit", on_stage):
-        bundle = fit_joint(m, solution, options)
+        bundle = fit_joint(m, solution, options, poses)
         joint_m, joint_solution = joint_measurements(m, bundle, solution, options)
     names = list(m.cameras.intrinsics)
     _check_plausible(m, options, replace(
@@ -963,5 +972,5 @@ def _pose_result(data: SessionData, speakers: SpeakerPositions, i: int) -> PoseR
 
 __all__ = [
     "CalibrationInputError", "CalibrationOptions", "CalibrationRun",
-    "Measurements", "calibrate", "measure", "solve",
+    "Measurements", "calibrate", "calibrate_measured", "measure", "solve",
 ]

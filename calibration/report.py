@@ -1,34 +1,178 @@
-"""A report a person can read: report.md with pictures, beside result.json.
+"""A report a person can read: report.md with figures, beside result.json.
 
-Pictures: the geometry in 3D (microphones, cameras, speaker positions), residuals per
-microphone and per pose, and the times of flight's quality. When the joint fit ran, the
-camera-frozen solution is tabulated beside it. When the session is simulated, the errors
-against its truth are tabulated too.
+Figures (`calibration.figures`, one style): the array geometry in three equal-aspect views
+with magnified error vectors against the simulated truth or the prior and the uncertainty
+ellipses (geometry.png), the time-of-flight residuals by microphone, pose, board, distance and
+angle (residuals.png), the corner reprojection residuals per camera (corners.png) and the
+times of flight's quality (tof_quality.png). When the joint fit ran, the camera-frozen
+solution is tabulated beside it; when the session is simulated, the errors against its truth
+too. Repeated notes (an image without a checkerboard, per camera) are grouped.
 """
 
 from __future__ import annotations
 
+import math
+from collections import Counter
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")  # headless: reports are written on servers without a display
-import matplotlib.pyplot as plt
+import cv2
 import numpy as np
 
-from .pipeline import CalibrationRun
+from .figures.geometry import ArrayPicture, CameraMark, geometry_figure
+from .figures.residuals import (
+    CornerResiduals,
+    TofResiduals,
+    corner_residual_figure,
+    tof_quality_figure,
+    tof_residual_figure,
+)
+from .figures.style import save
+from .imaging.evaluate import pose_index
+from .pipeline import CalibrationRun, _bundle_steps
 from .result import CalibrationResult, compare_with_truth
+from .solver import _kabsch
+
+FIGURES = ("geometry.png", "residuals.png", "corners.png", "tof_quality.png")
 
 
-def write_report(run: CalibrationRun, directory: Path, truth: dict | None = None) -> Path:
-    """Write report.md and its PNGs into `directory`; return the path of report.md."""
+def significant(value: float, digits: int = 2, signed: bool = False) -> str:
+    """`value` with `digits` significant digits and no exponent ("0.00031", "12", "0.041"),
+    so that a small number never prints as 0.0."""
+    if not math.isfinite(value):
+        return str(value)
+    sign = "+" if signed else ""
+    if value == 0:
+        return f"{0:{sign}.{digits - 1}f}"
+    decimals = max(0, digits - 1 - math.floor(math.log10(abs(value))))
+    return f"{value:{sign}.{decimals}f}"
+
+
+def write_report(run: CalibrationRun, directory: Path, truth: dict | None = None,
+                 prior_m: np.ndarray | None = None) -> Path:
+    """Write report.md and its figures into `directory`; return the path of report.md.
+
+    Args:
+        truth: a simulated session's truth.json: errors and error vectors against it.
+        prior_m: (M, 3) the prior geometry the calibration used (any frame, the session's
+            microphone order): without a truth, the error vectors are drawn against it after
+            its best rigid fit to the result.
+    """
     directory.mkdir(parents=True, exist_ok=True)
-    _plot_geometry(run, directory / "geometry.png")
-    _plot_residuals(run, directory / "residuals.png")
-    _plot_tof_quality(run, directory / "tof_quality.png")
+    picture = array_picture(run.result, truth, prior_m, run.solution.covariance_m2,
+                            run.measurements.cameras.uncalibrated)
+    save(geometry_figure(picture), directory / "geometry.png")
+    save(tof_residual_figure(tof_residuals(run)), directory / "residuals.png")
+    save(corner_residual_figure(corner_residuals(run)), directory / "corners.png")
+    save(tof_quality_figure(run.tofs.snr_db[run.measurements.located],
+                            run.tofs.peak_to_sidelobe_db[run.measurements.located]),
+         directory / "tof_quality.png")
     path = directory / "report.md"
     path.write_text(_markdown(run, truth))
     return path
+
+
+def _camera_mark(name: str, rotvec, t_m, calibrated: bool) -> CameraMark:
+    """A camera at x_cam = R x_cam0 + t: centre -R^T t, optical axis R^T z."""
+    R, _ = cv2.Rodrigues(np.asarray(rotvec, dtype=np.float64).reshape(3, 1))
+    return CameraMark(name, -R.T @ np.asarray(t_m, dtype=np.float64), R.T @ [0.0, 0.0, 1.0],
+                      calibrated)
+
+
+def array_picture(result: CalibrationResult, truth: dict | None = None,
+                  prior_m: np.ndarray | None = None, covariance_m2: np.ndarray | None = None,
+                  uncalibrated: dict[str, str] | None = None) -> ArrayPicture:
+    """What geometry.png shows for a calibration result (see `figures.geometry`).
+
+    Args:
+        truth: truth.json of a simulated session: the reference, and the cameras the result
+            lacks (drawn hollow).
+        prior_m: without a truth, the prior geometry (any frame, the result's microphone
+            order), rigidly fitted to the result, is the reference.
+        covariance_m2: (M, 3, 3) the microphones' covariances; default: the result's standard
+            deviations (result.json keeps no correlations, so the ellipses are axis-aligned).
+        uncalibrated: cameras left out of the calibration, with the reason (default: those of
+            the truth that the result lacks).
+    """
+    ids = [m.id for m in result.microphones]
+    estimate = result.positions()
+    reference, label = None, "reference"
+    if truth is not None:
+        by_id = {int(m["id"]): m["position_m"] for m in truth["microphones"]}
+        reference, label = np.array([by_id[i] for i in ids], dtype=np.float64), "simulated truth"
+    elif prior_m is not None:
+        ok = np.all(np.isfinite(estimate), axis=1)
+        R, t = _kabsch(prior_m[ok], estimate[ok])
+        reference, label = prior_m @ R.T + t, "prior (rigidly fitted)"
+    if covariance_m2 is None:
+        covariance_m2 = np.array([np.diag(np.square(m.std_m)) for m in result.microphones])
+    calibrated = {c.name for c in result.cameras}
+    true_cameras = {c["name"]: c for c in (truth or {}).get("cameras", [])}
+    if uncalibrated is None:
+        uncalibrated = {n: "not calibrated" for n in true_cameras if n not in calibrated}
+    cameras = [_camera_mark(c.name, c.from_cam0.rotvec, c.from_cam0.t_m, True)
+               for c in result.cameras]
+    missing = []
+    for name, why in uncalibrated.items():
+        if name in true_cameras:
+            cam = true_cameras[name]["from_cam0"]
+            cameras.append(_camera_mark(name, cam["rotvec"], cam["t_m"], False))
+        else:
+            missing.append(f"{name} ({why})")
+    sources = np.array([p.speakers_m for p in result.poses], dtype=np.float64).reshape(-1, 3)
+    return ArrayPicture(estimate, covariance_m2, reference, label, tuple(cameras), sources,
+                        tuple(missing))
+
+
+def tof_residuals(run: CalibrationRun) -> TofResiduals:
+    """The solution's time-of-flight residuals (outliers and unplaced microphones out)."""
+    sol = run.solution
+    placed = np.all(np.isfinite(sol.positions_m), axis=1)
+    residuals = np.where(sol.outliers, np.nan, sol.residuals_s)[:, placed]
+    poses = np.array([pose_index(p.step) for p in run.speakers.poses])
+    return TofResiduals(
+        residuals_s=residuals,
+        pose_of_source=np.repeat(poses, run.data.n_speakers),
+        sources_m=run.speakers.positions_m.reshape(-1, 3),
+        mics_m=sol.positions_m[placed],
+        mic_ids=np.asarray(run.data.mic_ids)[placed],
+        boards=tuple(b for b, ok in zip(run.data.mic_boards, placed, strict=True) if ok))
+
+
+def corner_residuals(run: CalibrationRun) -> list[CornerResiduals]:
+    """Every calibrated camera's corner residuals: the joint fit's when it ran (outliers
+    left out), else each view's reprojection with its own board pose."""
+    from .bundle import board_views
+
+    cams = run.measurements.cameras
+    names = list(cams.intrinsics)
+    if run.bundle is not None:
+        view_camera, view_pose, corners = board_views(cams, _bundle_steps(run.measurements)[0])
+        kept = ~run.bundle.corner_outliers
+        residuals = run.bundle.corner_residuals_px
+    else:
+        keys = list(cams.views)
+        view_camera = np.array([names.index(name) for name, _ in keys])
+        view_pose = np.arange(len(keys))
+        corners = np.array([cams.views[k].corners_px for k in keys])
+        residuals = np.array([_reprojection_residual(run, k) for k in keys])
+        kept = np.ones(corners.shape[:2], dtype=bool)
+    out = []
+    for i, name in enumerate(names):
+        views = view_camera == i
+        intr = cams.intrinsics[name]
+        out.append(CornerResiduals(name, residuals[views][kept[views]],
+                                   corners[views][kept[views]], intr.K[:2, 2],
+                                   len(np.unique(view_pose[views]))))
+    return out
+
+
+def _reprojection_residual(run: CalibrationRun, key: tuple[str, str]) -> np.ndarray:
+    """Detected minus projected corners (n, 2) of one camera-only board view."""
+    cams = run.measurements.cameras
+    view, intr = cams.views[key], cams.intrinsics[key[0]]
+    projected, _ = cv2.projectPoints(cams.board.object_points(), view.rig_to_cam.rvec,
+                                     view.rig_to_cam.tvec, intr.K, intr.dist)
+    return view.corners_px - projected.reshape(-1, 2)
 
 
 def summary_lines(run: CalibrationRun, truth: dict | None = None) -> list[str]:
@@ -37,22 +181,24 @@ def summary_lines(run: CalibrationRun, truth: dict | None = None) -> list[str]:
     lines = [
         f"{len(r.microphones)} microphones from {len(r.poses)} poses "
         f"({len(r.poses) * run.data.n_speakers} sources), method {r.method}",
-        f"speed of sound {r.speed_of_sound_m_s:.3f} ± {r.speed_of_sound_std_m_s:.3f} m/s; "
-        f"median position std {1e3 * _median_std(run):.3f} mm; "
-        f"TOF residual RMS {1e9 * r.residuals.rms_s:.1f} ns",
+        f"speed of sound {r.speed_of_sound_m_s:.3f} ± "
+        f"{significant(r.speed_of_sound_std_m_s)} m/s; median position std "
+        f"{significant(1e3 * _median_std(run))} mm; TOF residual RMS "
+        f"{significant(1e9 * r.residuals.rms_s)} ns",
     ]
     if truth is not None:
         cmp = compare_with_truth(r, truth)
         lines.append(
             f"against the simulated truth: mean microphone error "
-            f"{1e3 * cmp['mean_mic_error_m']:.3f} mm (max {1e3 * cmp['max_mic_error_m']:.3f}), "
-            f"c error {cmp['speed_of_sound_error_m_s']:+.3f} m/s")
+            f"{significant(1e3 * cmp['mean_mic_error_m'])} mm (max "
+            f"{significant(1e3 * cmp['max_mic_error_m'])} mm), c error "
+            f"{significant(cmp['speed_of_sound_error_m_s'], signed=True)} m/s")
         if r.camera_frozen is not None:
             frozen = compare_with_truth(r, truth, camera_frozen=True)
             lines.append(
                 f"camera frozen (before the joint fit): mean microphone error "
-                f"{1e3 * frozen['mean_mic_error_m']:.3f} mm, c error "
-                f"{frozen['speed_of_sound_error_m_s']:+.3f} m/s")
+                f"{significant(1e3 * frozen['mean_mic_error_m'])} mm, c error "
+                f"{significant(frozen['speed_of_sound_error_m_s'], signed=True)} m/s")
     lines.append("time: " + ", ".join(f"{k} {v:.1f} s" for k, v in r.timings_s.items()))
     return lines
 
@@ -60,6 +206,36 @@ def summary_lines(run: CalibrationRun, truth: dict | None = None) -> list[str]:
 def _median_std(run: CalibrationRun) -> float:
     std = np.array([np.linalg.norm(m.std_m) for m in run.result.microphones])
     return float(np.nanmedian(std)) if np.any(np.isfinite(std)) else float("nan")
+
+
+def step_ranges(steps: list[str]) -> str:
+    """Steps as compact ranges: "pose/0001-0003, pose/0009, refmic"."""
+    numbers = sorted(n for s in steps if (n := pose_index(s)) is not None)
+    parts: list[str] = []
+    start = prev = None
+    for n in [*numbers, None]:
+        if n is not None and prev is not None and n == prev + 1:
+            prev = n
+            continue
+        if start is not None:
+            parts.append(f"pose/{start:04d}" + (f"-{prev:04d}" if prev != start else ""))
+        start = prev = n
+    return ", ".join(parts + sorted(s for s in steps if pose_index(s) is None))
+
+
+def grouped_notes(run: CalibrationRun) -> list[str]:
+    """The result's notes with the images skipped by each camera for one reason grouped
+    into one line, and repeated notes counted."""
+    missed = run.measurements.cameras.missed
+    per_image = {f"{m.camera} {m.step}: {m.reason}" for m in missed}
+    groups: dict[tuple[str, str], list[str]] = {}
+    for m in missed:
+        groups.setdefault((m.camera, m.reason), []).append(m.step)
+    lines = [f"{camera}: {reason} in {len(steps)} image{'s' if len(steps) > 1 else ''} "
+             f"({step_ranges(steps)})" for (camera, reason), steps in sorted(groups.items())]
+    counts = Counter(n for n in run.result.notes if n not in per_image)
+    lines += [n if k == 1 else f"{n} (x{k})" for n, k in counts.items()]
+    return lines
 
 
 def _markdown(run: CalibrationRun, truth: dict | None) -> str:
@@ -70,10 +246,10 @@ def _markdown(run: CalibrationRun, truth: dict | None) -> str:
     if r.speed_of_sound_reference is not None:
         ref = r.speed_of_sound_reference
         out.append(f"- reference microphone fit (paper IV-G): {ref.speed_of_sound_m_s:.3f} ± "
-                   f"{ref.speed_of_sound_std_m_s:.3f} m/s from {ref.n} bursts, distance "
-                   f"residual RMS {1e3 * ref.residual_rms_m:.2f} mm")
+                   f"{significant(ref.speed_of_sound_std_m_s)} m/s from {ref.n} bursts, "
+                   f"distance residual RMS {significant(1e3 * ref.residual_rms_m)} mm")
     out.append(f"- used by the solver: {r.speed_of_sound_m_s:.3f} ± "
-               f"{r.speed_of_sound_std_m_s:.3f} m/s")
+               f"{significant(r.speed_of_sound_std_m_s)} m/s")
     out += [f"- {n}" for n in r.notes if n.startswith("Speed of sound")]
     out += ["", "## Cameras", "", "| camera | fx px | fy px | cx px | cy px | RMS px | views |",
             "|---|---|---|---|---|---|---|"]
@@ -82,20 +258,30 @@ def _markdown(run: CalibrationRun, truth: dict | None) -> str:
                    f"{c.K[1][2]:.2f} | {c.reprojection_rms_px:.3f} | {c.images_used} |")
     out += ["", "## Board latencies (relative to the reference microphone's board)", "",
             "| board | latency µs | std µs |", "|---|---|---|"]
-    out += [f"| {b} | {1e6 * v:+.3f} | {1e6 * r.latency_std_s[b]:.3f} |"
+    out += [f"| {b} | {1e6 * v:+.3f} | {significant(1e6 * r.latency_std_s[b])} |"
             for b, v in r.latency_s.items()]
     out += _frozen_vs_joint(r, truth)
     q = r.tof_quality
     out += ["", "## Times of flight", "",
             f"- median SNR {q.median_snr_db:.1f} dB (5th percentile {q.p05_snr_db:.1f} dB), "
             f"median peak-to-sidelobe {q.median_peak_to_sidelobe_db:.1f} dB, median predicted "
-            f"std {1e9 * q.median_predicted_std_s:.1f} ns",
-            f"- residuals: RMS {1e9 * r.residuals.rms_s:.1f} ns, median |r| "
-            f"{1e9 * r.residuals.median_abs_s:.1f} ns, {r.residuals.n_outliers} outliers of "
-            f"{r.residuals.n_measurements + r.residuals.n_outliers}", "",
-            "![geometry](geometry.png)", "", "![residuals](residuals.png)", "",
-            "![TOF quality](tof_quality.png)", "", "## Notes", ""]
-    out += [f"- {n}" for n in r.notes]
+            f"std {significant(1e9 * q.median_predicted_std_s)} ns",
+            f"- residuals: RMS {significant(1e9 * r.residuals.rms_s)} ns, median |r| "
+            f"{significant(1e9 * r.residuals.median_abs_s)} ns, {r.residuals.n_outliers} "
+            f"outliers of {r.residuals.n_measurements + r.residuals.n_outliers}", "",
+            "## Figures", "",
+            "The array in three views; each arrow is a microphone's error, magnified by the "
+            "factor in the legend, from its reference position; an arrow ending outside its "
+            "ellipse is an error larger than the calibration's 95 % uncertainty.", "",
+            "![geometry](geometry.png)", "",
+            "Time-of-flight residuals: a trend against distance or angle, or one board or pose "
+            "standing out, is a model error.", "",
+            "![residuals](residuals.png)", "",
+            "Corner reprojection residuals per camera: round and without a trend with the "
+            "radius when the camera model fits.", "",
+            "![corners](corners.png)", "", "![TOF quality](tof_quality.png)", "",
+            "## Notes", ""]
+    out += [f"- {n}" for n in grouped_notes(run)]
     return "\n".join(out) + "\n"
 
 
@@ -107,8 +293,8 @@ def _frozen_vs_joint(r: CalibrationResult, truth: dict | None) -> list[str]:
     f, j = r.camera_frozen, r.joint_fit
     out = ["", "## Camera frozen vs joint fit (optical-acoustic bundle adjustment)", "",
            "| quantity | camera frozen | joint |", "|---|---|---|",
-           f"| c (m/s) | {f.speed_of_sound_m_s:.3f} ± {f.speed_of_sound_std_m_s:.3f} | "
-           f"{r.speed_of_sound_m_s:.3f} ± {r.speed_of_sound_std_m_s:.3f} |"]
+           f"| c (m/s) | {f.speed_of_sound_m_s:.3f} ± {significant(f.speed_of_sound_std_m_s)} | "
+           f"{r.speed_of_sound_m_s:.3f} ± {significant(r.speed_of_sound_std_m_s)} |"]
     for c in r.cameras:
         fx, fy = f.focal_px[c.name]
         sx, sy = f.focal_std_px[c.name]
@@ -117,7 +303,7 @@ def _frozen_vs_joint(r: CalibrationResult, truth: dict | None) -> list[str]:
                    f"{c.K[0][0]:.2f} ± {std[0]:.2f}, {c.K[1][1]:.2f} ± {std[1]:.2f} |")
     for b, v in r.latency_s.items():
         out.append(f"| latency {b} (µs) | {1e6 * f.latency_s[b]:+.3f} | {1e6 * v:+.3f} ± "
-                   f"{1e6 * r.latency_std_s[b]:.3f} |")
+                   f"{significant(1e6 * r.latency_std_s[b])} |")
     if truth is not None:
         errors = [compare_with_truth(r, truth, camera_frozen=True), compare_with_truth(r, truth)]
         for key, unit, factor in (("mean_mic_error_m", "mm", 1e3), ("max_mic_error_m", "mm", 1e3),
@@ -126,7 +312,7 @@ def _frozen_vs_joint(r: CalibrationResult, truth: dict | None) -> list[str]:
                                   ("max_latency_error_s", "µs", 1e6)):
             if key in errors[0]:
                 out.append(f"| error vs truth: {key} ({unit}) | "
-                           + " | ".join(f"{factor * e[key]:.4f}" for e in errors) + " |")
+                           + " | ".join(significant(factor * e[key]) for e in errors) + " |")
     sigmas = ", ".join(f"{k} {v:.3g}" for k, v in j.sigmas.items())
     outliers = ", ".join(f"{k} {v}" for k, v in j.corner_outliers.items())
     out += ["", f"- noise estimated from the residuals (px per coordinate for corners, factor "
@@ -135,57 +321,3 @@ def _frozen_vs_joint(r: CalibrationResult, truth: dict | None) -> list[str]:
             f"reference times of flight {j.reference_tof_outliers}",
             f"- chi² per degree of freedom {j.chi2_per_dof:.2f}, {j.iterations} iterations"]
     return out
-
-
-def _plot_geometry(run: CalibrationRun, path: Path) -> None:
-    mics = run.result.positions()
-    fig = plt.figure(figsize=(7, 6))
-    ax = fig.add_subplot(projection="3d")
-    sources = run.speakers.positions_m.reshape(-1, 3)
-    ax.scatter(sources[:, 0], sources[:, 2], -sources[:, 1], s=4, c="tab:orange",
-               label="speaker positions")
-    ax.scatter(mics[:, 0], mics[:, 2], -mics[:, 1], s=10, c="tab:blue", label="microphones")
-    for cam in run.result.cameras:
-        from scipy.spatial.transform import Rotation
-
-        R = Rotation.from_rotvec(cam.from_cam0.rotvec).as_matrix()
-        centre = -R.T @ np.array(cam.from_cam0.t_m)
-        ax.scatter(*centre[[0, 2]], -centre[1], marker="^", s=60, c="k")
-        ax.text(centre[0], centre[2], -centre[1], cam.name)
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("z (m, forward)")
-    ax.set_zlabel("-y (m, up)")
-    ax.legend(loc="upper left")
-    ax.set_title("Camera-0 frame: microphones, cameras, speaker positions")
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-def _plot_residuals(run: CalibrationRun, path: Path) -> None:
-    res = np.where(run.solution.outliers, np.nan, run.solution.residuals_s)
-    n_spk = run.data.n_speakers
-    per_mic = np.sqrt(np.nanmean(res**2, axis=0)) * 1e9
-    per_pose = np.sqrt(np.nanmean(res.reshape(-1, n_spk * res.shape[1]) ** 2, axis=1)) * 1e9
-    fig, (a, b) = plt.subplots(2, 1, figsize=(8, 6))
-    a.bar(np.arange(per_mic.size), per_mic)
-    a.set_xlabel("microphone")
-    a.set_ylabel("residual RMS (ns)")
-    b.bar(np.arange(per_pose.size), per_pose, color="tab:green")
-    b.set_xlabel("pose")
-    b.set_ylabel("residual RMS (ns)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-def _plot_tof_quality(run: CalibrationRun, path: Path) -> None:
-    fig, (a, b) = plt.subplots(1, 2, figsize=(9, 3.5))
-    a.hist(run.tofs.snr_db.ravel(), bins=40)
-    a.set_xlabel("in-band SNR (dB)")
-    a.set_ylabel("measurements")
-    finite = run.tofs.peak_to_sidelobe_db[np.isfinite(run.tofs.peak_to_sidelobe_db)]
-    b.hist(finite, bins=40, color="tab:purple")
-    b.set_xlabel("peak-to-sidelobe (dB)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)

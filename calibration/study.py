@@ -42,6 +42,15 @@ JOINT_FROM_SOURCES = 12
 """Sources (two poses) from which the joint fit is run on each subset too."""
 PAPER_TABLE_II_MM = (10.0, 5.5, 5.0, 4.5)
 """The mean-error thresholds of the paper's Table II, millimetres."""
+PAPER_TABLE_II_SOURCES = {
+    (0.2, 0.6): (3, 7, 23, 51),
+    (0.6, 1.0): (3, 6, 18, 35),
+    (1.0, 1.4): (3, 4, 35, 71),
+    (1.4, 1.8): (3, 24, 25, 27),
+    (1.8, 2.2): (4, 36, None, None),
+}
+"""The paper's Table II: by distance range (m), the sources needed for a mean error below each
+of `PAPER_TABLE_II_MM` (None: not reached)."""
 
 
 @dataclass(frozen=True)

@@ -15,13 +15,20 @@ def small_options() -> SimulationOptions:
     return SimulationOptions(array="scatter48", poses=2, mls_order=9, seed=3)
 
 
+def simulated_session(tmp_path_factory: pytest.TempPathFactory, name: str, *options: str
+                      ) -> Path:
+    """A session recorded by `micam simulate --quiet` with these options, in a new temporary
+    directory (for module- and session-scoped fixtures)."""
+    from acquisition.cli import main
+
+    path = tmp_path_factory.mktemp(name) / "s"
+    assert main(["simulate", "--out", str(path), "--quiet", *options]) == 0
+    return path
+
+
 @pytest.fixture(scope="session")
 def small_session(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A complete simulated session (48 microphones, 3 poses, short bursts: enough to calibrate),
     recorded once per test run. Read it; copy it before changing it."""
-    from acquisition.cli import main
-
-    path = tmp_path_factory.mktemp("small-session") / "s"
-    assert main(["simulate", "--out", str(path), "--array", "scatter48", "--poses", "3",
-                 "--mls-order", "9", "--seed", "3", "--quiet"]) == 0
-    return path
+    return simulated_session(tmp_path_factory, "small-session", "--array", "scatter48",
+                             "--poses", "3", "--mls-order", "9", "--seed", "3")

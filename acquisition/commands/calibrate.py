@@ -210,11 +210,12 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise UserError(str(exc)) from None
     truth = _truth(args, data)
+    prior = _prior(args)
     options = CalibrationOptions(
         method=args.method, latency=args.latency, speed_of_sound=args.speed_of_sound,
         refine_poses=args.refine_poses, weighting=args.weighting,
         allow_interrupted=args.allow_interrupted, joint=not args.no_joint,
-        prior=_prior(args), speed_of_sound_prior=_known_air(args),
+        prior=prior, speed_of_sound_prior=_known_air(args),
         intrinsics=_known_intrinsics(args, data) or None)
     stages = ["load", "cameras", "speakers", "times of flight", "solver", "dispersion",
               "joint fit", "responses"]
@@ -233,7 +234,8 @@ def run(args: argparse.Namespace) -> int:
         bar.n = len(stages)
         bar.refresh()
     run_.result.write(out)
-    report = write_report(run_, args.report or out.parent / (out.stem + "-report"), truth)
+    report = write_report(run_, args.report or out.parent / (out.stem + "-report"), truth,
+                          None if prior is None else prior.positions_m)
     if args.acoular_xml is not None:
         write_acoular_xml(run_.result, args.acoular_xml)
     if args.acoular_calib is not None:

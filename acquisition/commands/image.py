@@ -1,5 +1,6 @@
 """`micam image SESSION --pose N --speaker K --band F --geometry FILE --out map.png`: the
-delay-and-sum and CLEAN-SC maps of one recording, drawn on a camera's image of that pose."""
+delay-and-sum map and the CLEAN-SC components of one recording, drawn on a camera's image of
+that pose over the camera's whole view of the rig plane."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ import argparse
 from pathlib import Path
 
 from ..errors import UserError
+from . import imaging_options
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -14,9 +16,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         "image",
         help="draw the acoustic maps of one recording on the camera image",
         description="Beamform one speaker recording of a pose on the rig plane through the "
-                    "speakers (from the board pose in the geometry file), deconvolve it with "
-                    "CLEAN-SC, and write both maps side by side over the camera's image of the "
-                    "pose as a PNG (paper section VI).",
+                    "speakers (from the board pose in the geometry file), over everything the "
+                    "camera sees of that plane, deconvolve it with CLEAN-SC, and draw the "
+                    "delay-and-sum map and the CLEAN-SC components over the camera's image "
+                    "of the pose with a colour bar in dB (paper section VI, Fig. 15).",
     )
     p.add_argument("session", type=Path, help="session directory")
     p.add_argument("--geometry", required=True, type=Path, metavar="FILE",
@@ -28,71 +31,47 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--fraction", type=int, default=12,
                    help="band width as a fraction of an octave (default 12: 1/12 octave)")
     p.add_argument("--camera", default="cam0", help="camera whose image is used (default cam0)")
-    p.add_argument("--spacing", type=float, default=0.003, metavar="M",
-                   help="grid spacing on the rig plane, metres (default 0.003)")
+    p.add_argument("--spacing", type=float, default=0.004, metavar="M",
+                   help="grid spacing on the rig plane, metres (default 0.004; coarser when "
+                        "the camera's view would need more than 120000 points)")
     p.add_argument("--range-db", type=float, default=15.0,
-                   help="dynamic range of the colour layer, dB (default 15)")
+                   help="dynamic range of the maps, dB below each map's peak (default 15)")
     p.add_argument("--steering", default="true location",
                    help="steering formulation: classic, inverse, 'true level', "
                         "'true location' (default), 'paper eq19', 'paper eq20'")
+    imaging_options.add_arguments(p)
     p.add_argument("--out", required=True, type=Path, help="PNG file to write")
     p.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    import cv2
-    import numpy as np
-
     from acquisition.session import SessionError, SessionReader
-    from calibration.imaging import (
-        CleanScOptions,
-        WelchOptions,
-        band_bins,
-        beamform_csm,
-        clean_sc,
-        cross_spectra,
-        load_geometry,
-    )
-    from calibration.imaging.evaluate import geometry_steering, mic_signals, rig_grid
-    from calibration.imaging.overlay import (
-        map_to_image,
-        render_overlay,
-        spread_components,
-        write_png,
-    )
+    from calibration.figures.style import save
+    from calibration.imaging import load_geometry
+    from calibration.imaging.evaluate import ImagingSettings
+    from calibration.imaging.recording_map import recording_map
+    from calibration.report import significant
 
-    step = f"pose/{args.pose:04d}"
+    if not args.out.parent.is_dir():
+        raise UserError(f"the directory of --out ({args.out.parent}) does not exist")
+    if args.range_db <= 0:
+        raise UserError(f"--range-db {args.range_db} must be positive")
     try:
         reader = SessionReader(args.session)
         geometry = load_geometry(args.geometry)
-        pose = geometry.pose(args.pose)
-        camera = geometry.camera(args.camera)
-        signals, fs = mic_signals(reader, step, f"speaker_{args.speaker}.wav", geometry)
-        image = reader.read_image(step, f"{args.camera}.png")
-        welch = WelchOptions()
-        bins = band_bins(args.band, args.fraction, welch.block_size, fs)
-        band = cross_spectra(signals, fs, bins, welch).band_sum(args.band, args.fraction)
-        rig_speakers = np.asarray(reader.capture["rig"]["speakers_m"], dtype=np.float64)
-        grid = rig_grid(pose, rig_speakers, args.spacing, 0.06)
-        steering = geometry_steering(geometry, grid.points, args.steering)
+        settings, calibrated_from, geometry = imaging_options.corrected_settings(
+            args, reader, geometry, ImagingSettings(fraction=args.fraction,
+                                                    bands_hz=(args.band,)))
+        drawn = recording_map(reader, geometry, args.pose, args.speaker, args.band, settings,
+                              args.camera, args.spacing, args.range_db, args.steering)
     except (SessionError, ValueError) as exc:
         raise UserError(str(exc)) from None
-    h = steering.vectors(args.band)
-    power = steering.amplitude**2
-    das = np.maximum(beamform_csm(h, band.csm[0], True, power), 0.0)
-    clean = clean_sc(band.csm[0], h, CleanScOptions(), power, grid.shape)
-    panels = []
-    for title, values in (("delay-and-sum", das),
-                          ("CLEAN-SC", spread_components(clean.clean_map, grid))):
-        layer = map_to_image(values, grid, camera)
-        panel = render_overlay(image, layer, args.range_db)
-        cv2.putText(panel, f"{title}, {args.band:.0f} Hz 1/{args.fraction} oct, "
-                           f"{args.range_db:g} dB", (20, 40), cv2.FONT_HERSHEY_SIMPLEX, 1.0,
-                    (255, 255, 255), 2, cv2.LINE_AA)
-        panels.append(panel)
-    write_png(args.out, np.hstack(panels))
-    node = int(np.argmax(clean.clean_map))
-    error_mm = 1e3 * np.linalg.norm(grid.points[node] - pose.speakers_m[args.speaker])
-    print(f"wrote {args.out}; CLEAN-SC peak {error_mm:.1f} mm from speaker {args.speaker} "
-          f"({clean.n_iterations} components)")
+    save(drawn.figure, args.out)
+    print(f"wrote {args.out}; CLEAN-SC peak {significant(1e3 * drawn.error_m)} mm from speaker "
+          f"{args.speaker} as the geometry places it (sub-grid; its grid node "
+          f"{significant(1e3 * drawn.node_error_m)} mm away on the "
+          f"{significant(1e3 * drawn.spacing_m)} mm grid), {drawn.n_components} components")
+    if (args.pose, args.speaker) in calibrated_from:
+        print("note: this recording calibrated the channels (--csm-calibration), so its map "
+              "fits the speaker's position by construction; image another one to judge it")
     return 0

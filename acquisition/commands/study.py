@@ -2,7 +2,7 @@
 
 For every distance band, one session is simulated and measured once; the microphones are then
 solved from random subsets of N sources, and the mean error against the truth is tabulated
-beside the bound, as a table (Markdown), JSON and a plot.
+beside the bound, as a table (Markdown), JSON and the paper's Fig. 14 (study.png).
 """
 
 from __future__ import annotations
@@ -45,6 +45,8 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from acquisition.simulated import record_simulated_session
+    from calibration.figures.study import study_figure
+    from calibration.figures.style import save
     from calibration.pipeline import measure
     from calibration.study import PAPER_TABLE_II_MM, source_count_study, sources_needed
     from sim.capture import SimulationOptions
@@ -72,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
     (args.out / "study.json").write_text(json.dumps(results, indent=1))
     table = _markdown(results, PAPER_TABLE_II_MM)
     (args.out / "study.md").write_text(table)
-    _plot(results, args.out / "study.png")
+    save(study_figure(results), args.out / "study.png")
     print(table)
     print(f"written: {args.out / 'study.md'}, study.json, study.png")
     return 0
@@ -103,28 +105,3 @@ def _markdown(results: list[dict], thresholds: tuple[float, ...]) -> str:
         lines.append(f"| {lo:.1f}-{hi:.1f} | " + " | ".join(
             str(n) if n is not None else "not reached" for n in needed) + " |")
     return "\n".join(lines) + "\n"
-
-
-def _plot(results: list[dict], path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    for res in results:
-        n = [r["n_sources"] for r in res["rows"]]
-        label = f"{res['band_m'][0]:.1f}-{res['band_m'][1]:.1f} m"
-        line, = ax.loglog(n, [1e3 * r["mean_error_m"] for r in res["rows"]], "o-", label=label)
-        ax.loglog(n, [1e3 * r["crlb_m"] for r in res["rows"]], "--", color=line.get_color())
-        joint = [(k, 1e3 * r["joint_error_m"]) for k, r in zip(n, res["rows"], strict=True)
-                 if r["joint_error_m"] is not None]
-        if joint:
-            ax.loglog(*zip(*joint, strict=True), "s:", color=line.get_color())
-    ax.set_xlabel("number of sources")
-    ax.set_ylabel("mean microphone error (mm)")
-    ax.set_title("solid: camera-frozen solver; dotted: joint fit; dashed: frozen model's CRLB",
-                 fontsize=9)
-    ax.legend()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)

@@ -9,13 +9,19 @@ CLEAN-SC peak is compared with the speaker's position: eq. 21, eps = |X_s - xi_m
 The CLEAN-SC peak is the grid node with the most clean-map power; its position to a fraction
 of the grid spacing is the sub-grid peak (`peaks.subgrid_peak`) of the dirty map the strongest
 component at that node was taken from. Both the node error (the paper's measure, quantised
-by the grid) and the sub-grid error are reported.
+by the grid: about 0.38 x spacing whatever the band) and the sub-grid error are kept; with a
+simulated session's truth, the error against the true speaker position too (the camera's own
+error taken out).
+
+Recordings are classed by the distance of the rig's pattern centre from camera 0, the distance
+`micam simulate --distance` draws. The channels' responses can be corrected in the CSM before
+beamforming (`ImagingSettings.correction`, see `csm_calibration`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from itertools import pairwise
 from pathlib import Path
 
@@ -26,13 +32,15 @@ from acquisition.session import SessionReader
 from .._cores import resolve_workers
 from .cleansc import LOCKSTEP_BINS, CleanScOptions, clean_sc_many
 from .csm import CrossSpectra, WelchOptions, band_bins, cross_spectra, octave_band_centres
+from .csm_calibration import ChannelResponses, apply_responses, correct_csm, eigen_calibration
 from .geometry import ArrayGeometry, BoardPose
 from .grid import PlaneGrid
 from .parallel import run_in_processes
 from .steering import Formulation, SteeringModel
 
 DISTANCE_BINS_M = (0.0, 0.6, 1.0, 1.5, 2.0, 3.0, np.inf)
-"""Edges of the distance classes of the summary (distance from the array centre)."""
+"""Edges of the distance classes of the summary: the distance of the rig's pattern centre from
+camera 0, as `micam simulate --distance` draws it."""
 
 
 @dataclass(frozen=True)
@@ -52,6 +60,13 @@ class ImagingSettings:
             rig axis (seeded by this and the pose), so that the speakers fall anywhere within a
             cell as on an arbitrary grid; None aligns the grid with the speakers' rig
             coordinates (the paper's speakers then sit on nodes of a 6 mm grid).
+        bands_hz: explicit band centres instead of the nominal ones between band_lo_hz and
+            band_hi_hz (e.g. the one band of `micam image`).
+        correction: channel responses the CSM is corrected for before beamforming
+            (`csm_calibration.correct_csm`, per DFT bin), or None.
+        simulated_error: channel responses applied to every recording's spectra first
+            (`csm_calibration.apply_responses`): a microphone error of a chosen size simulated
+            in the evaluation (the world's own capsule responses are in the recordings).
     """
 
     welch: WelchOptions = field(default_factory=WelchOptions)
@@ -63,6 +78,9 @@ class ImagingSettings:
     formulation: Formulation = Formulation.TRUE_LOCATION
     clean: CleanScOptions = field(default_factory=lambda: CleanScOptions(min_peak_db=20.0))
     offset_seed: int | None = 0
+    bands_hz: tuple[float, ...] | None = None
+    correction: ChannelResponses | None = None
+    simulated_error: ChannelResponses | None = None
 
     def grid_shift(self, pose: int) -> tuple[float, float]:
         """The pose's grid shift in cells (see `offset_seed`)."""
@@ -72,6 +90,8 @@ class ImagingSettings:
         return float(a), float(b)
 
     def band_centres(self) -> np.ndarray:
+        if self.bands_hz is not None:
+            return np.asarray(self.bands_hz, dtype=np.float64)
         return octave_band_centres(self.band_lo_hz, self.band_hi_hz, self.fraction)
 
 
@@ -89,6 +109,20 @@ def mic_signals(reader: SessionReader, step: str, name: str, geometry: ArrayGeom
     cols = [by_id[m] for m in geometry.mic_ids]
     scale = np.array([columns[j]["range_v"] / 32768.0 for j in cols])
     return codes[:, cols].astype(np.float64) * scale, float(fs)
+
+
+def pattern_centre_rig(capture: dict) -> np.ndarray:
+    """The centre of the checkerboard's inner corners in the rig frame (metres), from a
+    session's capture configuration (its "rig": corners_x, corners_y, square_m)."""
+    rig = capture["rig"]
+    return np.array([(rig["corners_x"] - 1) * rig["square_m"] / 2,
+                     (rig["corners_y"] - 1) * rig["square_m"] / 2, 0.0])
+
+
+def pose_distance(pose: BoardPose, capture: dict) -> float:
+    """Distance (m) of the rig's pattern centre from camera 0 at a pose: the distance
+    `micam simulate --distance` draws."""
+    return float(np.linalg.norm(pose.R @ pattern_centre_rig(capture) + pose.t))
 
 
 def rig_grid(pose: BoardPose, rig_speakers_m: np.ndarray, spacing_m: float, margin_m: float,
@@ -112,22 +146,55 @@ def geometry_steering(geometry: ArrayGeometry, points: np.ndarray,
 
 @dataclass(frozen=True)
 class BandLocation:
-    """The CLEAN-SC peak of one band: its grid node and sub-grid position (camera-0 frame)."""
+    """The CLEAN-SC peak of one band: its grid node and sub-grid position (camera-0 frame),
+    its clean-map power, and the dirty (delay-and-sum) map's peak, the first component's."""
 
     band_hz: float
     node_m: np.ndarray
     subgrid_m: np.ndarray
     power: float
+    dirty_peak: float
+
+
+def bin_spectra(signals: np.ndarray, fs: float, settings: ImagingSettings) -> CrossSpectra:
+    """The DFT-bin CSMs of a recording over the bands of the settings, with the settings'
+    simulated channel error applied and their correction made."""
+    n = settings.welch.block_size
+    bins = np.unique(np.concatenate([band_bins(f, settings.fraction, n, fs)
+                                     for f in settings.band_centres()]))
+    spectra = cross_spectra(signals, fs, bins, settings.welch)
+    if settings.simulated_error is not None:
+        spectra = apply_responses(spectra, settings.simulated_error)
+    if settings.correction is not None:
+        spectra = correct_csm(spectra, settings.correction)
+    return spectra
 
 
 def band_spectra(signals: np.ndarray, fs: float, settings: ImagingSettings
                  ) -> list[CrossSpectra]:
     """The band-summed CSMs of a recording, one per band centre of the settings."""
-    n = settings.welch.block_size
-    centres = settings.band_centres()
-    bins = np.unique(np.concatenate([band_bins(f, settings.fraction, n, fs) for f in centres]))
-    spectra = cross_spectra(signals, fs, bins, settings.welch)
-    return [spectra.band_sum(f, settings.fraction) for f in centres]
+    spectra = bin_spectra(signals, fs, settings)
+    return [spectra.band_sum(f, settings.fraction) for f in settings.band_centres()]
+
+
+def channel_calibration(reader: SessionReader, geometry: ArrayGeometry, pose: int,
+                        speaker: int, settings: ImagingSettings) -> ChannelResponses:
+    """Dougherty's eigenvalue calibration (`csm_calibration.eigen_calibration`) of the
+    channels in every band of the settings, from the recording of `speaker` at `pose`, whose
+    position is the geometry's (the camera's). The settings' simulated error is applied to
+    the recording; their correction is not."""
+    step = f"pose/{pose:04d}"
+    name = f"speaker_{speaker}.wav"
+    board = geometry.pose(pose)
+    if not 0 <= speaker < len(board.speakers_m):
+        raise ValueError(f"the rig has speakers 0-{len(board.speakers_m) - 1}, not {speaker}")
+    signals, fs = mic_signals(reader, step, name, geometry)
+    spectra = bin_spectra(signals, fs, replace(settings, correction=None))
+    model = geometry_steering(geometry, board.speakers_m[speaker][None], Formulation.CLASSIC)
+    transfer = np.array([model.vectors(f)[0] for f in spectra.freqs_hz])
+    transfer /= model.distances[0]  # the 1/r_m of a monopole (CLASSIC has none)
+    return eigen_calibration(spectra, transfer, settings.band_centres(), settings.fraction,
+                             f"eigenvalue calibration from {step} speaker {speaker}")
 
 
 def locate(spectra: Iterable[CrossSpectra], steering: SteeringModel, grid: PlaneGrid,
@@ -162,13 +229,25 @@ def locate(spectra: Iterable[CrossSpectra], steering: SteeringModel, grid: Plane
                             key=lambda c: c.power)
             out.append(BandLocation(float(band.freqs_hz[0]), grid.points[node],
                                     grid.at_index(*strongest.subgrid),
-                                    float(result.clean_map[node])))
+                                    float(result.clean_map[node]),
+                                    float(result.components[0].peak)))
     return out
 
 
 @dataclass(frozen=True)
 class Localization:
-    """One evaluated (recording, band): eq. 21 at the grid node and at the sub-grid peak."""
+    """One evaluated (recording, band): eq. 21 at the grid node and at the sub-grid peak.
+
+    Attributes:
+        distance_m: of the rig's pattern centre from camera 0 (`pose_distance`).
+        error_node_m, error_m: the grid node's and the sub-grid peak's distance from the
+            speaker as the geometry (the camera) places it.
+        error_truth_m: the sub-grid peak's distance from the true speaker position (simulated
+            sessions evaluated with their truth), else None.
+        dirty_peak: the delay-and-sum map's peak (the first CLEAN-SC component's), in the
+            CSM's units: compared between evaluations of the same recordings, its ratio says
+            how much of the source's coherent power the map recovers.
+    """
 
     pose: int
     speaker: int
@@ -176,29 +255,38 @@ class Localization:
     band_hz: float
     error_node_m: float
     error_m: float
+    error_truth_m: float | None = None
+    dirty_peak: float = float("nan")
 
 
 @dataclass(frozen=True)
 class Summary:
-    """Error statistics of a set of localizations, in metres."""
+    """Error statistics of a set of localizations, in metres (truth_mean_m: None without a
+    truth)."""
 
     count: int
     mean_m: float
     median_m: float
     p95_m: float
     mean_node_m: float
+    truth_mean_m: float | None = None
 
     @staticmethod
     def of(rows: list[Localization]) -> Summary:
         e = np.array([r.error_m for r in rows])
         node = np.array([r.error_node_m for r in rows])
+        truth = [r.error_truth_m for r in rows if r.error_truth_m is not None]
         return Summary(len(rows), float(e.mean()), float(np.median(e)),
-                       float(np.percentile(e, 95)), float(node.mean()))
+                       float(np.percentile(e, 95)), float(node.mean()),
+                       float(np.mean(truth)) if len(truth) == len(rows) else None)
 
     def to_json(self) -> dict:
-        return {"count": self.count, "mean_mm": 1e3 * self.mean_m,
-                "median_mm": 1e3 * self.median_m, "p95_mm": 1e3 * self.p95_m,
-                "mean_node_mm": 1e3 * self.mean_node_m}
+        out = {"count": self.count, "mean_mm": 1e3 * self.mean_m,
+               "median_mm": 1e3 * self.median_m, "p95_mm": 1e3 * self.p95_m,
+               "mean_node_mm": 1e3 * self.mean_node_m}
+        if self.truth_mean_m is not None:
+            out["truth_mean_mm"] = 1e3 * self.truth_mean_m
+        return out
 
 
 @dataclass(frozen=True)
@@ -233,7 +321,11 @@ class Evaluation:
                          "band_lo_hz": s.band_lo_hz, "band_hi_hz": s.band_hi_hz,
                          "spacing_mm": 1e3 * s.spacing_m, "formulation": str(s.formulation),
                          "loop_gain": s.clean.loop_gain, "min_peak_db": s.clean.min_peak_db,
-                         "grid_offset_seed": s.offset_seed},
+                         "grid_offset_seed": s.offset_seed,
+                         "correction": None if s.correction is None else s.correction.source,
+                         "simulated_error": (None if s.simulated_error is None
+                                             else s.simulated_error.source)},
+            "distance_classes": "distance of the rig's pattern centre from camera 0, m",
             "overall": self.overall().to_json(),
             "by_band": [{"band_hz": b, **v.to_json()} for b, v in self.by_band().items()],
             "by_distance": [{"from_m": lo, "to_m": hi if np.isfinite(hi) else None,
@@ -252,10 +344,13 @@ Recording = tuple[str, str, int]
 
 
 def _evaluate_pose(reader: SessionReader, geometry: ArrayGeometry, settings: ImagingSettings,
-                   pose: int, recordings: list[Recording]) -> list[Localization]:
-    """The localizations of one pose's recordings (one grid and steering model for all)."""
+                   pose: int, recordings: list[Recording], true_speakers: np.ndarray | None
+                   ) -> list[Localization]:
+    """The localizations of one pose's recordings (one grid and steering model for all);
+    true_speakers (n_speakers, 3): the truth's positions of the pose's speakers, or None."""
     rig_speakers = np.asarray(reader.capture["rig"]["speakers_m"], dtype=np.float64)
     board = geometry.pose(pose)
+    distance = pose_distance(board, reader.capture)
     grid = rig_grid(board, rig_speakers, settings.spacing_m, settings.margin_m,
                     settings.grid_shift(pose))
     steering = geometry_steering(geometry, grid.points, settings.formulation)
@@ -263,35 +358,29 @@ def _evaluate_pose(reader: SessionReader, geometry: ArrayGeometry, settings: Ima
     rows = []
     for step, name, speaker in recordings:
         signals, fs = mic_signals(reader, step, name, geometry)
-        truth = board.speakers_m[speaker]
-        distance = float(np.linalg.norm(truth - geometry.centre_m))
+        located = board.speakers_m[speaker]
         for loc in locate(band_spectra(signals, fs, settings), steering, grid, settings.clean,
                           vectors):
-            rows.append(Localization(pose, speaker, distance, loc.band_hz,
-                                     float(np.linalg.norm(loc.node_m - truth)),
-                                     float(np.linalg.norm(loc.subgrid_m - truth))))
+            rows.append(Localization(
+                pose, speaker, distance, loc.band_hz,
+                float(np.linalg.norm(loc.node_m - located)),
+                float(np.linalg.norm(loc.subgrid_m - located)),
+                None if true_speakers is None
+                else float(np.linalg.norm(loc.subgrid_m - true_speakers[speaker])),
+                loc.dirty_peak))
     return rows
 
 
 def _evaluate_pose_in_worker(session: Path, geometry: ArrayGeometry, settings: ImagingSettings,
-                             pose: int, recordings: list[Recording]) -> list[Localization]:
+                             pose: int, recordings: list[Recording],
+                             true_speakers: np.ndarray | None) -> list[Localization]:
     """`_evaluate_pose` in a worker process, which opens the session itself."""
-    return _evaluate_pose(SessionReader(session), geometry, settings, pose, recordings)
+    return _evaluate_pose(SessionReader(session), geometry, settings, pose, recordings,
+                          true_speakers)
 
 
-def evaluate_session(reader: SessionReader, geometry: ArrayGeometry,
-                     settings: ImagingSettings | None = None,
-                     progress: Callable[[int, int], None] | None = None,
-                     workers: int | None = 1) -> Evaluation:
-    """Localize every speaker recording of every completed pose step (paper VI-A).
-
-    Args:
-        progress: called with (done, total) recordings after each pose.
-        workers: processes the poses are shared over (None: all cores; 1: this process; see
-            `parallel.run_in_processes`, and `clean_sc_spectra` for what a script calling it
-            with more than 1 must do).
-    """
-    settings = settings or ImagingSettings()
+def session_recordings(reader: SessionReader) -> dict[int, list[Recording]]:
+    """The speaker recordings of every completed pose step, by pose number."""
     by_pose: dict[int, list[Recording]] = {}
     for step, record in sorted(reader.steps().items()):
         pose = pose_index(step)
@@ -300,16 +389,47 @@ def evaluate_session(reader: SessionReader, geometry: ArrayGeometry,
         for name, file in sorted(record.files.items()):
             if file.role == "recording" and "speaker" in file.meta:
                 by_pose.setdefault(pose, []).append((step, name, int(file.meta["speaker"])))
+    return by_pose
+
+
+def evaluate_session(reader: SessionReader, geometry: ArrayGeometry,
+                     settings: ImagingSettings | None = None,
+                     progress: Callable[[int, int], None] | None = None,
+                     workers: int | None = 1, poses: Iterable[int] | None = None,
+                     skip: Iterable[tuple[int, int]] = (),
+                     truth: ArrayGeometry | None = None) -> Evaluation:
+    """Localize every speaker recording of every completed pose step (paper VI-A).
+
+    Args:
+        progress: called with (done, total) recordings after each pose.
+        workers: processes the poses are shared over (None: all cores; 1: this process; see
+            `parallel.run_in_processes`, and `clean_sc_spectra` for what a script calling it
+            with more than 1 must do).
+        poses: evaluate only these pose numbers (default: every pose recorded).
+        skip: (pose, speaker) recordings left out (e.g. the one the channels were calibrated
+            from, which would score itself).
+        truth: a simulated session's truth: each error is also measured against the true
+            speaker positions (`Localization.error_truth_m`).
+    """
+    settings = settings or ImagingSettings()
+    left_out = set(skip)
+    wanted = None if poses is None else set(poses)
+    by_pose = {pose: kept for pose, recordings in session_recordings(reader).items()
+               if wanted is None or pose in wanted
+               if (kept := [r for r in recordings if (pose, r[2]) not in left_out])}
     if not by_pose:
         raise ValueError(f"{reader.path} has no completed pose recordings to evaluate")
+    true_speakers = {pose: None if truth is None else truth.pose(pose).speakers_m
+                     for pose in by_pose}
     total = sum(len(r) for r in by_pose.values())
     n_processes = min(resolve_workers(workers), len(by_pose))
     if n_processes > 1:
-        jobs = [(Path(reader.path), geometry, settings, pose, recordings)
+        jobs = [(Path(reader.path), geometry, settings, pose, recordings, true_speakers[pose])
                 for pose, recordings in by_pose.items()]
         results = run_in_processes(_evaluate_pose_in_worker, jobs, n_processes)
     else:
-        results = (_evaluate_pose(reader, geometry, settings, pose, recordings)
+        results = (_evaluate_pose(reader, geometry, settings, pose, recordings,
+                                  true_speakers[pose])
                    for pose, recordings in by_pose.items())
     rows: list[Localization] = []
     done = 0

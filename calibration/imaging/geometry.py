@@ -13,17 +13,26 @@ Positions are metres in the camera-0 frame (OpenCV: x right, y down, z forward);
 optional (needed for scanning the rig plane and for evaluation). When the document also has
 "board_latencies_s" (truth.json) or "latency_s" (result.json), {serial: seconds}, and each
 microphone its "board", the latencies are
-applied per microphone (`ArrayGeometry.mic_latencies_s`); otherwise they are taken as 0.
+applied per microphone (`ArrayGeometry.mic_latencies_s`); otherwise they are taken as 0. A
+microphone's own "delay_s" (result.json: its capsule's and channel's delay beyond its board's
+latency, when the joint fit estimated it) is added to its latency.
+An optional "microphone_responses" (result.json: each channel's gain and phase against
+frequency, see `csm_calibration`) is read into `ArrayGeometry.responses`.
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
 import numpy as np
+
+from .csm_calibration import ChannelResponses, responses_from_document
+
+MAX_LATENCY_S = 0.01
+"""Largest channel latency or delay a geometry file may state (a board's is microseconds)."""
 
 
 def _rotation(rotvec: list[float]) -> np.ndarray:
@@ -66,7 +75,11 @@ class BoardPose:
 
 @dataclass(frozen=True)
 class ArrayGeometry:
-    """Microphone ids, positions (M, 3) and channel latencies (M,), c, cameras, rig poses."""
+    """Microphone ids, positions (M, 3) and channel latencies (M,), c, cameras, rig poses,
+    and the channels' complex responses when the calibration measured them.
+
+    mic_latencies_s is each channel's board latency plus its microphone's own delay
+    (mic_own_delays_s, zeros when the document has none)."""
 
     mic_ids: tuple[int, ...]
     mic_positions_m: np.ndarray
@@ -74,6 +87,8 @@ class ArrayGeometry:
     cameras: tuple[CameraView, ...]
     poses: dict[int, BoardPose]
     mic_latencies_s: np.ndarray
+    responses: ChannelResponses | None = None
+    mic_own_delays_s: np.ndarray | None = None
 
     @property
     def n_mics(self) -> int:
@@ -83,6 +98,14 @@ class ArrayGeometry:
     def centre_m(self) -> np.ndarray:
         """The centroid of the microphones (the array's centre of projection, paper VI-B)."""
         return self.mic_positions_m.mean(axis=0)
+
+    def without_own_delays(self) -> ArrayGeometry:
+        """The geometry with the board latencies only: for a CSM corrected by responses that
+        already hold each microphone's own delay (result.json's microphone_responses)."""
+        if self.mic_own_delays_s is None:
+            return self
+        return replace(self, mic_latencies_s=self.mic_latencies_s - self.mic_own_delays_s,
+                       mic_own_delays_s=None)
 
     def camera(self, name: str) -> CameraView:
         for cam in self.cameras:
@@ -122,7 +145,8 @@ def geometry_from_dict(doc: dict, source: str = "geometry") -> ArrayGeometry:
         # reference microphone's board). Only differences between channels matter for imaging.
         by_board = doc.get("board_latencies_s", doc.get("latency_s", {}))
         board_latency = {str(k): float(v) for k, v in by_board.items()}
-        latencies = np.array([board_latency.get(str(m.get("board")), 0.0) for m in mics])
+        own = np.array([float(m.get("delay_s") or 0.0) for m in mics])
+        latencies = np.array([board_latency.get(str(m.get("board")), 0.0) for m in mics]) + own
     except (KeyError, TypeError, ValueError) as exc:
         raise ValueError(f"{source}: not a calibration result or truth document ({exc!r}); "
                          "it needs microphones[].id/position_m, speed_of_sound_m_s and "
@@ -131,7 +155,12 @@ def geometry_from_dict(doc: dict, source: str = "geometry") -> ArrayGeometry:
         raise ValueError(f"{source}: microphone positions must be (M, 3) with unique ids")
     if not c > 0:
         raise ValueError(f"{source}: speed of sound {c} m/s must be positive")
-    return ArrayGeometry(ids, positions, c, cameras, poses, latencies)
+    if not np.all(np.abs(latencies) < MAX_LATENCY_S):
+        raise ValueError(f"{source}: channel latencies and delays must be finite and below "
+                         f"{1e3 * MAX_LATENCY_S:g} ms")
+    return ArrayGeometry(ids, positions, c, cameras, poses, latencies,
+                         responses_from_document(doc, ids, source),
+                         own if np.any(own) else None)
 
 
 def load_geometry(path: Path) -> ArrayGeometry:

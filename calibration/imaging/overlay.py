@@ -4,20 +4,42 @@ A map computed on a `PlaneGrid` in the camera-0 frame is resampled at every pixe
 each pixel is undistorted with the camera's intrinsics and distortion (OpenCV model), its ray
 is intersected with the scan plane, and the map is interpolated bilinearly there. This is
 exact for any camera pose, so a map on the rig plane registers on the image of a camera away
-from the array centre too. The map is then drawn as a colour layer over the image, showing
-levels within a dynamic range in dB below the map's maximum, and written as PNG.
+from the array centre too. `field_of_view_grid` makes the scan surface cover everything a
+camera sees of the rig plane, so that a map fills the image (`calibration.figures.maps`
+draws it).
 """
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
-
 import cv2
 import numpy as np
 
-from .geometry import CameraView
+from .cleansc import CleanScResult, Component
+from .geometry import BoardPose, CameraView
 from .grid import PlaneGrid
+
+MAX_VIEW_POINTS = 120_000
+"""Largest grid `field_of_view_grid` makes (about 1.5 s of CLEAN-SC per band on 2 cores);
+beyond it the spacing grows."""
+MAX_VIEW_EXTENT_M = 3.0
+"""How far from the rig's centre a field-of-view grid reaches at most (a plane seen at a
+grazing angle reaches the horizon)."""
+
+
+def _rays_on_plane(camera: CameraView, pixels: np.ndarray, origin_m: np.ndarray,
+                   normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where the rays of `pixels` (N, 2) of `camera` meet the plane through origin_m with
+    `normal` (camera-0 frame): points (N, 3), and whether each ray meets it in front of the
+    camera (N,). Pixels are undistorted with the camera's intrinsics and distortion."""
+    rays = cv2.undistortPoints(pixels.reshape(-1, 1, 2).astype(np.float64), camera.K,
+                               camera.dist).reshape(-1, 2)
+    centre = -camera.R.T @ camera.t
+    direction = np.column_stack([rays, np.ones(len(rays))]) @ camera.R  # rows: R^T d
+    denom = direction @ normal
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = ((origin_m - centre) @ normal) / denom
+    hit = np.isfinite(s) & (s > 0)
+    return centre + np.where(hit, s, 0.0)[:, None] * direction, hit
 
 
 def map_to_image(values: np.ndarray, grid: PlaneGrid, camera: CameraView) -> np.ndarray:
@@ -28,17 +50,8 @@ def map_to_image(values: np.ndarray, grid: PlaneGrid, camera: CameraView) -> np.
         raise ValueError(f"the map has {values.size} values but the grid {grid.size} points")
     h, w = camera.height, camera.width
     cols, rows = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-    pixels = np.stack([cols.ravel(), rows.ravel()], axis=1).reshape(-1, 1, 2)
-    rays = cv2.undistortPoints(pixels, camera.K, camera.dist).reshape(-1, 2)
-    # Ray x = centre + s * direction in the camera-0 frame.
-    centre = -camera.R.T @ camera.t
-    direction = np.column_stack([rays, np.ones(len(rays))]) @ camera.R  # rows: R^T d
-    normal = grid.normal
-    denom = direction @ normal
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = ((grid.origin_m - centre) @ normal) / denom
-    hit = np.isfinite(s) & (s > 0)
-    points = centre + np.where(hit, s, 0.0)[:, None] * direction
+    pixels = np.stack([cols.ravel(), rows.ravel()], axis=1)
+    points, hit = _rays_on_plane(camera, pixels, grid.origin_m, grid.normal)
     uv = grid.coordinates(points)
     du, dv = grid.spacing()
     fi = (uv[:, 0] - grid.u_m[0]) / du if du else np.zeros(len(uv))
@@ -51,44 +64,50 @@ def map_to_image(values: np.ndarray, grid: PlaneGrid, camera: CameraView) -> np.
     return image.astype(np.float64)
 
 
-def spread_components(clean_map: np.ndarray, grid: PlaneGrid, sigma_cells: float = 1.5
-                      ) -> np.ndarray:
-    """A CLEAN-SC map (point components on grid nodes) convolved with a Gaussian "clean beam"
-    of sigma_cells grid cells, so that its sources show as spots; same shape, flat."""
-    image = np.asarray(clean_map, dtype=np.float64).reshape(grid.shape)
-    size = 2 * int(np.ceil(3 * sigma_cells)) + 1
-    return cv2.GaussianBlur(image, (size, size), sigma_cells,
-                            borderType=cv2.BORDER_CONSTANT).ravel()
+def field_of_view_grid(camera: CameraView, pose: BoardPose, z_rig_m: float, spacing_m: float,
+                       max_points: int = MAX_VIEW_POINTS) -> PlaneGrid:
+    """The rig plane Z = z_rig_m of a pose over all that `camera` sees of it: the rays of
+    the image's border meet the plane, and the grid spans their rig coordinates (at most
+    `MAX_VIEW_EXTENT_M` from the rig's origin), every spacing_m, or coarser if the grid would
+    exceed max_points points. Maps on it fill the whole image instead of ending at the
+    rig's plate."""
+    if spacing_m <= 0:
+        raise ValueError(f"grid spacing {spacing_m} m must be positive")
+    w, h = camera.width, camera.height
+    edge = np.linspace(0.0, 1.0, 65)
+    border = np.vstack([np.column_stack([edge * (w - 1), np.zeros_like(edge)]),
+                        np.column_stack([edge * (w - 1), np.full_like(edge, h - 1)]),
+                        np.column_stack([np.zeros_like(edge), edge * (h - 1)]),
+                        np.column_stack([np.full_like(edge, w - 1), edge * (h - 1)])])
+    origin = pose.R @ np.array([0.0, 0.0, z_rig_m]) + pose.t
+    points, hit = _rays_on_plane(camera, border, origin, pose.R[:, 2])
+    if hit.sum() < 3:
+        raise ValueError(f"{camera.name} does not see the rig plane of pose {pose.index}")
+    rig_xy = ((points[hit] - pose.t) @ pose.R)[:, :2]
+    if not hit.all():  # part of the border looks past the plane's horizon
+        rig_xy = np.vstack([rig_xy, [[-MAX_VIEW_EXTENT_M] * 2, [MAX_VIEW_EXTENT_M] * 2]])
+    lo = np.maximum(rig_xy.min(axis=0), -MAX_VIEW_EXTENT_M)
+    hi = np.minimum(rig_xy.max(axis=0), MAX_VIEW_EXTENT_M)
+    # The smallest spacing s with (Lu / s + 1)(Lv / s + 1) <= max_points.
+    lu, lv = hi - lo
+    k = max_points - 1
+    spacing = max(spacing_m, float((lu + lv + np.sqrt((lu + lv) ** 2 + 4 * k * lu * lv))
+                                   / (2 * k)) * (1 + 1e-9))
+    return PlaneGrid.on_rig(pose.R, pose.t, (lo[0], hi[0]), (lo[1], hi[1]), z_rig_m, spacing)
 
 
-def render_overlay(image: np.ndarray, layer: np.ndarray, dynamic_range_db: float = 15.0,
-                   alpha: float = 0.6, colormap: int = cv2.COLORMAP_JET) -> np.ndarray:
-    """The image (grey or BGR uint8) with `layer` (same height and width, power values, NaN
-    where absent) drawn in colour where it lies within dynamic_range_db of its maximum."""
-    if dynamic_range_db <= 0:
-        raise ValueError(f"dynamic range {dynamic_range_db} dB must be positive")
-    if image.shape[:2] != layer.shape:
-        raise ValueError(f"image {image.shape[:2]} and layer {layer.shape} differ in size")
-    base = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR) if image.ndim == 2 else image.copy()
-    finite = np.isfinite(layer) & (layer > 0)
-    if not finite.any():
-        return base
-    with np.errstate(divide="ignore", invalid="ignore"):
-        level = 10.0 * np.log10(np.where(finite, layer, np.nan) / np.nanmax(layer[finite]))
-    show = finite & (level >= -dynamic_range_db)
-    scaled = np.clip((level + dynamic_range_db) / dynamic_range_db, 0, 1)
-    colour = cv2.applyColorMap(np.nan_to_num(scaled * 255).astype(np.uint8), colormap)
-    blended = cv2.addWeighted(base, 1 - alpha, colour, alpha, 0)
-    base[show] = blended[show]
-    return base
-
-
-def write_png(path: Path, image: np.ndarray) -> None:
-    """Write an image as PNG atomically (a temporary file renamed into place)."""
-    path = Path(path)
-    ok, data = cv2.imencode(".png", image)
-    if not ok:
-        raise ValueError(f"cannot encode an image of shape {image.shape} as PNG")
-    tmp = path.with_name(path.name + ".partial")
-    tmp.write_bytes(data.tobytes())
-    os.replace(tmp, path)
+def clean_sources(result: CleanScResult, grid: PlaneGrid) -> tuple[np.ndarray, np.ndarray]:
+    """The CLEAN-SC map as point sources to draw: one per grid node that received components,
+    with their summed power (the clean map's value there) at the sub-grid peak of the
+    strongest of them. Returns points (K, 3) and powers (K,), strongest first."""
+    strongest: dict[int, Component] = {}
+    for c in result.components:
+        if c.index not in strongest or c.power > strongest[c.index].power:
+            strongest[c.index] = c
+    nodes = sorted(strongest, key=lambda i: -result.clean_map[i])
+    points = []
+    for i in nodes:
+        subgrid = strongest[i].subgrid
+        points.append(grid.points[i] if subgrid is None else grid.at_index(*subgrid))
+    return (np.array(points).reshape(-1, 3),
+            np.array([result.clean_map[i] for i in nodes], dtype=np.float64))

@@ -44,15 +44,66 @@ def test_evaluation_locates_every_speaker(session: Path) -> None:
     assert json.loads(json.dumps(result.to_json()))["overall"]["count"] == 30
 
 
-def test_image_command_writes_both_maps(session: Path, capsys: pytest.CaptureFixture) -> None:
+def test_image_command_writes_a_small_figure(session: Path, capsys: pytest.CaptureFixture
+                                            ) -> None:
     out = session.parent / "map.png"
     assert run_command(image, [str(session), "--geometry", str(session / "truth.json"),
                                "--pose", "0", "--speaker", "4", "--band", "8000",
-                               "--spacing", "0.004", "--out", str(out)]) == 0
+                               "--out", str(out)]) == 0
     picture = cv2.imread(str(out))
-    assert picture.shape == (960, 2 * 1280, 3)
-    error_mm = float(capsys.readouterr().out.split("CLEAN-SC peak ")[1].split(" mm")[0])
-    assert error_mm < 4.0
+    assert 1000 <= picture.shape[1] <= 1100 and picture.shape[0] < 600  # a page, not 2560 px
+    assert out.stat().st_size < 200_000
+    printed = capsys.readouterr().out
+    error_mm = float(printed.split("CLEAN-SC peak ")[1].split(" mm")[0])
+    assert 0 < error_mm < 0.5  # sub-grid, printed with its significant digits (not "0.0")
+
+
+def _png_pixel(fig, ax, xy: np.ndarray) -> np.ndarray:
+    """Row, column of the saved PNG where data point xy of ax lands."""
+    x, y = ax.transData.transform(np.atleast_2d(xy)).T
+    return np.column_stack([fig.bbox.height - y, x])
+
+
+def test_map_figure_marks_speakers_and_sources_at_their_pixels(session: Path,
+                                                              tmp_path: Path) -> None:
+    from calibration.figures.maps import PLAYING_COLOUR, map_colours
+    from calibration.figures.style import save
+    from calibration.imaging.recording_map import recording_map
+
+    drawn = recording_map(SessionReader(session), load_geometry(session / "truth.json"), 0, 2,
+                          8000.0, ImagingSettings(bands_hz=(8000.0,)), dynamic_range_db=20.0)
+    fig = drawn.figure
+    path = save(fig, tmp_path / "map.png")
+    rgb = cv2.imread(str(path))[..., ::-1].astype(float)
+    das, clean = (next(a for a in fig.axes if a.get_gid() == f"map-{k}") for k in (0, 1))
+    bar = next(a for a in fig.axes if a.get_gid() == "colour-bar")
+    assert "dB" in bar.get_ylabel() and bar.get_ylim() == pytest.approx((-20.0, 0.0))
+    assert das.get_aspect() == 1.0 and clean.get_aspect() == 1.0  # square image pixels
+    ring = np.sqrt(60) / 2 * 150 / 72  # marker radius in pixels: s = 60 pt^2, 150 dpi
+    angles = np.linspace(0, 2 * np.pi, 24, endpoint=False)
+    for ax in (das, clean):
+        for k, centre in enumerate(_png_pixel(fig, ax, drawn.speakers_px)):
+            colour = np.array([255.0, 255.0, 255.0]) if k != 2 else 255 * np.array(
+                [int(PLAYING_COLOUR[i:i + 2], 16) / 255 for i in (1, 3, 5)])
+            near = np.zeros(angles.size, dtype=bool)
+            for radius in (ring - 1, ring, ring + 1):  # the ring's line is 2 px wide
+                rows = np.rint(centre[0] + radius * np.sin(angles)).astype(int)
+                cols = np.rint(centre[1] + radius * np.cos(angles)).astype(int)
+                near |= np.linalg.norm(rgb[rows, cols] - colour, axis=1) < 60
+            assert near.mean() > 0.8, (ax.get_gid(), k)  # a ring of the right colour there
+    # The strongest CLEAN-SC point is drawn on the playing speaker in the map's top colour.
+    top = 255 * np.array(map_colours()(1.0)[:3])
+    row, col = np.rint(_png_pixel(fig, clean, drawn.speakers_px[2])[0]).astype(int)
+    patch = rgb[row - 1:row + 2, col - 1:col + 2].reshape(-1, 3)
+    assert np.min(np.linalg.norm(patch - top, axis=1)) < 40
+    # The delay-and-sum map's brightest pixels sit on it too.
+    x0, x1 = np.rint(das.get_window_extent().intervalx).astype(int)
+    y1, y0 = np.rint(fig.bbox.height - das.get_window_extent().intervaly).astype(int)
+    panel = rgb[y0:y1, x0:x1]
+    bright = np.argwhere(np.linalg.norm(panel - top, axis=2) < 30)
+    assert bright.size
+    centre = _png_pixel(fig, das, drawn.speakers_px[2])[0] - [y0, x0]
+    assert np.linalg.norm(bright.mean(axis=0) - centre) < 6  # figure pixels
 
 
 def test_evaluate_imaging_command_reports_and_writes_json(session: Path,
@@ -90,6 +141,25 @@ def test_geometry_reads_board_latencies_per_microphone(session: Path) -> None:
     geometry = load_geometry(session / "truth.json")
     for mic, latency in zip(truth["microphones"], geometry.mic_latencies_s, strict=True):
         assert latency == truth["board_latencies_s"][mic["board"]]
+
+
+def test_geometry_adds_each_microphones_own_delay(session: Path, tmp_path: Path) -> None:
+    truth = json.loads((session / "truth.json").read_text())
+    plain = load_geometry(session / "truth.json")
+    for k, mic in enumerate(truth["microphones"]):
+        mic["delay_s"] = 1e-7 * (k % 5)
+    path = tmp_path / "result.json"
+    path.write_text(json.dumps(truth))
+    delayed = load_geometry(path)
+    own = np.array([1e-7 * (m["id"] % 5) for m in sorted(truth["microphones"],
+                                                         key=lambda m: m["id"])])
+    np.testing.assert_allclose(delayed.mic_latencies_s - plain.mic_latencies_s, own)
+    np.testing.assert_allclose(delayed.without_own_delays().mic_latencies_s,
+                               plain.mic_latencies_s)
+    truth["microphones"][3]["delay_s"] = float("nan")
+    path.write_text(json.dumps(truth))
+    with pytest.raises(ValueError, match="finite"):
+        load_geometry(path)
 
 
 def test_poses_in_worker_processes_give_the_same_localizations(tmp_path: Path) -> None:

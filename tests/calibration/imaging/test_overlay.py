@@ -1,17 +1,15 @@
-"""Maps drawn on camera images put the source on the speaker's pixel, for any camera."""
+"""Maps drawn on camera images put the source on the speaker's pixel, for any camera, and
+cover the camera's whole view of the rig plane."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
-import cv2
 import numpy as np
 import pytest
 
-from calibration.imaging import CameraView, SteeringModel, beamform_csm
+from calibration.imaging import CameraView, CleanScOptions, SteeringModel, beamform_csm, clean_sc
 from calibration.imaging.evaluate import rig_grid
 from calibration.imaging.geometry import BoardPose
-from calibration.imaging.overlay import map_to_image, render_overlay, spread_components, write_png
+from calibration.imaging.overlay import clean_sources, field_of_view_grid, map_to_image
 from sim.geometry import CameraModel
 
 from .helpers import C, point_source_csm, sphere_bench
@@ -58,18 +56,37 @@ def test_pixels_off_the_grid_are_empty(scene) -> None:
     assert np.isnan(layer[0, 0]) and np.isfinite(layer).sum() > 1000
 
 
-def test_overlay_png_keeps_the_image_outside_the_layer(scene, tmp_path: Path) -> None:
+@pytest.mark.parametrize("camera", [0, 1])
+def test_field_of_view_grid_covers_the_whole_image(scene, camera: int) -> None:
+    world, _, speakers, _ = scene
+    model = world.layout.cameras[camera]
+    pose = BoardPose(0, world.rig_pose.R, world.rig_pose.t, speakers)
+    grid = field_of_view_grid(view_of(model), pose, -0.0025, 0.01)
+    layer = map_to_image(np.ones(grid.size), grid, view_of(model))
+    assert np.isfinite(layer).mean() > 0.995  # every pixel but the last border ones
+    np.testing.assert_allclose(grid.spacing(), (0.01, 0.01))
+    coarse = field_of_view_grid(view_of(model), pose, -0.0025, 0.001, max_points=10_000)
+    assert coarse.size <= 10_000 and coarse.spacing()[0] > 0.001
+    with pytest.raises(ValueError, match="spacing"):
+        field_of_view_grid(view_of(model), pose, -0.0025, 0.0)
+
+
+def test_clean_sources_sum_the_components_of_each_point(scene) -> None:
+    world, grid, speakers, _ = scene
+    mics = world.layout.mic_positions_m
+    steering = SteeringModel(grid.points, mics, C)
+    csm = point_source_csm(mics, speakers[[0, 3]], np.array([1.0, 0.5]), 8000.0)
+    result = clean_sc(csm, steering.vectors(8000.0), CleanScOptions(), grid_shape=grid.shape)
+    points, powers = clean_sources(result, grid)
+    assert len(points) == np.count_nonzero(result.clean_map)
+    assert powers.sum() == pytest.approx(result.clean_map.sum())
+    assert np.all(np.diff(powers) <= 0)  # strongest first
+    # The two strongest points are the two sources (sub-grid, within a fraction of a cell).
+    assert np.linalg.norm(points[0] - speakers[0]) < 0.5e-3
+    assert np.linalg.norm(points[1] - speakers[3]) < 0.5e-3
+
+
+def test_map_of_the_wrong_size_is_refused(scene) -> None:
     world, grid, _, maps = scene
-    model = world.layout.cameras[0]
-    image = np.full((model.height, model.width), 90, np.uint8)
-    layer = map_to_image(spread_components(maps[1], grid), grid, view_of(model))
-    out = render_overlay(image, layer, dynamic_range_db=10.0)
-    write_png(tmp_path / "map.png", out)
-    back = cv2.imread(str(tmp_path / "map.png"))
-    assert back.shape == (model.height, model.width, 3)
-    assert np.all(back[0, 0] == 90) and not np.all(back == 90)
-    assert not list(tmp_path.glob("*.partial"))
-    with pytest.raises(ValueError, match="dynamic range"):
-        render_overlay(image, layer, dynamic_range_db=0.0)
     with pytest.raises(ValueError, match="grid"):
-        map_to_image(maps[0][:-1], grid, view_of(model))
+        map_to_image(maps[0][:-1], grid, view_of(world.layout.cameras[0]))

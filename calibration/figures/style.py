@@ -1,0 +1,111 @@
+"""The one look of micam's figures: sizes for a paper's columns and a screen, fonts, colours.
+
+Sizes are those of a two-column journal page (IEEE: a column 3.5 in, the page 7.16 in wide);
+at `DPI` a page-wide figure is about 1070 pixels across, readable on a screen without
+scaling. Text is 8 pt (7 pt for tick labels), the size a journal prints figure text at.
+Colours: `MAP_COLORMAP` for acoustic maps (perceptually uniform, monotonic in lightness, so
+that a level reads the same in grey print), the Okabe-Ito palette (`PALETTE`, distinguishable
+with the common colour-vision deficiencies) for lines and categories.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+from PIL import Image
+
+matplotlib.use("Agg")  # headless: figures are drawn on servers without a display
+import matplotlib.pyplot as plt
+import matplotlib.style
+from matplotlib.figure import Figure
+from matplotlib.rcsetup import cycler
+
+COLUMN_IN = 3.5
+"""Width of one column of a two-column page, inches."""
+PAGE_IN = 7.16
+"""Width of a two-column page, inches."""
+DPI = 150
+"""Pixels per inch of the PNGs."""
+MAP_COLORMAP = "inferno"
+"""Acoustic maps: perceptually uniform, dark = low level (never jet)."""
+PALETTE = ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#000000",
+           "#999999")
+"""Okabe-Ito colours (blue, vermillion, green, purple, orange, sky blue, black) and a grey;
+their yellow is left out, too pale on white."""
+
+TIMES = "\u00d7"
+"""The multiplication sign, for magnifications in labels."""
+MINUS = "\u2212"
+"""The minus sign, for differences in labels."""
+
+PNG_COLOURS = 256
+"""Colours of the PNG palette (`save`)."""
+
+RC: dict[str, Any] = {
+    "font.size": 8.0,
+    "axes.titlesize": 8.0,
+    "axes.labelsize": 8.0,
+    "xtick.labelsize": 7.0,
+    "ytick.labelsize": 7.0,
+    "legend.fontsize": 7.0,
+    "figure.titlesize": 9.0,
+    "axes.linewidth": 0.6,
+    "lines.linewidth": 1.0,
+    "lines.markersize": 4.0,
+    "grid.linewidth": 0.4,
+    "grid.alpha": 0.5,
+    "axes.grid": False,
+    "axes.spines.top": False,
+    "axes.spines.right": False,
+    "legend.frameon": False,
+    "savefig.dpi": DPI,
+    "figure.dpi": DPI,
+    "image.cmap": MAP_COLORMAP,
+    "axes.prop_cycle": cycler(color=list(PALETTE)),
+}
+
+
+def new_figure(width_in: float = PAGE_IN, height_in: float = 3.0, **kwargs) -> Figure:
+    """A figure in micam's style, with constrained layout (no overlapping labels)."""
+    with matplotlib.style.context(RC):
+        fig = plt.figure(figsize=(width_in, height_in), layout="constrained", **kwargs)
+    return fig
+
+
+def styled(function):
+    """Decorator: run a drawing function under micam's rcParams (they apply while artists
+    are created, so every figure function runs inside them)."""
+
+    def wrapper(*args, **kwargs):
+        with matplotlib.style.context(RC):
+            return function(*args, **kwargs)
+
+    wrapper.__name__ = function.__name__
+    wrapper.__doc__ = function.__doc__
+    wrapper.__wrapped__ = function  # type: ignore[attr-defined]
+    return wrapper
+
+
+def save(fig: Figure, path: Path) -> Path:
+    """Write the figure as PNG at `DPI` and close it. The image is reduced to a palette of
+    `PNG_COLOURS` colours chosen for it, dithered so that smooth colour maps do not band
+    (2-4x smaller than matplotlib's RGBA file, no visible change), and written atomically (a
+    temporary name renamed into place). Returns the path."""
+    path = Path(path)
+    buffer = io.BytesIO()
+    with matplotlib.style.context(RC):
+        fig.savefig(buffer, format="png", dpi=DPI)
+    plt.close(fig)
+    buffer.seek(0)
+    with Image.open(buffer) as image:
+        rgb = image.convert("RGB")
+        colours = rgb.quantize(PNG_COLOURS, method=Image.Quantize.FASTOCTREE)
+        palette = rgb.quantize(palette=colours, dither=Image.Dither.FLOYDSTEINBERG)
+    tmp = path.with_name(path.name + ".partial")
+    palette.save(tmp, format="PNG", optimize=True)
+    os.replace(tmp, path)
+    return path
