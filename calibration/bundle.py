@@ -273,6 +273,8 @@ class BundleSolution:
         reference_outliers: (n_src,) reference times of flight left out.
         chi2_per_dof: of the final pass (about 1 if the noise model fits).
         iterations: Levenberg-Marquardt iterations of all passes.
+        speed_of_sound_of_pose: the problem's (n_pose,) c unknown of each board pose (-1: a
+            pose without sources), None with one c for the session.
     """
 
     state: BundleState
@@ -289,6 +291,16 @@ class BundleSolution:
     reference_outliers: np.ndarray
     chi2_per_dof: float
     iterations: int
+    speed_of_sound_of_pose: np.ndarray | None = None
+
+    def speed_of_sound_at(self, pose: int) -> float:
+        """The fitted c (m/s) during board pose `pose`: its own where c was fitted per pose,
+        the session's otherwise (and for a pose without sources)."""
+        column = (-1 if self.speed_of_sound_of_pose is None
+                  else int(self.speed_of_sound_of_pose[pose]))
+        if column < 0:
+            return self.state.speed_of_sound_m_s
+        return float(self.state.speeds_of_sound_m_s[column])
 
     @property
     def speed_of_sound_std_m_s(self) -> float:
@@ -923,6 +935,7 @@ def _solution(model: _Model, x: np.ndarray, residual: np.ndarray, keep: np.ndarr
         reference_outliers=ref_out,
         chi2_per_dof=chi2,
         iterations=iterations,
+        speed_of_sound_of_pose=p.speed_of_sound_of_pose,
     )
 
 

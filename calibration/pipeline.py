@@ -861,8 +861,7 @@ def joint_flights(m: Measurements, bundle: BundleSolution, frozen: MicrophoneSol
 
     def geometry(k: int) -> tuple[np.ndarray, np.ndarray, float]:
         R = Rotation.from_rotvec(s.poses[k, :3]).as_matrix()
-        c = s.speeds_of_sound_m_s[k] if s.speeds_of_sound_m_s.size > 1 else s.speed_of_sound_m_s
-        return points @ R.T + s.poses[k, 3:], R[:, 2], float(c)
+        return points @ R.T + s.poses[k, 3:], R[:, 2], bundle.speed_of_sound_at(k)
 
     return _flights(m, s.microphones_m, solved, _mic_latency(m.data, s.latencies_s, solved),
                     pose_indices, geometry, s.off_axis_m)

@@ -217,3 +217,20 @@ def test_measuring_again_reuses_each_pose_and_image(session: Path,
                                rtol=0, atol=1e-9)
     with pytest.raises(AssertionError, match="read again"):  # other settings: not remembered
         measure(session, CalibrationOptions(band_hz=(500.0, 18_000.0)))
+
+
+def test_a_subset_fit_with_c_per_pose_images_every_pose(measurements) -> None:
+    """The joint fit of some poses fits c for those only; the rest (held out, or used by the
+    response estimate) take the session's c instead of another pose's or an IndexError."""
+    from calibration.pipeline import calibrate_measured
+
+    fitted = np.array([0, 2])
+    run = calibrate_measured(measurements, CalibrationOptions(speed_of_sound_per_pose=True),
+                             poses=fitted)
+    assert run.bundle is not None and run.result.microphone_responses is not None
+    bundle = run.bundle
+    assert bundle.state.speeds_of_sound_m_s.size == fitted.size
+    for k in range(len(measurements.located)):
+        expected = (bundle.state.speeds_of_sound_m_s[list(fitted).index(k)] if k in fitted
+                    else bundle.state.speed_of_sound_m_s)
+        assert bundle.speed_of_sound_at(k) == pytest.approx(expected, abs=1e-9)
