@@ -311,7 +311,7 @@ def check_recording(base: Path, ref: FileRef, where: str, description: RigArrayD
         raise ImportSpecError(
             f"{where}: {entry.file!r} has {frames} samples, fewer than start_sample "
             f"{entry.start_sample} + the burst layout's {n}; write the layout the recorder "
-            "used in [burst] (silence_before_samples, mls_order, silence_after_samples, "
+            "used in [burst] (silence_before_samples, mls_order, periods, silence_after_samples, "
             "extra_recorded_samples)")
     if isinstance(ref, str) and frames != n:
         raise ImportSpecError(

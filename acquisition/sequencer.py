@@ -104,7 +104,8 @@ class CaptureSequencer:
         self.camera_timeout_s = camera_timeout_s
         self.air_sensor = air_sensor
         self._board_index = {b.serial: i for i, b in enumerate(config.boards)}
-        self._burst_v = config.burst.amplitude_v * mls_burst(config.burst.mls_order)
+        self._burst_v = config.burst.amplitude_v * np.tile(mls_burst(config.burst.mls_order),
+                                                           config.burst.periods)
 
     def remaining_steps(self) -> list[Step]:
         done = self.writer.completed_steps()

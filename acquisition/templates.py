@@ -131,6 +131,7 @@ def _daemon(title: str, boards: list[tuple[str, str, int, int]], n_mics: int,
         "",
         "[hardware.capture.burst]       # what each speaker plays per recording",
         "mls_order = 14          # 16383 samples, 171 ms at 96 kS/s",
+        "periods = 2             # played back to back; the last is the room-proof one",
         "amplitude_v = 1.0",
         "pre_samples = 512       # recorded silence before the sequence",
         "post_samples = 2048     # recorded silence after it, while it dies away",
@@ -205,6 +206,7 @@ distance_from_speaker_m = 0.002   # in the reference recordings; or one per spea
 [burst]                           # what each recording holds, in samples
 silence_before_samples = 512
 mls_order = 14                    # the sequence: 2**14 - 1 samples
+periods = 1                       # sequences played back to back (2 or more: room-proof)
 silence_after_samples = 2048
 extra_recorded_samples = 0        # what the recorder kept after that
 

@@ -102,21 +102,29 @@ class SessionData:
                 scale.update(zip(group.columns, group.volts_per_unit, strict=True))
         return np.array([scale.get(int(c), 1.0) for c in self.mic_columns])
 
-    def references(self) -> np.ndarray:
-        """(n_speakers, n_samples) float32 reference-microphone recording of every speaker."""
+    def references(self, samples: slice = slice(None)) -> np.ndarray:
+        """(n_speakers, n) float32 reference-microphone recording of every speaker (the
+        `samples` of each)."""
         rows = []
         for k in range(self.n_speakers):
             codes, _ = self.reader.read_recording(f"reference/{k}", f"speaker_{k}.wav")
-            rows.append(codes[:, self.reference_recording_column])
+            rows.append(codes[samples, self.reference_recording_column])
         return np.asarray(rows, dtype=np.float32)
 
-    def pose_recordings(self, step: str) -> np.ndarray:
-        """(n_speakers, n_columns, n_samples) float32 codes of one pose's recordings."""
-        out = []
+    def pose_recordings(self, step: str, columns: np.ndarray | None = None,
+                        samples: slice = slice(None)) -> np.ndarray:
+        """(n_speakers, n_columns, n) float32 codes of one pose's recordings: every column or
+        `columns`, all samples or `samples` (converted alone: a burst's steady period is half
+        of its recording)."""
+        out: np.ndarray | None = None
         for k in range(self.n_speakers):
             codes, _ = self.reader.read_recording(step, f"speaker_{k}.wav")
-            out.append(codes.T)
-        return np.asarray(out, dtype=np.float32)
+            part = codes[samples] if columns is None else codes[samples][:, columns]
+            if out is None:
+                out = np.empty((self.n_speakers, *part.shape[::-1]), dtype=np.float32)
+            out[k] = part.T
+        assert out is not None  # a rig has speakers
+        return out
 
     def air_readings(self) -> dict[str, AirReading]:
         """The air sensor's reading of every pose step that has one (step -> reading)."""

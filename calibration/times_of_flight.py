@@ -87,7 +87,7 @@ class SessionTofs:
     reference_std_s: np.ndarray
     impulses: np.ndarray
     impulse_first_lag: np.ndarray
-    impulse_step: int
+    impulse_step: float
 
 
 def measure_session_tofs(
@@ -113,17 +113,27 @@ def measure_session_tofs(
     columns = columns.astype(int)
     d_ref = data.reference_distances_m[:, None]  # (S, 1): per speaker, against (S, channels)
     window = (-1e-4, MAX_RANGE_M / speed_of_sound_m_s)
-    # Bursts are recorded with silence before and after, so zero-padding to a fast FFT length
-    # changes nothing but the speed (19 k samples is 19 x 997: a slow length).
-    n_fft = sfft.next_fast_len(data.n_samples, real=True)
-    settings = (band_hz, weighting, window, n_fft, tuple(columns.tolist()),
+    steady = data.description.burst.steady_window
+    if steady is None:
+        # one period recorded with silence before and after: zero-padding to a fast FFT
+        # length changes nothing but the speed (19 k samples is 19 x 997: a slow length)
+        first, stop = 0, data.n_samples
+        n_fft = sfft.next_fast_len(data.n_samples, real=True)
+    else:
+        # periodic bursts: the last period holds every arrival in its periodic steady state,
+        # and its circular correlation (n_fft = the period) is the periodic impulse response,
+        # whose reflections are clean pulses apart from the direct sound's
+        first, stop = steady
+        n_fft = stop - first
+    settings = (band_hz, weighting, window, first, n_fft, tuple(columns.tolist()),
                 _recording_hashes(data, "reference/{}"))
     keys = [(_recording_hashes(data, step), settings) for step in data.pose_steps]
     todo = [i for i, key in enumerate(keys) if _remembered(key) is None]
-    references = data.references() if todo else None
+    samples = slice(first, stop)
+    references = data.references(samples) if todo else None
 
     def correlate(i: int) -> TofEstimate:
-        recordings = data.pose_recordings(data.pose_steps[i])[:, columns, :]
+        recordings = data.pose_recordings(data.pose_steps[i], columns, samples)
         est = estimate_delays(recordings, references, data.fs, band=band_hz,
                               weighting=weighting, delay_window_s=window, n_fft=n_fft)
         _remember(keys[i], est)

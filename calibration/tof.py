@@ -30,8 +30,9 @@ Weightings W_k (`estimate_delays(weighting=...)`):
 - "phat": W_k = 1 / |Y_k X_k^*| (GCC-PHAT).
 
 The correlation is circular over `n_fft` samples (default: the recording length). That is
-exact for a periodic MLS in steady state (one period per recording) and for bursts followed
-by silence longer than the largest delay; otherwise pass a larger `n_fft` to zero-pad.
+exact for a periodic MLS in steady state (one period of it, n_fft = the period: the
+correlation is then the periodic impulse response) and for bursts followed by silence longer
+than the largest delay; otherwise pass a larger `n_fft` to zero-pad.
 """
 
 from __future__ import annotations
@@ -85,7 +86,8 @@ class TofEstimate:
             estimated from once the geometry is known (calibration.responses), without reading
             the recordings again.
         impulse_first_lag: (n_rec, n_ch) the full-rate lag (samples, signed) of impulses[..., 0].
-        impulse_step: full-rate samples between the impulses' values (1 or 2).
+        impulse_step: full-rate samples between the impulses' values (about 2, or 1 for a
+            band reaching above a quarter of the sample rate).
     """
 
     delay_s: np.ndarray
@@ -94,7 +96,7 @@ class TofEstimate:
     peak_to_sidelobe_db: np.ndarray
     impulses: np.ndarray
     impulse_first_lag: np.ndarray
-    impulse_step: int
+    impulse_step: float
 
 
 def band_bins(n_fft: int, fs: float, band: tuple[float, float]) -> np.ndarray:
@@ -189,21 +191,23 @@ def estimate_delays(
 
 @dataclass(frozen=True)
 class _Lags:
-    """The integer lags the peak is sought on.
+    """The equally spaced lags the peak is sought on.
 
     The correlation is band-limited, so when the band's top lies below a quarter of the
-    sample rate (20 kHz at 96 kS/s), every second lag describes it completely: the peak is
-    sought on a correlation of half the length (`step` 2), half the FFT work, and Newton's
-    method refines it at the full rate.
+    sample rate (20 kHz at 96 kS/s), about every second lag describes it completely: the peak
+    is sought on a correlation of a fast FFT length near half the circle's (`step` = n_fft /
+    length, 2 for an even n_fft, just under 2 for the odd period of an MLS, whose own length
+    is a slow one), a quarter of the inverse FFT's work, and Newton's method refines it at
+    the full rate.
 
     Attributes:
-        step: full-rate samples per lag (1 or 2).
-        length: number of lags (n_fft / step).
+        step: full-rate samples per lag (n_fft / length).
+        length: number of lags.
         window: (length,) lags allowed for the peak.
         guard: half-width of the main lobe, in lags.
     """
 
-    step: int
+    step: float
     length: int
     window: np.ndarray
     guard: int
@@ -211,8 +215,9 @@ class _Lags:
     @classmethod
     def of(cls, n_fft: int, fs: float, bins: np.ndarray,
            delay_window_s: tuple[float, float] | None, sidelobe_guard_s: float) -> _Lags:
-        step = 2 if n_fft % 2 == 0 and 4 * int(bins.max()) < n_fft else 1
-        length = n_fft // step
+        half = n_fft // 2 if n_fft % 2 == 0 else sfft.next_fast_len((n_fft + 1) // 2, real=True)
+        length = half if 2 * int(bins.max()) < half < n_fft else n_fft
+        step = n_fft / length
         lags = np.arange(length)
         lags = step * np.where(lags >= (length + 1) // 2, lags - length, lags)
         if delay_window_s is None:
@@ -244,7 +249,7 @@ def _estimate_chunk(
     weighted = _weighted(cross, X, weighting,
                          max(1, round(_COMPACT_SMOOTHING_HZ * n_fft / fs)))
 
-    corr = _integer_lag_correlation(weighted, bins, lags.length)
+    corr = _lag_correlation(weighted, bins, lags.length)
     peak = _first_arrival(corr, lags.window, first_arrival)
     psr_db = _peak_to_sidelobe_db(corr, peak, lags.guard)
 
@@ -297,10 +302,10 @@ def _weighted(cross: np.ndarray, X: np.ndarray, weighting: Weighting,
     raise ValueError(f"unknown weighting {weighting!r}; choose compact, matched or phat")
 
 
-def _integer_lag_correlation(weighted: np.ndarray, bins: np.ndarray, length: int) -> np.ndarray:
-    """The band-limited correlation at `length` equally spaced lags (circular), shape
-    (r, ch, length): every full-rate lag (length n_fft) or every second one (n_fft / 2,
-    the band's bins then all below its Nyquist bin)."""
+def _lag_correlation(weighted: np.ndarray, bins: np.ndarray, length: int) -> np.ndarray:
+    """The band-limited correlation at `length` equally spaced lags around the circle (r, ch,
+    length): every full-rate lag (length n_fft) or about every second one (the band's bins
+    then all below the shorter circle's Nyquist bin, so that it is sampled exactly)."""
     full = np.zeros((*weighted.shape[:-1], length // 2 + 1), dtype=np.complex64)
     full[..., bins] = weighted
     return sfft.irfft(full, length, axis=-1, workers=-1)

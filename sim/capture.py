@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from acquisition.camera import Camera
 from acquisition.capture_config import (
@@ -23,6 +23,7 @@ from acquisition.capture_config import (
     RigEntry,
     SpeakerEntry,
 )
+from acquisition.rig_description import MIN_STEADY_PERIOD_S, steady_mls_order
 from daq import Board, InputChannel, OutputChannel, SyncGroup, board_model
 
 from .air_sensor import SimulatedAirSensor
@@ -50,6 +51,10 @@ class SimulationOptions(BaseModel):
     noise: float = Field(default=1.0, ge=0.0, description="scale of every noise; 0 = none")
     temperature_c: float = Field(default=20.0, ge=-40.0, le=60.0)
     mls_order: int = Field(default=14, ge=6, le=18)
+    mls_periods: int | None = Field(
+        default=None, ge=1, le=8,
+        description="periods of the sequence per burst (BurstConfig); None: 2 where the "
+                    "period is long enough for it (MIN_STEADY_PERIOD_S), 1 for shorter ones")
     body_diffraction: bool = False
     backend: Literal["sim", "usb-emulated"] = Field(
         default="sim",
@@ -99,6 +104,27 @@ class SimulationOptions(BaseModel):
         if not 0.2 <= v[0] <= v[1] <= 5.0:
             raise ValueError(f"distance range {v} must satisfy 0.2 <= min <= max <= 5 m")
         return v
+
+    @model_validator(mode="after")
+    def _periods_fit(self) -> SimulationOptions:
+        fs = World.sample_rate_hz
+        period_s = (2**self.mls_order - 1) / fs
+        if self.burst(fs).periods > 1 and period_s < MIN_STEADY_PERIOD_S:
+            raise ValueError(
+                f"{self.mls_periods} periods of an MLS of order {self.mls_order} "
+                f"({1e3 * period_s:.1f} ms) fold the room onto the direct sound; simulate with "
+                f"--mls-order {steady_mls_order(fs)} or more, or --mls-periods 1")
+        return self
+
+    def burst(self, sample_rate_hz: float) -> BurstConfig:
+        """The bursts of the capture: `mls_periods` periods, or by default two (the
+        room-proof steady state) where the sequence is long enough to hold the room, one
+        otherwise (the short bursts of quick tests)."""
+        periods = self.mls_periods
+        if periods is None:
+            long_enough = (2**self.mls_order - 1) / sample_rate_hz >= MIN_STEADY_PERIOD_S
+            periods = 2 if long_enough else 1
+        return BurstConfig(mls_order=self.mls_order, periods=periods)
 
 
 @dataclass
@@ -194,7 +220,7 @@ def build_simulated_capture(options: SimulationOptions) -> SimulatedCapture:
     stated_rate = world.sample_rate_hz * (1.1 if options.description_mistake == "sample-rate"
                                           else 1.0)
     config = capture_config_for(layout, stated_rig, options.poses, stated_rate,
-                                BurstConfig(mls_order=options.mls_order), cameras)
+                                options.burst(world.sample_rate_hz), cameras)
     air_sensor = SimulatedAirSensor(world) if world.lab.air_sensor is not None else None
     return SimulatedCapture(options, world, bench, SyncGroup(hardware), cameras, operator,
                             config, poses, air_sensor)

@@ -34,6 +34,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--temperature", type=float, default=20.0, help="air temperature, degC")
     p.add_argument("--mls-order", type=int, default=14,
                    help="MLS order of the bursts (14 = 171 ms at 96 kS/s)")
+    p.add_argument("--mls-periods", type=int, default=None,
+                   help="periods of the MLS per burst (default: 2, whose last, correlated "
+                        "circularly, keeps a room's reflections off the direct sound; 1 for "
+                        "sequences shorter than 25 ms)")
     p.add_argument("--body-diffraction", action="store_true",
                    help="sound reaches microphones behind a sphere array around its surface")
     p.add_argument("--lab", choices=("ideal", "realistic"), default="ideal",
@@ -60,11 +64,14 @@ def _options_from_args(args: argparse.Namespace):
         return SimulationOptions(
             array=args.array, poses=args.poses, distance_m=tuple(args.distance), seed=args.seed,
             noise=args.noise, temperature_c=args.temperature, mls_order=args.mls_order,
-            body_diffraction=args.body_diffraction, backend=args.backend, lab=args.lab,
+            mls_periods=args.mls_periods, body_diffraction=args.body_diffraction,
+            backend=args.backend, lab=args.lab,
             effects=tuple(args.effect), without_effects=tuple(args.without),
         )
     except ValidationError as exc:
-        problems = "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
+        problems = "; ".join(
+            f"{'.'.join(map(str, e['loc']))}: {e['msg']}" if e["loc"]
+            else str(e["msg"]).removeprefix("Value error, ") for e in exc.errors())
         raise UserError(f"invalid simulation options: {problems}") from None
 
 

@@ -36,6 +36,7 @@ def test_simulate_writes_session_and_truth(tmp_path: Path) -> None:
         (["--distance", "1.0", "0.5"], "distance range"),
         (["--noise", "-1"], "noise"),
         (["--temperature", "300"], "temperature"),
+        (["--mls-order", "9", "--mls-periods", "2"], "fold the room onto the direct sound"),
     ],
 )
 def test_bad_options_are_explained(tmp_path: Path, capsys: pytest.CaptureFixture,

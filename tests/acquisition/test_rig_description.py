@@ -75,6 +75,7 @@ REFUSALS = [
     ("reference.distance_from_speaker_m", [0.002, 0.002], "2 distances for 3 speakers"),
     ("reference.distance_from_speaker_m", 2.0, "2.0 m is not within"),
     ("burst.mls_order", 30, "burst.mls_order"),
+    ("burst", {"mls_order": 10, "periods": 2}, "burst: 2 periods of an MLS of order 10"),
     ("sample_rate_hz", None, "sample_rate_hz: Field required"),
     ("cameras[0].name", "../cam0", "cameras[0].name"),
     ("cameras", [{"name": "c", "width": 10, "height": 10}] * 2, "'c' is named twice"),
@@ -160,3 +161,19 @@ def test_a_capture_configuration_states_its_board_colours() -> None:
     doc["speakers"][1]["rig_position_m"] = [0.0, 0.0, 0.0]
     with pytest.raises(ValueError, match=r"speakers\[1\].rig_position_m.*write the same"):
         type(config).model_validate(doc)
+
+
+def test_a_capture_configuration_refuses_periods_too_short_for_the_room() -> None:
+    """Two periods of 5 ms fold every path beyond 2.7 m onto the circle's other side: the
+    daemon's configuration says so before anything is recorded."""
+    config = build_simulated_capture(SimulationOptions(array="scatter48", poses=2,
+                                                       mls_order=9, seed=3)).config
+    doc = config.model_dump(mode="json")
+    assert doc["burst"]["periods"] == 1  # a short test sequence: one period by default
+    doc["burst"]["periods"] = 2
+    with pytest.raises(ValueError, match="burst: 2 periods of an MLS of order 9 .* write "
+                                         "mls_order = 12 or more"):
+        type(config).model_validate(doc)
+    doc["burst"]["mls_order"] = 12
+    assert type(config).model_validate(doc).description(
+        {"cam0": (1280, 960)}).burst.steady_window == (512 + 4095, 512 + 2 * 4095)
