@@ -24,7 +24,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .camera import CameraError, CameraTimeoutError, Frame
+from acquisition.contracts.camera import CameraError, CameraTimeoutError, Frame
 
 BY_ID_DIR = Path("/dev/v4l/by-id")
 V4L2_EXPOSURE_MANUAL = 1  # V4L2_EXPOSURE_MANUAL in raw (non-normalised) property mode

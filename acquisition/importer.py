@@ -34,15 +34,15 @@ import numpy as np
 import soundfile as sf
 from pydantic import Field, ValidationError, model_validator
 
-from .config_model import ConfigModel
+from acquisition.contracts.config_model import ConfigModel
 from .intrinsics_file import IntrinsicsFileError, read_intrinsics
-from .rig_description import (
+from acquisition.contracts.rig_description import (
     CameraDescription,
     RigArrayDescription,
     problem_text,
 )
-from .session import SessionError, SessionWriter
-from .session._writer import MAX_CHANNELS
+from acquisition.contracts.session import SessionError, SessionWriter
+from acquisition.contracts.session._writer import MAX_CHANNELS
 
 MAX_SPEC_BYTES = 4_000_000
 """The import TOML: a description and a list of files, far below this."""

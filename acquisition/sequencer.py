@@ -28,12 +28,12 @@ import numpy as np
 
 from daq import SyncGroup, volts_to_codes
 
-from .air import AIR_FILE, AirSensor
-from .camera import Camera
-from .capture_config import CaptureConfig
-from .operator import Instruction, InstructionKind, Operator
-from .session import SessionWriter
-from .stimulus import mls_burst
+from acquisition.contracts.air import AIR_FILE, AirSensor
+from acquisition.contracts.camera import Camera
+from acquisition.contracts.capture_config import CaptureConfig
+from acquisition.contracts.instructions import Instruction, InstructionKind, Operator
+from acquisition.contracts.session import SessionWriter
+from acquisition.contracts.stimulus import mls_burst
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from acquisition.demo_loop import Loop, scripted_capture, wait_final
+from micam.demo_loop import Loop, scripted_capture, wait_final
 
 RESULTS = Path(__file__).with_name("results") / "worker.json"
 

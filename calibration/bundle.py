@@ -63,7 +63,7 @@ from scipy.linalg import cho_factor, cho_solve
 from scipy.spatial.transform import Rotation
 
 from ._blas import single_threaded_blas
-from .cameras import CameraCalibration, CameraIntrinsics, Extrinsics, Pose
+from calibration.camera_calibration import CameraCalibration, CameraIntrinsics, Extrinsics, Pose
 from .solver import rotated_point_jacobian
 
 FIXED = 0.0

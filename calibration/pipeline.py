@@ -37,7 +37,7 @@ from typing import Literal
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from acquisition.rig_description import KnownIntrinsics
+from acquisition.contracts.rig_description import KnownIntrinsics
 
 from .bundle import (
     FIXED,
@@ -53,7 +53,7 @@ from .bundle import (
     pose_estimate,
     refined_cameras,
 )
-from .cameras import CameraCalibration, Checkerboard, calibrate_session
+from calibration.camera_calibration import CameraCalibration, Checkerboard, calibrate_session
 from .plausibility import (
     AIR_RANGE_M_S,
     FitFigures,

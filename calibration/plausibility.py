@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from acquisition.air import speed_of_sound
+from acquisition.contracts.air import speed_of_sound
 
 from .session_data import CalibrationInputError
 

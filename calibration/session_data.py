@@ -16,16 +16,16 @@ from pathlib import Path
 
 import numpy as np
 
-from acquisition.air import AIR_FILE, AirReading
-from acquisition.capture_config import CaptureConfig
-from acquisition.rig_description import (
+from acquisition.contracts.air import AIR_FILE, AirReading
+from acquisition.contracts.capture_config import CaptureConfig
+from acquisition.contracts.rig_description import (
     DESCRIPTION_KIND,
     DescriptionError,
     RigArrayDescription,
     RigDescription,
     validate_description,
 )
-from acquisition.session import SessionError, SessionReader
+from acquisition.contracts.session import SessionError, SessionReader
 
 
 class CalibrationInputError(ValueError):

@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .cameras import CameraCalibration, Extrinsics, Pose
+from calibration.camera_calibration import CameraCalibration, Extrinsics, Pose
 
 _STEP_RAD_OR_M = 1e-6
 """Central-difference step for the pose parameters (radians and metres): small against the

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from acquisition.air import AirReading
+from acquisition.contracts.air import AirReading
 
 from .world import World
 

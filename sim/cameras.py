@@ -7,7 +7,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from acquisition.camera import CameraTimeoutError, Frame
+from acquisition.contracts.camera import CameraTimeoutError, Frame
 
 from .geometry import CameraModel
 from .light import render_rig_image

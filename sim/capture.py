@@ -12,8 +12,8 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from acquisition.camera import Camera
-from acquisition.capture_config import (
+from acquisition.contracts.camera import Camera
+from acquisition.contracts.capture_config import (
     BoardEntry,
     BurstConfig,
     CameraEntry,
@@ -23,7 +23,7 @@ from acquisition.capture_config import (
     RigEntry,
     SpeakerEntry,
 )
-from acquisition.rig_description import MIN_STEADY_PERIOD_S, steady_mls_order
+from acquisition.contracts.rig_description import MIN_STEADY_PERIOD_S, steady_mls_order
 from daq import Board, InputChannel, OutputChannel, SyncGroup, board_model
 
 from .air_sensor import SimulatedAirSensor

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from acquisition.air import speed_of_sound
+from acquisition.contracts.air import speed_of_sound
 
 from .arrays import ArrayLayout
 from .geometry import Rig, RigidTransform

@@ -19,7 +19,7 @@ def simulated_session(tmp_path_factory: pytest.TempPathFactory, name: str, *opti
                       ) -> Path:
     """A session recorded by `micam simulate --quiet` with these options, in a new temporary
     directory (for module- and session-scoped fixtures)."""
-    from acquisition.cli import main
+    from micam.cli import main
 
     path = tmp_path_factory.mktemp(name) / "s"
     assert main(["simulate", "--out", str(path), "--quiet", *options]) == 0

@@ -39,10 +39,10 @@ from typing import Any
 import zmq
 from pydantic import BaseModel, ValidationError
 
-from ..session import SessionError
-from ..session._atomic import fsync_dir, partial_path, sha256_file, write_atomic
+from acquisition.contracts.session import SessionError
+from acquisition.contracts.session._atomic import fsync_dir, partial_path, sha256_file, write_atomic
 from .config import WorkersConfig
-from .job_messages import (
+from acquisition.contracts.job_messages import (
     WORKER_MESSAGE,
     Ack,
     Bye,
@@ -60,7 +60,7 @@ from .job_messages import (
     version_problem,
 )
 from .outbox import JobRecord, Outbox
-from .protocol import (
+from acquisition.contracts.protocol import (
     CalibrationEvent,
     CalibrationStatus,
     ErrorEvent,

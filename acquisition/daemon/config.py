@@ -22,9 +22,9 @@ from pydantic_settings import (
 
 from sim.capture import SimulationOptions
 
-from ..capture_config import CaptureConfig
-from ..config_model import ConfigModel, describe_problems
-from ..errors import UserError
+from acquisition.contracts.capture_config import CaptureConfig
+from acquisition.contracts.config_model import ConfigModel, describe_problems
+from acquisition.contracts.errors import UserError
 from .endpoints import beside, default_control, default_events
 
 ENV_PREFIX = "MICAM_DAEMON_"

@@ -12,10 +12,10 @@ from dataclasses import dataclass, field
 
 from daq import SyncGroup
 
-from ..air import AirSensor
-from ..camera import Camera
-from ..capture_config import CaptureConfig
-from ..operator import Operator
+from acquisition.contracts.air import AirSensor
+from acquisition.contracts.camera import Camera
+from acquisition.contracts.capture_config import CaptureConfig
+from acquisition.contracts.instructions import Operator
 from .config import DaemonConfig, HardwareConfig, SimulationConfig
 
 log = logging.getLogger("micam.daemon")

@@ -20,9 +20,9 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ..camera import Camera, CameraError, PreviewSource
+from acquisition.contracts.camera import Camera, CameraError, PreviewSource
 from .config import PreviewConfig
-from .protocol import PreviewEvent
+from acquisition.contracts.protocol import PreviewEvent
 from .quality import QUICK_LOOK_PX, checkerboard_corners
 
 log = logging.getLogger("micam.daemon")

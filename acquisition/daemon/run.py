@@ -22,16 +22,16 @@ import numpy as np
 
 from daq import DaqError
 
-from ..camera import Camera, CameraError
-from ..capture_config import CaptureConfig
-from ..operator import Instruction, InstructionKind
+from acquisition.contracts.camera import Camera, CameraError
+from acquisition.contracts.capture_config import CaptureConfig
+from acquisition.contracts.instructions import Instruction, InstructionKind
 from ..sequencer import CaptureSequencer, Progress, plan_steps
-from ..session import SessionWriter
-from ..session._layout import attempt_dir
+from acquisition.contracts.session import SessionWriter
+from acquisition.contracts.session._layout import attempt_dir
 from .config import DaemonConfig
 from .hardware import Hardware
 from .previews import Previews
-from .protocol import (
+from acquisition.contracts.protocol import (
     CameraPoses,
     CaptureEvent,
     CheckerboardEvent,

@@ -30,7 +30,7 @@ from pydantic import BaseModel, ValidationError
 
 from .config import ConfigError, SocketsConfig
 from .local_access import bind_local
-from .protocol import (
+from acquisition.contracts.protocol import (
     COMMANDS,
     PROTOCOL_VERSION,
     REQUEST_TYPES,

@@ -27,10 +27,10 @@ from typing import Any
 import zmq
 from pydantic import BaseModel
 
-from ..capture_config import CaptureConfig
+from acquisition.contracts.capture_config import CaptureConfig
 from ..sequencer import plan_steps
-from ..session import SessionError, SessionReader, SessionWriter
-from ..session._atomic import write_atomic
+from acquisition.contracts.session import SessionError, SessionReader, SessionWriter
+from acquisition.contracts.session._atomic import write_atomic
 from .broker import CALIBRATION_DIR, JOBS_QUEUE, RESULT_FILE, Broker
 from .config import DaemonConfig
 from .files import MAX_FETCH_BYTES, FileServer
@@ -39,7 +39,7 @@ from .index import SessionIndex, summarize
 from .jobs import job_for_session
 from .outbox import Outbox
 from .previews import Previews
-from .protocol import (
+from acquisition.contracts.protocol import (
     CAMERA_MIN_VIEWS,
     PROTOCOL_VERSION,
     CaptureResult,

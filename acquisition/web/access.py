@@ -21,7 +21,7 @@ import stat
 from pathlib import Path
 from urllib.parse import urlsplit
 
-from ..errors import UserError
+from acquisition.contracts.errors import UserError
 
 TOKEN_ENV = "MICAM_WEB_TOKEN"
 COOKIE = "micam_token"

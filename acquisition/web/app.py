@@ -26,7 +26,7 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
 from ..daemon.client import DaemonError
-from ..safe_names import is_name, is_relative_path
+from acquisition.contracts.safe_names import is_name, is_relative_path
 from .access import COOKIE, same_origin, token_matches
 from .bridge import Bridge, Browser
 from .view import live_view, result_view

@@ -29,7 +29,7 @@ from pydantic import ValidationError
 
 from ..daemon.client import DaemonClient, DaemonError
 from ..daemon.display import format_event
-from ..daemon.protocol import (
+from acquisition.contracts.protocol import (
     EVENT_ADAPTER,
     CalibrationEvent,
     DescribeResult,

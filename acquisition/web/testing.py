@@ -46,7 +46,7 @@ class WebProcess:
         self.log = log
         with log.open("a") as out:
             self.proc = subprocess.Popen(
-                [sys.executable, "-m", "acquisition.cli", "web", "--listen",
+                [sys.executable, "-m", "micam.cli", "web", "--listen",
                  f"127.0.0.1:{self.port}", "--control", control, *extra],
                 stdout=out, stderr=subprocess.STDOUT, env={**os.environ, **(env or {})})
         self.wait_ready()

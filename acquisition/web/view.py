@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from ..daemon.protocol import CameraPoses, DescribeResult, LevelsEvent
+from acquisition.contracts.protocol import CameraPoses, DescribeResult, LevelsEvent
 
 
 def channel_name(describe: DescribeResult, column: int) -> str:

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from acquisition.session import SessionReader
+from acquisition.contracts.session import SessionReader
 
 from .._cores import resolve_workers
 from .cleansc import LOCKSTEP_BINS, CleanScOptions, clean_sc_many

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from matplotlib.figure import Figure
 
-from acquisition.session import SessionReader
+from acquisition.contracts.session import SessionReader
 
 from ..figures.maps import MapPanel, acoustic_map_figure
 from .beamform import beamform_csm

@@ -28,8 +28,8 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 
-from acquisition.daemon.job_messages import Job, JobFile
-from acquisition.safe_names import is_name
+from acquisition.contracts.job_messages import Job, JobFile
+from acquisition.contracts.safe_names import is_name
 
 JOURNAL = "journal.jsonl"
 DEFAULT_MAX_BYTES = 4 * 2**30

@@ -12,7 +12,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
-from acquisition.daemon.job_messages import Job, LiveUpdate
+from acquisition.contracts.job_messages import Job, LiveUpdate
 
 from ..pipeline import CalibrationOptions, calibrate, measure, solve
 from .live import live_update

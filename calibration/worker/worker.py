@@ -32,7 +32,7 @@ from pathlib import Path
 import zmq
 from pydantic import BaseModel, ValidationError
 
-from acquisition.daemon.job_messages import (
+from acquisition.contracts.job_messages import (
     DAEMON_MESSAGE,
     Ack,
     Bye,
@@ -50,7 +50,7 @@ from acquisition.daemon.job_messages import (
     encode,
     version_problem,
 )
-from acquisition.daemon.keys import secure_client
+from acquisition.contracts.keys import secure_client
 
 from .cache import DEFAULT_MAX_BYTES, ChecksumMismatch, FileCache
 from .compute import compute

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 import soundfile as sf
 
-from acquisition.session import (
+from acquisition.contracts.session import (
     JOURNAL_NAME,
     MANIFEST_NAME,
     SessionError,
@@ -32,7 +32,7 @@ from acquisition.session import (
     attempt_dir,
     journal_records,
 )
-from acquisition.session._journal import JournalWriter, scan_journal
+from acquisition.contracts.session._journal import JournalWriter, scan_journal
 
 CAPTURE = {
     "channel_map": [{"board": "DT9836-A", "input": i, "mic": i} for i in range(80)],

@@ -17,9 +17,9 @@ import cv2
 import numpy as np
 import pytest
 
-from acquisition.cli import main as micam
-from acquisition.session import SessionReader
-from calibration.cameras import (
+from micam.cli import main as micam
+from acquisition.contracts.session import SessionReader
+from calibration.camera_calibration import (
     CameraCalibration,
     CameraCalibrationError,
     Checkerboard,

@@ -22,7 +22,7 @@ import zmq
 from acquisition.daemon.client import DaemonClient
 from acquisition.daemon.config import DaemonConfig, SimulationConfig, SocketsConfig
 from acquisition.daemon.hardware import Hardware, open_hardware
-from acquisition.daemon.protocol import StatusResult
+from acquisition.contracts.protocol import StatusResult
 from acquisition.daemon.service import Daemon
 
 SMALL_WORLD = {"array": "scatter48", "poses": 3, "mls_order": 9, "seed": 3}
@@ -87,7 +87,7 @@ class DaemonProcess:
         self.notify.bind(str(self.notify_path))
         env = {**os.environ, "NOTIFY_SOCKET": str(self.notify_path), **self.env}
         env.pop("JOURNAL_STREAM", None)
-        command = self.script or [sys.executable, "-m", "acquisition.cli", "daemon", "--config"]
+        command = self.script or [sys.executable, "-m", "micam.cli", "daemon", "--config"]
         self.log_path = self.notify_path.with_suffix(".log")  # a file: a pipe could fill up
         with self.log_path.open("w") as log:
             self.proc = subprocess.Popen([*command, str(self.config)], env=env, cwd=REPO,

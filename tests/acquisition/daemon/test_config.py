@@ -9,7 +9,7 @@ from typing import Any
 
 import pytest
 
-from acquisition.config_model import models_within
+from acquisition.contracts.config_model import models_within
 from acquisition.daemon.config import ConfigError, DaemonConfig, SocketsConfig, load_config
 from acquisition.daemon.endpoints import is_local_endpoint
 from acquisition.daemon.security import check_exposure

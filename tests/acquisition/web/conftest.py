@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from acquisition.demo_loop import Loop
+from micam.demo_loop import Loop
 from acquisition.web.testing import Chromium, WebProcess, browser_missing
 
 SKIP_ENV = "MICAM_SKIP_BROWSER_TESTS"

@@ -12,7 +12,7 @@ from starlette.routing import Route, WebSocketRoute
 from starlette.testclient import TestClient
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
-from acquisition.errors import UserError
+from acquisition.contracts.errors import UserError
 from acquisition.web.access import check_listen, read_token
 from acquisition.web.app import AccessGuard
 

@@ -7,7 +7,7 @@ import time
 import urllib.request
 from pathlib import Path
 
-from acquisition.session import SessionReader, journal_records
+from acquisition.contracts.session import SessionReader, journal_records
 
 from .conftest import Stack
 

@@ -6,7 +6,7 @@ from datetime import UTC, datetime
 
 import pytest
 
-from acquisition.daemon.protocol import (
+from acquisition.contracts.protocol import (
     CameraPoses,
     ColumnInfo,
     DescribeResult,

@@ -10,9 +10,9 @@ import cv2
 import numpy as np
 import pytest
 
-from acquisition.commands import evaluate_imaging, image, simulate
-from acquisition.errors import UserError
-from acquisition.session import SessionReader
+from micam.commands import evaluate_imaging, image, simulate
+from acquisition.contracts.errors import UserError
+from acquisition.contracts.session import SessionReader
 from calibration.imaging import load_geometry
 from calibration.imaging.evaluate import ImagingSettings, evaluate_session
 

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from acquisition.cli import build_parser
-from acquisition.daemon.job_messages import Done, Job, JobFile, JournalPrefix
+from micam.cli import build_parser
+from acquisition.contracts.job_messages import Done, Job, JobFile, JournalPrefix
 from calibration.worker import Worker, WorkerSettings
 from calibration.worker.cache import DEFAULT_MAX_BYTES, JOURNAL, FileCache, parse_size
 

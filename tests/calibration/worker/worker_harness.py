@@ -15,7 +15,7 @@ import threading
 from pathlib import Path
 
 import calibration.worker.worker as worker_module
-from acquisition.cli import main
+from micam.cli import main
 
 HOLD_S = 120.0
 _compute = worker_module.compute

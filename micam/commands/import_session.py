@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..errors import UserError
+from acquisition.contracts.errors import UserError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -26,7 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from acquisition.importer import ImportSpecError, import_session, prepare
-    from acquisition.session import SessionError, SessionExistsError
+    from acquisition.contracts.session import SessionError, SessionExistsError
 
     try:
         if args.check:

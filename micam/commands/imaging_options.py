@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 from dataclasses import replace
 
-from ..errors import UserError
+from acquisition.contracts.errors import UserError
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

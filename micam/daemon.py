@@ -16,13 +16,13 @@ from types import FrameType
 
 from daq import DaqError
 
-from ..camera import CameraError
-from ..errors import UserError
-from .config import load_config
-from .hardware import open_hardware
-from .security import check_exposure
-from .service import Daemon
-from .systemd import configure_logging, sd_notify
+from acquisition.contracts.camera import CameraError
+from acquisition.contracts.errors import UserError
+from acquisition.daemon.config import load_config
+from acquisition.daemon.hardware import open_hardware
+from acquisition.daemon.security import check_exposure
+from acquisition.daemon.service import Daemon
+from acquisition.daemon.systemd import configure_logging, sd_notify
 
 log = logging.getLogger("micam.daemon")
 

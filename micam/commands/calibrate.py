@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..errors import UserError
+from acquisition.contracts.errors import UserError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -80,7 +80,7 @@ def _prior(args: argparse.Namespace):
         if args.prior_std_mm is not None:
             raise UserError("--prior-std-mm needs --prior")
         return None
-    from acquisition.session import SessionError
+    from acquisition.contracts.session import SessionError
     from calibration.result import load_prior_positions
     from calibration.session_data import load_session
     from calibration.solver import PriorGeometry
@@ -101,7 +101,7 @@ def _prior(args: argparse.Namespace):
 def _check_files(session: Path) -> None:
     """Every file of the session against the journal's checksum, before any work (the
     calibration remembers detections by checksum, so it might not read a damaged file)."""
-    from acquisition.session import SessionError, SessionReader
+    from acquisition.contracts.session import SessionError, SessionReader
 
     try:
         problems = SessionReader(session).verify()
@@ -124,7 +124,7 @@ def _known_air(args: argparse.Namespace) -> tuple[float, float] | None:
     """The known (c, std) of --temperature or --known-speed-of-sound, checked."""
     from pydantic import ValidationError
 
-    from acquisition.rig_description import KnownAir
+    from acquisition.contracts.rig_description import KnownAir
 
     given = {key: getattr(args, flag[2:].replace("-", "_"))
              for key, flag in _AIR_FLAGS.items()}
@@ -187,7 +187,7 @@ def _truth(args: argparse.Namespace, data) -> dict | None:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from acquisition.session import SessionError
+    from acquisition.contracts.session import SessionError
     from calibration.pipeline import CalibrationOptions, calibrate
     from calibration.report import summary_lines, write_report
     from calibration.result import write_acoular_calib_xml, write_acoular_xml

@@ -19,7 +19,7 @@ from .commands import (
     evaluate_imaging,
     image,
     import_session,
-    inspect,
+    inspect_session,
     session,
     sessions,
     simulate,
@@ -28,10 +28,10 @@ from .commands import (
     web,
     worker,
 )
-from .errors import UserError
+from acquisition.contracts.errors import UserError
 
 SUBCOMMANDS = (
-    simulate, import_session, inspect, calibrate, study, image, evaluate_imaging, daq, daemon,
+    simulate, import_session, inspect_session, calibrate, study, image, evaluate_imaging, daq, daemon,
     config, session,
     capture, watch, sessions, web,
     worker,

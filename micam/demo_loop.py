@@ -24,9 +24,9 @@ from pathlib import Path
 from types import TracebackType
 
 from .cli import main as micam
-from .daemon.client import DaemonClient, EventStream
-from .daemon.display import format_live
-from .daemon.protocol import CalibrationEvent, LiveCalibrationEvent
+from acquisition.daemon.client import DaemonClient, EventStream
+from acquisition.daemon.display import format_live
+from acquisition.contracts.protocol import CalibrationEvent, LiveCalibrationEvent
 
 STOP_WAIT_S = 30.0
 
@@ -76,7 +76,7 @@ class Loop:
 
     def _start(self, name: str, *args: str) -> subprocess.Popen:
         log = (self.root / f"{name}.log").open("w")
-        proc = subprocess.Popen([sys.executable, "-m", "acquisition.cli", *args],
+        proc = subprocess.Popen([sys.executable, "-m", "micam.cli", *args],
                                 stdout=log, stderr=subprocess.STDOUT,
                                 env={**os.environ, "NOTIFY_SOCKET": str(self.root / "notify")})
         self._procs.append(proc)

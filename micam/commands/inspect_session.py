@@ -6,7 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-from ..errors import UserError
+from acquisition.contracts.errors import UserError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -44,9 +44,9 @@ def _truth_line(path: Path) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from acquisition.capture_config import CaptureConfig
-    from acquisition.rig_description import DESCRIPTION_KIND, DescriptionError, validate_description
-    from acquisition.session import SessionError, SessionReader
+    from acquisition.contracts.capture_config import CaptureConfig
+    from acquisition.contracts.rig_description import DESCRIPTION_KIND, DescriptionError, validate_description
+    from acquisition.contracts.session import SessionError, SessionReader
 
     try:
         reader = SessionReader(args.session)

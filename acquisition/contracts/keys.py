@@ -16,7 +16,7 @@ from pathlib import Path
 import zmq
 import zmq.auth
 
-from ..errors import UserError
+from acquisition.contracts.errors import UserError
 
 
 def load_certificate(path: Path, secret: bool) -> tuple[bytes, bytes | None]:

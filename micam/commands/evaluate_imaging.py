@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 
 from tqdm import tqdm
 
-from ..errors import UserError
+from acquisition.contracts.errors import UserError
 from . import imaging_options
 
 if TYPE_CHECKING:
@@ -113,7 +113,7 @@ def _write_json(path: Path, document: dict) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from acquisition.session import SessionError, SessionReader
+    from acquisition.contracts.session import SessionError, SessionReader
     from calibration.figures.evaluation import localization_figure
     from calibration.figures.style import save
     from calibration.imaging import load_geometry

@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..errors import UserError
+from acquisition.contracts.errors import UserError
 from . import imaging_options
 
 
@@ -45,7 +45,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from acquisition.session import SessionError, SessionReader
+    from acquisition.contracts.session import SessionError, SessionReader
     from calibration.figures.style import save
     from calibration.imaging import load_geometry
     from calibration.imaging.evaluate import ImagingSettings

@@ -59,7 +59,7 @@ def _size(text: str) -> int:
 
 def run(args: argparse.Namespace) -> int:
     from acquisition.daemon.systemd import configure_logging
-    from acquisition.errors import UserError
+    from acquisition.contracts.errors import UserError
     from calibration.worker import Worker, WorkerSettings
 
     if (args.server_key is None) != (args.client_key is None):

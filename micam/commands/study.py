@@ -11,7 +11,7 @@ import argparse
 import json
 from pathlib import Path
 
-from ..errors import UserError
+from acquisition.contracts.errors import UserError
 
 DEFAULT_BANDS = ("0.4-0.6", "0.6-1.0", "1.0-1.5", "1.5-2.0")
 DEFAULT_SOURCES = (3, 6, 12, 18, 36, 48, 96, 180)
@@ -44,7 +44,7 @@ def _band(text: str) -> tuple[float, float]:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from acquisition.simulated import record_simulated_session
+    from micam.simulated import record_simulated_session
     from calibration.figures.study import study_figure
     from calibration.figures.style import save
     from calibration.pipeline import measure

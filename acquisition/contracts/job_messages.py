@@ -26,7 +26,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter
 
-from ..safe_names import SafeName, SafeRelativePath
+from acquisition.contracts.safe_names import SafeName, SafeRelativePath
 
 JOB_PROTOCOL_VERSION = 2
 

@@ -25,7 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from acquisition.daemon.client import client_from_args
     from acquisition.daemon.display import format_event, format_live, format_status
-    from acquisition.daemon.protocol import LiveCalibrationEvent
+    from acquisition.contracts.protocol import LiveCalibrationEvent
 
     deadline = time.monotonic() + args.duration if args.duration is not None else None
     with client_from_args(args) as client:

@@ -24,7 +24,7 @@ from typing import Annotated, Any, Literal, get_args
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter
 
-from ..safe_names import SafeName, SafeRelativePath
+from acquisition.contracts.safe_names import SafeName, SafeRelativePath
 from .job_messages import LiveUpdate, job_schemas
 
 PROTOCOL_VERSION = 2

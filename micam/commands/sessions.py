@@ -18,7 +18,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from acquisition.daemon.client import client_from_args
-    from acquisition.daemon.protocol import SessionsResult
+    from acquisition.contracts.protocol import SessionsResult
 
     with client_from_args(args) as client:
         result = SessionsResult.model_validate(client.request("sessions.list"))

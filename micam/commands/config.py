@@ -7,7 +7,7 @@ import argparse
 import tomllib
 from pathlib import Path
 
-from ..errors import UserError
+from acquisition.contracts.errors import UserError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -33,7 +33,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run_template(args: argparse.Namespace) -> int:
-    from acquisition.templates import template
+    from micam.templates import template
 
     text = template(args.name)
     if args.out is None:
@@ -52,7 +52,7 @@ def run_template(args: argparse.Namespace) -> int:
 
 
 def run_check(args: argparse.Namespace) -> int:
-    from acquisition.daemon import check_config
+    from micam.daemon import check_config
     from acquisition.importer import ImportSpecError, load_spec
 
     try:

@@ -15,8 +15,8 @@ from pathlib import Path
 
 from sim.capture import SimulatedCapture, SimulationOptions, build_simulated_capture, truth_document
 
-from .sequencer import CaptureSequencer, Progress
-from .session import SessionError, SessionWriter
+from acquisition.sequencer import CaptureSequencer, Progress
+from acquisition.contracts.session import SessionError, SessionWriter
 
 TRUTH_FILE = "truth.json"
 

@@ -44,8 +44,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from acquisition.rig_description import KnownIntrinsics, RigDescription
-from acquisition.session import SessionReader
+from acquisition.contracts.rig_description import KnownIntrinsics, RigDescription
+from acquisition.contracts.session import SessionReader
 
 from ._cores import default_workers
 

@@ -29,7 +29,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from acquisition.errors import UserError
+    from acquisition.contracts.errors import UserError
 
     try:
         import uvicorn

@@ -24,8 +24,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from acquisition.daemon import check_config, json_schemas, run_daemon
-    from acquisition.daemon.keys import make_keys
+    from acquisition.contracts.protocol import json_schemas
+    from micam.daemon import check_config, run_daemon
+    from acquisition.contracts.keys import make_keys
 
     if args.schemas is not None:
         args.schemas.mkdir(parents=True, exist_ok=True)

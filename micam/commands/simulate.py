@@ -9,7 +9,7 @@ from pathlib import Path
 from pydantic import ValidationError
 from tqdm import tqdm
 
-from ..errors import UserError
+from acquisition.contracts.errors import UserError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -80,9 +80,9 @@ def _first_line(exc: BaseException) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from acquisition.camera import CameraError
-    from acquisition.session import SessionError, SessionExistsError
-    from acquisition.simulated import TRUTH_FILE, prepare_simulated_capture
+    from acquisition.contracts.camera import CameraError
+    from acquisition.contracts.session import SessionError, SessionExistsError
+    from micam.simulated import TRUTH_FILE, prepare_simulated_capture
     from daq import DaqError
 
     out: Path = args.out
