@@ -18,18 +18,18 @@ from daq import DaqError
 
 from acquisition.contracts.camera import CameraError
 from acquisition.contracts.errors import UserError
-from acquisition.daemon.config import load_config
-from acquisition.daemon.hardware import open_hardware
 from acquisition.daemon.security import check_exposure
 from acquisition.daemon.service import Daemon
 from acquisition.daemon.systemd import configure_logging, sd_notify
+
+from .hardware import load_daemon_config, open_hardware
 
 log = logging.getLogger("micam.daemon")
 
 
 def check_config(path: Path | None) -> str:
     """Validate a configuration without opening anything; a one-line summary of it."""
-    config = load_config(path)
+    config = load_daemon_config(path)
     check_exposure(config.sockets)
     what = "simulated world" if config.simulated else "real hardware"
     return (f"configuration OK: {what}, control {config.sockets.control}, events "
@@ -39,7 +39,7 @@ def check_config(path: Path | None) -> str:
 def run_daemon(config_path: Path | None) -> int:
     """Run the daemon in this process until it is told to stop; the process exit status."""
     configure_logging()
-    config = load_config(config_path)
+    config = load_daemon_config(config_path)
     check_exposure(config.sockets)  # before opening any hardware
     try:
         hardware = open_hardware(config)

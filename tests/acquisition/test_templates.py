@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from micam.cli import main
-from acquisition.daemon.config import load_config
+from micam.hardware import load_daemon_config as load_config
 from acquisition.importer import load_spec
 from micam.templates import TEMPLATES, template
 from daq import board_model

@@ -20,10 +20,11 @@ from pathlib import Path
 import zmq
 
 from acquisition.daemon.client import DaemonClient
-from acquisition.daemon.config import DaemonConfig, SimulationConfig, SocketsConfig
-from acquisition.daemon.hardware import Hardware, open_hardware
+from acquisition.daemon.config import SocketsConfig
+from acquisition.daemon.hardware import Hardware
 from acquisition.contracts.protocol import StatusResult
 from acquisition.daemon.service import Daemon
+from micam.hardware import MicamDaemonConfig, SimulationConfig, open_hardware
 
 SMALL_WORLD = {"array": "scatter48", "poses": 3, "mls_order": 9, "seed": 3}
 WAIT_S = 60.0
@@ -31,7 +32,7 @@ POLL_S = 0.01  # status polling period of the drive loops (each poll is a bounde
 REPO = Path(__file__).resolve().parents[3]
 
 
-def small_config(root: Path, **overrides) -> DaemonConfig:
+def small_config(root: Path, **overrides) -> MicamDaemonConfig:
     """A daemon configuration on the small simulated world, with ipc sockets under `root`."""
     fields = {
         "session_root": root / "sessions",
@@ -40,7 +41,7 @@ def small_config(root: Path, **overrides) -> DaemonConfig:
         "poll_interval_s": 0.02,
         **overrides,
     }
-    return DaemonConfig(**fields)
+    return MicamDaemonConfig(**fields)
 
 
 def write_toml(path: Path, root: Path, extra: str = "") -> Path:
@@ -56,7 +57,7 @@ def write_toml(path: Path, root: Path, extra: str = "") -> Path:
 class ThreadDaemon:
     """A daemon serving in a background thread of the test process (fast; no signals)."""
 
-    def __init__(self, config: DaemonConfig, hardware: Hardware | None = None) -> None:
+    def __init__(self, config: MicamDaemonConfig, hardware: Hardware | None = None) -> None:
         self.config = config
         self.hardware = hardware or open_hardware(config)
         self.daemon = Daemon(config, self.hardware)  # sockets are bound: ready
