@@ -49,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
     from calibration.figures.style import save
     from calibration.imaging import load_geometry
     from calibration.imaging.evaluate import ImagingSettings
-    from calibration.imaging.recording_map import recording_map
+    from calibration.figures.recording_map import recording_map
     from calibration.report import significant
 
     if not args.out.parent.is_dir():

@@ -17,13 +17,13 @@ from matplotlib.figure import Figure
 
 from acquisition.contracts.session import SessionReader
 
-from ..figures.maps import MapPanel, acoustic_map_figure
-from .beamform import beamform_csm
-from .cleansc import CleanScOptions, clean_sc
-from .evaluate import ImagingSettings, bin_spectra, geometry_steering, mic_signals
-from .geometry import ArrayGeometry
-from .overlay import clean_sources, field_of_view_grid, map_to_image
-from .steering import Formulation
+from ..imaging.beamform import beamform_csm
+from ..imaging.cleansc import CleanScOptions, clean_sc
+from ..imaging.evaluate import ImagingSettings, bin_spectra, geometry_steering, mic_signals
+from ..imaging.geometry import ArrayGeometry
+from ..imaging.overlay import clean_sources, field_of_view_grid, map_to_image
+from ..imaging.steering import Formulation
+from .maps import MapPanel, acoustic_map_figure
 
 
 @dataclass(frozen=True)
