@@ -78,7 +78,7 @@ class V4L2Camera:
     def _configure(self, fourcc: str, width: int, height: int, fps: float | None,
                    exposure: float | None) -> None:
         cap = self._cap
-        code = cv2.VideoWriter_fourcc(*fourcc)
+        code = cv2.VideoWriter.fourcc(*fourcc)
         cap.set(cv2.CAP_PROP_FOURCC, code)
         cap.set(cv2.CAP_PROP_FRAME_WIDTH, width)
         cap.set(cv2.CAP_PROP_FRAME_HEIGHT, height)

@@ -447,7 +447,7 @@ class _Model:
         sources, d_sources = self._sources(s)
         tofs = self._tofs(s, (sources, d_sources, *self._normals(s)), trip)
         residual = np.concatenate([corners, tofs])
-        jac = trip.matrix(self.n_rows, self.layout.size) if jacobian else None
+        jac = trip.matrix(self.n_rows, self.layout.size) if trip is not None else None
         return residual, jac
 
     def _corners(self, s: BundleState, trip: _Triplets | None) -> np.ndarray:
@@ -906,7 +906,7 @@ def _solution(model: _Model, x: np.ndarray, residual: np.ndarray, keep: np.ndarr
     ref_out = np.zeros(p.reference_tof_s.shape, dtype=bool)
     ref_out[model.ref_valid] = ~keep[n_c + model.src.size:]
     corner_res = -residual[:n_c].reshape(n_view, n_corner, 2)
-    corner_out = ~keep[:n_c].reshape(n_view, n_corner, 2).all(axis=2)
+    corner_out = np.asarray(~keep[:n_c].reshape(n_view, n_corner, 2).all(axis=2))
     sq = np.where(corner_out, np.nan, np.sum(corner_res**2, axis=2))
     corner_rms = np.array([np.sqrt(np.nanmean(sq[p.view_camera == i]))
                            for i in range(p.n_camera)])

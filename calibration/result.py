@@ -246,11 +246,13 @@ def compare_with_truth(result: CalibrationResult, truth: dict,
     truth.json: microphone errors (metres), the speed-of-sound error (m/s), the largest
     relative focal-length error and the largest board-latency error (seconds, relative to the
     gauge board) when the result names its gauge board."""
-    if camera_frozen and result.camera_frozen is None:
-        raise ValueError("the result has no camera-frozen solution (joint fit switched off)")
-    part = result.camera_frozen if camera_frozen else result
-    focal = (part.focal_px if camera_frozen
-             else {c.name: (c.K[0][0], c.K[1][1]) for c in result.cameras})
+    part: CameraFrozenResult | CalibrationResult = result
+    focal = {c.name: (c.K[0][0], c.K[1][1]) for c in result.cameras}
+    if camera_frozen:
+        if result.camera_frozen is None:
+            raise ValueError("the result has no camera-frozen solution (joint fit switched off)")
+        part = result.camera_frozen
+        focal = dict(result.camera_frozen.focal_px)
     true_pos = {m["id"]: np.array(m["position_m"]) for m in truth["microphones"]}
     errors = np.array([np.linalg.norm(np.array(m.position_m) - true_pos[m.id])
                        for m in part.microphones])
@@ -286,7 +288,7 @@ def load_prior_positions(path: Path, mic_ids: np.ndarray) -> np.ndarray:
 
             points = ET.parse(path).getroot().findall("pos")
             by_id = {int(p.get("Name", "").split()[-1]) - 1:
-                     [float(p.get(axis)) for axis in "xyz"] for p in points}
+                     [float(p.get(axis, "")) for axis in "xyz"] for p in points}
         else:
             doc = json.loads(path.read_text())
             by_id = {int(m["id"]): m["position_m"] for m in doc["microphones"]}

@@ -96,7 +96,7 @@ class SessionData:
     def mic_volts_per_unit(self) -> np.ndarray:
         """(M,) volts per recorded unit of every microphone's column (ones where the
         description does not say: then every column is taken to have the same)."""
-        scale = {}
+        scale: dict[int, float] = {}
         for group in self.description.channels:
             if group.volts_per_unit is not None:
                 scale.update(zip(group.columns, group.volts_per_unit, strict=True))

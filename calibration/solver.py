@@ -306,9 +306,11 @@ def _consensus(
     """(n_mic, n_src) 0/1 inlier weights of the best-supported candidate fit per microphone."""
     n_src = sources.shape[0]
     rng = np.random.default_rng(0)
+    subsets: list[np.ndarray]
     if n_src <= 8:
         subsets = [
-            list(c) for k in (n_src - 1, n_src - 2) if k >= 3 for c in combinations(range(n_src), k)
+            np.array(c) for k in (n_src - 1, n_src - 2) if k >= 3
+            for c in combinations(range(n_src), k)
         ]
     else:
         subsets = [rng.choice(n_src, 5, replace=False) for _ in range(n_subsets)]
@@ -416,9 +418,11 @@ class _Model:
             latency_col,
         )
         st = structure
-        n_pose = st.sources.rotvec.shape[0] if st.refine_poses else 0
+        rig = st.sources if isinstance(st.sources, RigSources) else None
+        n_pose = rig.rotvec.shape[0] if st.refine_poses and rig is not None else 0
         n_src_refined = st.source_std_m.size if st.source_std_m is not None else 0
-        deviations = st.prior is not None and st.prior.deviation_std_m is not None
+        deviation_std = st.prior.deviation_std_m if st.prior is not None else None
+        deviations = deviation_std is not None
         sizes = {
             "mic": 6 if st.prior is not None else 3 * st.n_mic,
             "dev": 3 * st.n_mic if deviations else 0,
@@ -438,13 +442,14 @@ class _Model:
             self.whitening["c"] = np.full((1, 1, 1), 1.0 / st.c_prior_std)
         if st.n_latency and st.latency_prior_std is not None:
             self.whitening["lat"] = np.full((st.n_latency, 1, 1), 1.0 / st.latency_prior_std)
-        if deviations:
-            self.whitening["dev"] = np.broadcast_to(
-                np.eye(3) / st.prior.deviation_std_m, (st.n_mic, 3, 3)
-            )
+        if deviation_std is not None:
+            self.whitening["dev"] = np.broadcast_to(np.eye(3) / deviation_std, (st.n_mic, 3, 3))
         if n_pose:
-            self.whitening["pose"] = np.linalg.inv(np.linalg.cholesky(st.sources.pose_covariance))
-        if n_src_refined:
+            if rig is None or rig.pose_covariance is None:
+                raise ValueError("refining the poses needs their covariance "
+                                 "(RigSources.pose_covariance)")
+            self.whitening["pose"] = np.linalg.inv(np.linalg.cholesky(rig.pose_covariance))
+        if st.source_std_m is not None and n_src_refined:
             self.whitening["src"] = np.eye(3) / st.source_std_m[:, None, None]
 
     def part(self, name: str, x: np.ndarray) -> np.ndarray:
@@ -486,11 +491,12 @@ class _Model:
     ) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray]]]:
         """(n_src, 3) positions and their Jacobian blocks, as `mic_positions`."""
         sources = self.s.sources
+        blocks: list[tuple[np.ndarray, np.ndarray]] = []
         if not isinstance(sources, RigSources):
-            positions, blocks = np.asarray(sources, dtype=float), []
+            positions = np.asarray(sources, dtype=float)
         else:
             corr = self.pose_corrections(x)
-            positions, blocks = sources.positions(corr), []
+            positions = sources.positions(corr)
             if corr is not None:
                 pose = sources.pose_of_source
                 rotvec = (sources.rotvec + corr[:, :3])[pose]
@@ -768,12 +774,12 @@ def _inverse(matrix: np.ndarray) -> np.ndarray:
 
 def _propagate(cov: np.ndarray, blocks: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
     """(n, 3, 3) covariance of points whose Jacobian blocks are `blocks`, from cov."""
-    out = 0.0
+    out: np.ndarray | float = 0.0
     for cols_a, d_a in blocks:
         for cols_b, d_b in blocks:
             sub = cov[cols_a[:, :, None], cols_b[:, None, :]]  # (n, wa, wb)
             out = out + np.einsum("niw,nwv,njv->nij", d_a, sub, d_b)
-    return out
+    return np.asarray(out)
 
 
 def solve_paper_method(

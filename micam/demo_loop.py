@@ -120,8 +120,10 @@ def scripted_capture(loop: Loop, poses: int, show: bool = True) -> tuple[Path, f
     with loop.client() as client:
         if micam(["session", "start", "--poses", str(poses), *control]) != 0:
             raise RuntimeError("micam session start failed")
-        path = Path(client.status().session.path)
-        total = client.status().session.steps_total
+        session = client.status().session
+        if session is None:
+            raise RuntimeError("micam session start returned but the daemon has no session")
+        path, total = Path(session.path), session.steps_total
     out = None if show else open(os.devnull, "w")
     try:
         for _ in range(total * 3):  # quality retries may add captures

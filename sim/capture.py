@@ -145,7 +145,7 @@ class SimulatedCapture:
 def capture_config_for(layout: ArrayLayout, rig: Rig, n_poses: int, sample_rate_hz: float,
                        burst: BurstConfig, cameras: list[Camera]) -> CaptureConfig:
     """The capture configuration of a simulated array: every wired input, in board order."""
-    wired: dict[int, list[tuple[int, str, int | None]]] = {}
+    wired: dict[int, list[tuple[int, Literal["mic", "reference"], int | None]]] = {}
     for m, ref in enumerate(layout.mic_inputs):
         wired.setdefault(ref.board, []).append((ref.channel, "mic", m))
     ref = layout.reference_input

@@ -22,13 +22,13 @@ workers on machines without boards import it. docs/protocol.md documents the exc
 from __future__ import annotations
 
 import json
-from typing import Annotated, Literal
+from typing import Annotated, Final, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter
 
 from acquisition.contracts.safe_names import SafeName, SafeRelativePath
 
-JOB_PROTOCOL_VERSION = 2
+JOB_PROTOCOL_VERSION: Final = 2
 
 JobKind = Literal["live", "final"]
 """live: the calibration so far, after a pose (fast, no joint fit); final: the full calibration

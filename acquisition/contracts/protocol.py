@@ -20,14 +20,14 @@ camera has seen in `progress` and `status`. Both ends refuse a message of anothe
 from __future__ import annotations
 
 from datetime import UTC, datetime
-from typing import Annotated, Any, Literal, get_args
+from typing import Annotated, Any, Final, Literal, get_args
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter
 
 from acquisition.contracts.safe_names import SafeName, SafeRelativePath
 from .job_messages import LiveUpdate, job_schemas
 
-PROTOCOL_VERSION = 2
+PROTOCOL_VERSION: Final = 2
 CAMERA_MIN_VIEWS = 4
 """Board views a camera needs to be calibrated (calibration.cameras.MIN_VIEWS; a test keeps
 the two equal): a camera with fewer is left out of the calibration."""

@@ -311,7 +311,7 @@ class KnownAir(ConfigModel):
         return AirReading(
             temperature_c=float(self.temperature_c or 0.0),
             temperature_std_k=max(float(self.temperature_std_c or 0.0), 1e-9),
-            relative_humidity=self.relative_humidity if humid else 0.5,
+            relative_humidity=self.relative_humidity if self.relative_humidity is not None else 0.5,
             relative_humidity_std=(float(self.relative_humidity_std or 0.0) if humid
                                    else 0.5),
             pressure_std_pa=2_000.0,

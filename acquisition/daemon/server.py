@@ -195,7 +195,7 @@ class ControlServer:
 
     @property
     def events_endpoint(self) -> str:
-        return self._pub.last_endpoint.decode()
+        return str(self._pub.getsockopt_string(zmq.LAST_ENDPOINT))
 
     @property
     def last_event_seq(self) -> int:

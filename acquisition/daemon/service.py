@@ -325,7 +325,7 @@ class Daemon:
             cameras=[c.name for c in capture.cameras],
             rig=RigInfo(corners_x=capture.rig.corners_x, corners_y=capture.rig.corners_y,
                         square_m=capture.rig.square_m,
-                        speakers_m=[tuple(p) for p in capture.rig.speakers_m]),
+                        speakers_m=[(p[0], p[1], p[2]) for p in capture.rig.speakers_m]),
             n_poses=capture.n_poses, max_poses=self.hardware.max_poses,
             quality=QualityInfo(clip_fraction=quality.clip_fraction,
                                 min_level_dbfs=quality.min_level_dbfs,
@@ -410,8 +410,8 @@ class Daemon:
         writer = SessionWriter.create(path, capture=config.model_dump(mode="json"),
                                       session_id=session_id)
         for name, document in self.hardware.session_files.items():
-            text = json.dumps(document, indent=1).encode()
-            write_atomic(path / name, lambda fh, text=text: fh.write(text))
+            data = json.dumps(document, indent=1).encode()
+            write_atomic(path / name, lambda fh: fh.write(data))  # called before the next
         return writer
 
     def _reopen(self, which: str) -> SessionWriter:

@@ -5,11 +5,15 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from pydantic import ValidationError
 from tqdm import tqdm
 
 from acquisition.contracts.errors import UserError
+
+if TYPE_CHECKING:
+    from acquisition.sequencer import Progress
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -101,7 +105,11 @@ def run(args: argparse.Namespace) -> int:
     remaining = len(sequencer.remaining_steps())
     try:
         with tqdm(total=remaining, unit="step", disable=args.quiet, desc="capture") as bar:
-            sequencer.on_progress = lambda p: (bar.set_postfix_str(p.step), bar.update(1))
+            def progress(p: Progress) -> None:
+                bar.set_postfix_str(p.step)
+                bar.update(1)
+
+            sequencer.on_progress = progress
             sequencer.run()
     except (DaqError, CameraError, SessionError, OSError) as exc:
         print(f"micam: capture interrupted: {_first_line(exc)}\n"

@@ -11,13 +11,13 @@ in _journal.py also checks that each path is the one the writer would have used)
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Final, Literal
 
 from pydantic import AfterValidator, AwareDatetime, BaseModel, ConfigDict, Field, TypeAdapter
 
 from ..safe_names import SafeName, SafeRelativePath, is_step_id
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION: Final = 1
 
 FileRole = Literal["recording", "image", "other"]
 ExitStatus = Literal["success", "aborted", "failed"]
