@@ -178,12 +178,15 @@ def _reprojection_residual(run: CalibrationRun, key: tuple[str, str]) -> np.ndar
 def summary_lines(run: CalibrationRun, truth: dict | None = None) -> list[str]:
     """The few lines printed at the end of `micam calibrate`."""
     r = run.result
+    c_std = (f" ± {significant(r.speed_of_sound_std_m_s)}"
+             if math.isfinite(r.speed_of_sound_std_m_s) else "")
+    median_std = _median_std(run)
+    std = (f"median position std {significant(1e3 * median_std)} mm"
+           if math.isfinite(median_std) else f"no position std (method {r.method} gives none)")
     lines = [
         f"{len(r.microphones)} microphones from {len(r.poses)} poses "
         f"({len(r.poses) * run.data.n_speakers} sources), method {r.method}",
-        f"speed of sound {r.speed_of_sound_m_s:.3f} ± "
-        f"{significant(r.speed_of_sound_std_m_s)} m/s; median position std "
-        f"{significant(1e3 * _median_std(run))} mm; TOF residual RMS "
+        f"speed of sound {r.speed_of_sound_m_s:.3f}{c_std} m/s; {std}; TOF residual RMS "
         f"{significant(1e9 * r.residuals.rms_s)} ns",
     ]
     if truth is not None:

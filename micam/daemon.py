@@ -36,9 +36,9 @@ def check_config(path: Path | None) -> str:
             f"{config.sockets.events}, sessions in {config.session_root}")
 
 
-def run_daemon(config_path: Path | None) -> int:
+def run_daemon(config_path: Path | None, log_level: int = logging.INFO) -> int:
     """Run the daemon in this process until it is told to stop; the process exit status."""
-    configure_logging()
+    configure_logging(log_level)
     config = load_daemon_config(config_path)
     check_exposure(config.sockets)  # before opening any hardware
     try:

@@ -53,7 +53,7 @@ class Loop:
     def __enter__(self) -> Loop:
         try:
             self._start_daemon()
-            self._start("worker", "worker", "--connect", self.control, "--name", "demo-worker",
+            self._start("worker", "worker", "--control", self.control, "--name", "demo-worker",
                         "--cache", str(self.root / "worker-cache"))
             with self.client() as client:
                 client.wait_until(lambda s: len(s.calibration.workers) >= 1, 60.0,

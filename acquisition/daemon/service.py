@@ -61,7 +61,7 @@ from .run import SessionEnding, SessionRun
 from .server import ControlServer, Refusal
 from .session_files import session_dir, session_file, session_report
 from .states import WAITING_STATES, State, StateMachine, Transition, WrongState, check_allowed
-from .systemd import Watchdog, sd_notify
+from .systemd import Watchdog, sd_notify, set_log_context
 from .translog import TransitionLog
 
 log = logging.getLogger("micam.daemon")
@@ -273,6 +273,7 @@ class Daemon:
 
     def _on_transition(self, t: Transition) -> None:
         run = self.run
+        set_log_context(run.session_id if run else None, run.step if run else None)
         log.info("%s -> %s (%s)", t.previous.value, t.state.value, t.reason)
         if self._translog is not None:
             self._translog.append(previous=t.previous.value, state=t.state.value,

@@ -7,6 +7,8 @@ from pathlib import Path
 
 from acquisition.contracts.errors import UserError
 
+from ..outputs import check_outputs
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -25,7 +27,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "calibration XML format (acoular.Calib)")
     p.add_argument("--method", choices=("micam", "paper"), default="micam",
                    help="micam (default) or the paper's coordinate search (baseline)")
-    p.add_argument("--latency", choices=("per_board", "common", "none"), default="per_board")
+    p.add_argument("--latency", choices=("per_board", "common", "none"), default="per_board",
+                   help="fit one latency per board (default), one for all, or none")
     p.add_argument("--speed-of-sound", choices=("reference", "solve"), default="reference",
                    help="fix c at the reference-microphone fit (default) or solve for it")
     p.add_argument("--refine-poses", action="store_true",
@@ -53,7 +56,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="its standard deviation, 0..1")
     p.add_argument("--known-speed-of-sound", type=float, default=None, metavar="M_S",
                    help="a measured speed of sound, m/s (with --known-speed-of-sound-std)")
-    p.add_argument("--known-speed-of-sound-std", type=float, default=None, metavar="M_S")
+    p.add_argument("--known-speed-of-sound-std", type=float, default=None, metavar="M_S",
+                   help="its standard deviation, m/s")
     p.add_argument("--intrinsics", action="append", default=[], metavar="CAMERA=FILE",
                    help="a known calibration of a camera (OpenCV YAML/JSON/XML, ROS "
                         "camera_info or a micam result.json); repeat per camera")
@@ -196,11 +200,8 @@ def run(args: argparse.Namespace) -> int:
     out: Path = args.out
     if out.exists() and not args.force:
         raise UserError(f"{out} exists; choose another --out or pass --force to overwrite it")
-    for flag, path in (("--out", out), ("--acoular-xml", args.acoular_xml),
-                       ("--acoular-calib", args.acoular_calib)):
-        if path is not None and not path.absolute().parent.is_dir():
-            raise UserError(f"the directory of {flag} ({path.absolute().parent}) does not "
-                            "exist; create it first")
+    check_outputs(("--out", out), ("--acoular-xml", args.acoular_xml),
+                  ("--acoular-calib", args.acoular_calib))
     if args.acoular_calib is not None and (args.no_joint or args.method == "paper"):
         raise UserError("--acoular-calib needs the joint fit (it estimates the responses); "
                         "leave out --no-joint and --method paper")

@@ -15,7 +15,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-wait", action="store_true", help="return as soon as it is accepted")
     p.add_argument("--wait-timeout", type=float, default=300.0, metavar="S",
                    help="longest wait for the capture to finish (default 300 s)")
-    p.add_argument("--quiet", action="store_true", help="print only the outcome")
+    p.add_argument("--quiet", action="store_true",
+                   help="print only the outcome: one line, the step and complete or abandoned")
     add_client_arguments(p)
     p.set_defaults(run=run_capture)
     r = sub.add_parser(
@@ -35,9 +36,11 @@ def run_capture(args: argparse.Namespace) -> int:
         stream = None if args.no_wait or args.quiet else client.subscribe()
         try:
             accepted = CaptureResult.model_validate(client.request("capture"))
-            print(f"capturing {accepted.step} (capture {accepted.number})")
             if args.no_wait:
+                print(f"capturing {accepted.step} (capture {accepted.number})")
                 return 0
+            if not args.quiet:
+                print(f"capturing {accepted.step} (capture {accepted.number})")
             status = client.wait_until(
                 lambda s: (s.session is None or (s.last_capture is not None
                                                  and s.last_capture.number >= accepted.number)),
@@ -49,7 +52,10 @@ def run_capture(args: argparse.Namespace) -> int:
     if status.session is None:
         print("the session closed")
         return 0
-    print(format_status(status))
+    if args.quiet:
+        print(f"{last.step} {last.outcome}" if last is not None else "no capture finished")
+    else:
+        print(format_status(status))
     return 0 if last is not None and last.outcome == "complete" else 3
 
 

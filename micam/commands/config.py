@@ -21,14 +21,16 @@ def register(sub: argparse._SubParsersAction) -> None:
                            description="paper: the daemon on 3 x DT9836 + 6 x DT9816-A + the "
                                        "reference board, 3 cameras; generic: the daemon on a "
                                        "smaller rig, one camera; import: `micam import`.")
-    t.add_argument("name", choices=("paper", "generic", "import"))
+    t.add_argument("name", choices=("paper", "generic", "import"),
+                   help="paper (the paper's 9 boards, 3 cameras), generic (3 DT9836, one "
+                        "camera) or import (a session from another recorder's files)")
     t.add_argument("--out", type=Path, default=None, metavar="FILE",
                    help="write it to FILE (never over an existing file); default: print it")
     t.set_defaults(run=run_template)
     c = actions.add_parser("check", help="validate a daemon configuration or an import file",
                            description="A file with a [recordings] table is checked as an "
                                        "import description, any other as the daemon's.")
-    c.add_argument("file", type=Path)
+    c.add_argument("file", type=Path, help="the daemon configuration or import spec to check")
     c.set_defaults(run=run_check)
 
 

@@ -41,4 +41,4 @@ def run(args: argparse.Namespace) -> int:
     if args.check:
         print(check_config(args.config))
         return 0
-    return run_daemon(args.config)
+    return run_daemon(args.config, args.log_level)

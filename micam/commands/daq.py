@@ -52,9 +52,7 @@ def run_list(args: argparse.Namespace) -> int:
     try:
         boards = list_boards(_backend(args))
     except (usb.core.NoBackendError, usb.core.USBError) as exc:
-        raise UserError(
-            f"cannot scan the USB bus: {exc}. Is libusb-1.0 installed (Debian: libusb-1.0-0), "
-            "and may this user open the boards (udev/README.md)?") from None
+        raise _usb_unusable(exc) from None
     if not boards:
         print("no Data Translation board found (check the cable, power and udev rules: "
               "udev/README.md)")
@@ -67,7 +65,15 @@ def run_list(args: argparse.Namespace) -> int:
     return 0
 
 
+def _usb_unusable(exc: Exception) -> UserError:
+    return UserError(
+        f"cannot scan the USB bus: {exc}. Is libusb-1.0 installed (Debian: libusb-1.0-0), "
+        "and may this user open the boards (udev/README.md)?")
+
+
 def run_selftest(args: argparse.Namespace) -> int:
+    import usb.core
+
     from daq import DaqError
     from daq.usb import open_boards, selftest
 
@@ -75,6 +81,8 @@ def run_selftest(args: argparse.Namespace) -> int:
         raise UserError("--seconds must be positive")
     try:
         boards = open_boards(backend=_backend(args), firmware_dir=args.firmware_dir)
+    except (usb.core.NoBackendError, usb.core.USBError) as exc:
+        raise _usb_unusable(exc) from None
     except DaqError as exc:
         raise UserError(str(exc)) from None
     if not boards:

@@ -15,6 +15,8 @@ from typing import TYPE_CHECKING
 from tqdm import tqdm
 
 from acquisition.contracts.errors import UserError
+
+from ..outputs import check_outputs
 from . import imaging_options
 
 if TYPE_CHECKING:
@@ -120,9 +122,7 @@ def run(args: argparse.Namespace) -> int:
     from calibration.imaging.evaluate import ImagingSettings, evaluate_session
     from calibration.imaging.holdout import cross_validate
 
-    for path in (args.json, args.figure):
-        if path is not None and not path.parent.is_dir():
-            raise UserError(f"the directory of {path} does not exist")
+    check_outputs(("--json", args.json), ("--figure", args.figure))
     truth_path = args.truth or (args.session / "truth.json")
     if args.truth is not None and not truth_path.is_file():
         raise UserError(f"--truth {truth_path} is not a file")

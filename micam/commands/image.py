@@ -8,6 +8,8 @@ import argparse
 from pathlib import Path
 
 from acquisition.contracts.errors import UserError
+
+from ..outputs import check_outputs
 from . import imaging_options
 
 
@@ -52,8 +54,7 @@ def run(args: argparse.Namespace) -> int:
     from calibration.figures.recording_map import recording_map
     from calibration.report import significant
 
-    if not args.out.parent.is_dir():
-        raise UserError(f"the directory of --out ({args.out.parent}) does not exist")
+    check_outputs(("--out", args.out))
     if args.range_db <= 0:
         raise UserError(f"--range-db {args.range_db} must be positive")
     try:

@@ -27,9 +27,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sources", type=int, nargs="+", default=list(DEFAULT_SOURCES),
                    help="numbers of sources (up to 6, or multiples of 6)")
     p.add_argument("--trials", type=int, default=5, help="random subsets per number")
-    p.add_argument("--array", default="sphere72")
-    p.add_argument("--mls-order", type=int, default=14)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--array", default="sphere72",
+                   help="simulated array: sphere72 (default), planar64 or scatter48")
+    p.add_argument("--mls-order", type=int, default=14,
+                   help="order of the MLS bursts, a period of 2**order - 1 samples (default 14)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="seed of the simulated world and of the subsets drawn (default 0)")
     p.set_defaults(run=run)
 
 

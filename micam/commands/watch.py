@@ -4,6 +4,7 @@ the live calibration: uncertainty, predicted accuracy, where the next pose would
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 
 from acquisition.daemon.cli_args import add_client_arguments
@@ -15,7 +16,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "until interrupted (Ctrl-C).")
     p.add_argument("--count", type=int, metavar="N", help="stop after N events")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
-    p.add_argument("--json", action="store_true", help="print events as JSON lines")
+    p.add_argument("--json", action="store_true",
+                   help="print JSON lines only: the status first, then one event per line "
+                        "(notes such as missed events go to stderr)")
     p.add_argument("--target-mm", type=float, metavar="MM",
                    help="say when the live calibration predicts this mean microphone accuracy")
     add_client_arguments(p)
@@ -31,7 +34,9 @@ def run(args: argparse.Namespace) -> int:
     with client_from_args(args) as client:
         stream = client.subscribe()
         try:
-            print(format_status(client.status()), flush=True)
+            status = client.status()
+            print(status.model_dump_json() if args.json else format_status(status), flush=True)
+            note = sys.stderr if args.json else sys.stdout
             seen = 0
             last_seq = None
             while args.count is None or seen < args.count:
@@ -41,8 +46,11 @@ def run(args: argparse.Namespace) -> int:
                 event = stream.next(min(wait, 1.0))
                 if event is None:
                     continue
-                if last_seq is not None and event.seq != last_seq + 1:
-                    print(f"(missed {event.seq - last_seq - 1} events)")
+                if last_seq is not None and event.seq <= last_seq:
+                    print("(the daemon restarted: its event numbers start again)",
+                          file=note, flush=True)
+                elif last_seq is not None and event.seq != last_seq + 1:
+                    print(f"(missed {event.seq - last_seq - 1} events)", file=note, flush=True)
                 last_seq = event.seq
                 seen += 1
                 if args.json:

@@ -1,4 +1,4 @@
-"""`micam worker --connect ENDPOINT`: calibrate the daemon's sessions as they are captured."""
+"""`micam worker --control ENDPOINT`: calibrate the daemon's sessions as they are captured."""
 
 from __future__ import annotations
 
@@ -8,23 +8,23 @@ import signal
 from pathlib import Path
 from types import FrameType
 
-from acquisition.daemon.endpoints import beside, default_control
+from acquisition.daemon.cli_args import add_control_argument, endpoint
+from acquisition.daemon.endpoints import beside
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     env = os.environ.get
-    control = default_control()
     p = sub.add_parser(
         "worker", help="calibrate the daemon's poses and sessions (ZeroMQ worker)",
         description="Connect to a micam daemon, take its calibration jobs one at a time (a "
                     "live calibration after each pose, the full one when a session closes), "
                     "fetch the session files over ZeroMQ into a local cache, and send the "
                     "results back. Runs until SIGTERM or Ctrl-C.")
-    p.add_argument("--connect", default=env("MICAM_CONTROL", control), metavar="ENDPOINT",
-                   help="the daemon's control endpoint; the jobs and file endpoints are beside "
-                        f"it (default $MICAM_CONTROL or {control})")
-    p.add_argument("--jobs", metavar="ENDPOINT", help="the daemon's jobs endpoint, if not beside")
-    p.add_argument("--files", metavar="ENDPOINT", help="the daemon's file endpoint, if not beside")
+    add_control_argument(p, "; the jobs and file endpoints are beside it")
+    p.add_argument("--jobs", type=endpoint, metavar="ENDPOINT",
+                   help="the daemon's jobs endpoint, if not beside")
+    p.add_argument("--files", type=endpoint, metavar="ENDPOINT",
+                   help="the daemon's file endpoint, if not beside")
     p.add_argument("--name", help="this worker's name in the daemon's events (default host-pid)")
     p.add_argument("--cache", type=Path, default=Path("~/.cache/micam/worker"),
                    help="directory for fetched session files, one per worker "
@@ -64,10 +64,10 @@ def run(args: argparse.Namespace) -> int:
 
     if (args.server_key is None) != (args.client_key is None):
         raise UserError("CURVE needs both --server-key and --client-key")
-    configure_logging()
+    configure_logging(args.log_level)
     settings = WorkerSettings(
-        jobs=args.jobs or beside(args.connect, "jobs"),
-        files=args.files or beside(args.connect, "files"),
+        jobs=args.jobs or beside(args.control, "jobs"),
+        files=args.files or beside(args.control, "files"),
         cache=args.cache, cache_max_bytes=args.cache_max, heartbeat_interval_s=args.heartbeat,
         daemon_timeout_s=args.daemon_timeout, joint=not args.no_joint,
         server_key=args.server_key, client_key=args.client_key,

@@ -89,7 +89,7 @@ class Rig:
         if self.worker is None or self.worker.poll() is not None:
             log = (self.root / "worker.log").open("a")
             self.worker = subprocess.Popen(
-                [sys.executable, "-m", "micam.cli", "worker", "--connect",
+                [sys.executable, "-m", "micam.cli", "worker", "--control",
                  f"ipc://{self.root}/control", "--name", "chaos", "--cache",
                  str(self.root / "cache"), "--heartbeat", "0.1", "--daemon-timeout", "2",
                  "--no-joint"], cwd=REPO, stdout=log, stderr=subprocess.STDOUT)
