@@ -45,6 +45,7 @@ import cv2
 import numpy as np
 
 from acquisition.contracts.rig_description import KnownIntrinsics, RigDescription
+from acquisition.contracts.rigid import rotation_from_rotvec
 from acquisition.contracts.session import SessionReader
 
 from ._cores import default_workers
@@ -149,7 +150,7 @@ class Pose:
 
     @property
     def R(self) -> np.ndarray:
-        return cv2.Rodrigues(self.rvec)[0]
+        return rotation_from_rotvec(self.rvec)
 
     def apply(self, points: np.ndarray) -> np.ndarray:
         """Transform points of shape (..., 3)."""

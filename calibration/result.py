@@ -7,13 +7,14 @@ Comparing a result with the truth is one line because both use
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 from typing import Literal
 from xml.sax.saxutils import quoteattr
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
+
+from acquisition.contracts.session import write_atomic
 
 Vector3 = tuple[float, float, float]
 
@@ -197,13 +198,9 @@ class CalibrationResult(_Model):
         return np.array([m.position_m for m in self.microphones])
 
     def write(self, path: Path) -> None:
-        """Write result.json atomically (temporary name, fsync, rename)."""
-        tmp = path.with_name(path.name + ".partial")
-        with open(tmp, "w") as f:
-            f.write(self.model_dump_json(indent=1))
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
+        """Write result.json atomically (temporary name, fsync, rename, directory fsync)."""
+        data = self.model_dump_json(indent=1).encode()
+        write_atomic(Path(path), lambda fh: fh.write(data), replace=True)
 
 
 def write_acoular_xml(result: CalibrationResult, path: Path, name: str = "micam") -> None:

@@ -35,8 +35,9 @@ from scipy import sparse
 from scipy.optimize import OptimizeResult, least_squares
 from scipy.spatial.transform import Rotation
 
-_MAD_TO_SIGMA = 1.4826
+from acquisition.contracts.rigid import kabsch, rotated_point_jacobian
 
+from .robust import MAD_TO_SIGMA, inverse_normal, robust_sigma
 
 # --------------------------------------------------------------------------------------
 # Inputs and outputs
@@ -181,44 +182,6 @@ class MicrophoneSolution:
 
 
 # --------------------------------------------------------------------------------------
-# Rotation helpers
-# --------------------------------------------------------------------------------------
-
-
-def skew(v: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) cross-product matrices [v]x, so that [v]x w = v x w."""
-    v = np.asarray(v, dtype=float)
-    out = np.zeros((*v.shape[:-1], 3, 3))
-    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
-    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
-    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
-    return out
-
-
-def right_jacobian(v: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) right Jacobian J_r of SO(3): R(v + dv) ~ R(v) exp([J_r(v) dv]x).
-
-    J_r(v) = I - (1 - cos t) / t^2 [v]x + (t - sin t) / t^3 [v]x^2, t = |v| (series near 0).
-    It gives d(R(v) B)/dv = -R(v) [B]x J_r(v), the rotation part of the analytic Jacobian.
-    """
-    v = np.asarray(v, dtype=float)
-    t = np.linalg.norm(v, axis=-1)[..., None, None]
-    small = t < 1e-4
-    ts = np.where(small, 1.0, t)
-    a = np.where(small, 0.5 - t**2 / 24.0, (1.0 - np.cos(ts)) / ts**2)
-    b = np.where(small, 1.0 / 6.0 - t**2 / 120.0, (ts - np.sin(ts)) / ts**3)
-    K = skew(v)
-    return np.eye(3) - a * K + b * (K @ K)
-
-
-def rotated_point_jacobian(rotvec: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """(n, 3, 3) d(R(rotvec) p)/d(rotvec) for rotvec (n, 3) and points (n, 3)."""
-    rotvec = np.array(rotvec, dtype=float)  # scipy needs a writable, contiguous buffer
-    R = Rotation.from_rotvec(rotvec).as_matrix()
-    return -R @ skew(points) @ right_jacobian(rotvec)
-
-
-# --------------------------------------------------------------------------------------
 # Closed-form start
 # --------------------------------------------------------------------------------------
 
@@ -282,7 +245,7 @@ def multilaterate(
         others = np.where(keep > 0, residual, np.nan)
         others[np.arange(others.shape[0]), worst] = np.nan
         with np.errstate(all="ignore"):
-            scale = _MAD_TO_SIGMA * np.nanmedian(others, axis=1)
+            scale = MAD_TO_SIGMA * np.nanmedian(others, axis=1)
         drop = (worst_value > 5.0 * np.maximum(np.nan_to_num(scale), 5e-4)) & (keep.sum(1) > 5)
         if not drop.any():
             break
@@ -679,25 +642,16 @@ def _initial_parameters(model: _Model, start: np.ndarray, options: SolverOptions
         x0[: 3 * model.s.n_mic] = start.ravel()
     else:
         ok = np.all(np.isfinite(start), axis=1)
-        R, t = _kabsch(model.s.prior.positions_m[ok], start[ok])
+        R, t = kabsch(model.s.prior.positions_m[ok], start[ok])
         x0[:3], x0[3:6] = Rotation.from_matrix(R).as_rotvec(), t
     if model.s.fit_c:
         x0[model.offsets["c"]] = options.speed_of_sound_m_s
     return x0
 
 
-def _kabsch(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rotation R and translation t minimising sum |R a_i + t - b_i|^2."""
-    ca, cb = a.mean(axis=0), b.mean(axis=0)
-    u, _, vt = np.linalg.svd((a - ca).T @ (b - cb))
-    d = np.sign(np.linalg.det(vt.T @ u.T))
-    R = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
-    return R, cb - R @ ca
-
-
 def _robust_scale(residuals: np.ndarray) -> float:
-    """1.4826 x median |r| (a Gaussian sigma that ignores outliers), floored to stay > 0."""
-    return max(_MAD_TO_SIGMA * float(np.median(np.abs(residuals))), 1e-6)
+    """The robust sigma of normalized residuals, floored at 1e-6 to stay > 0."""
+    return robust_sigma(residuals, floor=1e-6)
 
 
 def _least_squares(
@@ -731,7 +685,7 @@ def _solution(
     jac = final_model.jacobian(x)
     res = final_model.residuals(x)
     chi2 = float(res @ res) / max(res.size - model.n_params, 1)
-    cov = _inverse((jac.T @ jac).toarray()) * chi2
+    cov = inverse_normal((jac.T @ jac).toarray()) * chi2
     std = np.sqrt(np.maximum(np.diag(cov), 0.0))
 
     n_mic = valid.shape[1]
@@ -762,14 +716,6 @@ def _solution(
         chi2_per_dof=chi2,
         nfev=nfev,
     )
-
-
-def _inverse(matrix: np.ndarray) -> np.ndarray:
-    """Inverse of a symmetric normal matrix; pseudo-inverse if it is singular."""
-    try:
-        return np.linalg.inv(matrix)
-    except np.linalg.LinAlgError:
-        return np.linalg.pinv(matrix)
 
 
 def _propagate(cov: np.ndarray, blocks: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:

@@ -8,7 +8,6 @@ goes beside the session's files in `truth.json` (written atomically at the start
 from __future__ import annotations
 
 import json
-import os
 import shutil
 from collections.abc import Callable
 from pathlib import Path
@@ -16,22 +15,14 @@ from pathlib import Path
 from sim.capture import SimulatedCapture, SimulationOptions, build_simulated_capture, truth_document
 
 from acquisition.sequencer import CaptureSequencer, Progress
-from acquisition.contracts.session import SessionError, SessionWriter
+from acquisition.contracts.session import SessionError, SessionWriter, write_atomic
 
 TRUTH_FILE = "truth.json"
 
 
 def _write_json_atomic(path: Path, data: dict) -> None:
-    tmp = path.with_name(path.name + ".partial")
-    try:
-        with open(tmp, "w") as f:
-            json.dump(data, f, indent=1)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    text = json.dumps(data, indent=1).encode()
+    write_atomic(path, lambda fh: fh.write(text), replace=True)
 
 
 def prepare_simulated_capture(out: Path, options: SimulationOptions | None,

@@ -40,7 +40,7 @@ import zmq
 from pydantic import BaseModel, ValidationError
 
 from acquisition.contracts.session import SessionError
-from acquisition.contracts.session._atomic import fsync_dir, partial_path, sha256_file, write_atomic
+from acquisition.contracts.session import fsync_dir, partial_path, sha256_file, write_atomic
 from .config import WorkersConfig
 from acquisition.contracts.job_messages import (
     WORKER_MESSAGE,
@@ -451,9 +451,7 @@ def _calibration_dir(job: JobRecord) -> Path:
 
 
 def _replace(path: Path, data: bytes) -> None:
-    """Write `path` atomically over its previous content (a `.partial` a crash left is
-    dropped first: this process is its only writer)."""
-    partial_path(path).unlink(missing_ok=True)
+    """Write `path` atomically over its previous content (this process is its only writer)."""
     write_atomic(path, lambda fh: fh.write(data), replace=True)
 
 

@@ -38,7 +38,7 @@ from acquisition.contracts.capture_config import CaptureConfig
 from acquisition.contracts.safe_names import SafeName, is_name
 from ..sequencer import plan_steps
 from acquisition.contracts.session import JOURNAL_NAME, SessionError, SessionReader
-from acquisition.contracts.session._atomic import partial_path, write_atomic
+from acquisition.contracts.session import partial_path, write_atomic
 from acquisition.contracts.protocol import SessionSummary
 
 log = logging.getLogger("micam.daemon")

@@ -36,7 +36,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, ValidationError
 
 from acquisition.contracts.safe_names import SafeName
-from acquisition.contracts.session._atomic import fsync_dir, remove_partials, write_atomic
+from acquisition.contracts.session import fsync_dir, remove_partials, write_atomic
 from acquisition.contracts.job_messages import JobFile, JobKind, JournalPrefix
 from acquisition.contracts.protocol import utc_now
 

@@ -30,7 +30,7 @@ from pydantic import BaseModel
 from acquisition.contracts.capture_config import CaptureConfig
 from ..sequencer import plan_steps
 from acquisition.contracts.session import SessionError, SessionReader, SessionWriter
-from acquisition.contracts.session._atomic import write_atomic
+from acquisition.contracts.session import write_atomic
 from .broker import CALIBRATION_DIR, JOBS_QUEUE, RESULT_FILE, Broker
 from .config import DaemonConfig
 from .files import MAX_FETCH_BYTES, FileServer

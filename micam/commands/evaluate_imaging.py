@@ -7,7 +7,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -109,9 +108,10 @@ def table(columns: Mapping[str, Evaluation], spacing_m: float) -> list[str]:
 
 
 def _write_json(path: Path, document: dict) -> None:
-    tmp = path.with_name(path.name + ".partial")
-    tmp.write_text(json.dumps(document, indent=1))
-    os.replace(tmp, path)
+    from acquisition.contracts.session import write_atomic
+
+    text = json.dumps(document, indent=1).encode()
+    write_atomic(path, lambda fh: fh.write(text), replace=True)
 
 
 def run(args: argparse.Namespace) -> int:

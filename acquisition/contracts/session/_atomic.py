@@ -72,14 +72,17 @@ def write_atomic(
     """Write a file through `<name>.partial`, fsync it, rename it to `path` and fsync the directory.
 
     `fill` writes the content into the open binary file. Unless `replace` is set, an existing
-    `path` is refused, so a completed file is never overwritten. If `fill` raises, the partial
-    file is removed and the exception propagates.
+    `path` is refused, so a completed file is never overwritten; with `replace` the caller is
+    the file's one writer, and a `.partial` a crash left is dropped first. If `fill` raises,
+    the partial file is removed and the exception propagates.
     """
     if not replace and path.exists():
         raise SessionError(
             f"{path} already exists; choose another name (files are never overwritten)"
         )
     tmp = partial_path(path)
+    if replace:
+        tmp.unlink(missing_ok=True)
     fh = tmp.open("xb")
     try:
         with fh:

@@ -20,7 +20,7 @@ import acquisition.contracts.session._writer as session_writer
 from micam.daemon import run_daemon
 from acquisition.daemon.service import Daemon
 from acquisition.daemon.systemd import sd_notify
-from acquisition.contracts.session._atomic import partial_path
+from acquisition.contracts.session import partial_path
 from daq import SyncGroup
 from sim.boards import SimulatedBoard
 

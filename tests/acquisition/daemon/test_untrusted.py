@@ -19,7 +19,7 @@ from acquisition.daemon.files import FileServer
 from acquisition.contracts.job_messages import JobFile, JournalPrefix
 from acquisition.daemon.outbox import JobRecord
 from acquisition.contracts.session import SessionReader, SessionWriter
-from acquisition.contracts.session._atomic import sha256_file
+from acquisition.contracts.session import sha256_file
 
 from .helpers import FakeWorker, ThreadDaemon, capture_all, small_config, wait_state
 
