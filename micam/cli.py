@@ -25,6 +25,7 @@ from .commands import (
     image,
     import_session,
     inspect_session,
+    install,
     session,
     sessions,
     simulate,
@@ -39,7 +40,7 @@ SUBCOMMANDS = (
     simulate, import_session, inspect_session, calibrate, study, image, evaluate_imaging, daq,
     daemon, config, session,
     capture, watch, sessions, web,
-    worker,
+    worker, install,
 )
 
 EXIT_OK = 0
