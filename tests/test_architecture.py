@@ -92,3 +92,9 @@ def test_mypy_is_clean() -> None:
     run = subprocess.run([sys.executable, "-m", "mypy"], cwd=REPO, capture_output=True,
                          text=True, timeout=600)
     assert run.returncode == 0, run.stdout[-6000:] + run.stderr[-2000:]
+
+
+def test_every_test_has_a_timeout(pytestconfig: pytest.Config) -> None:
+    """pytest-timeout ends a hung test with the stacks of its threads instead of hanging CI."""
+    assert pytestconfig.pluginmanager.hasplugin("timeout")
+    assert float(pytestconfig.getini("timeout")) > 0

@@ -15,6 +15,7 @@ import pytest
 import micam.cli as cli
 from acquisition.contracts.protocol import LastCapture, SessionSummary, StateEvent, StatusResult
 from micam.cli import build_parser, main
+from micam.testing import FakeDaemonClient
 
 README = Path(__file__).resolve().parents[2] / "README.md"
 
@@ -182,48 +183,7 @@ def _event(seq: int) -> StateEvent:
                       reason="test")
 
 
-class _Stream:
-    def __init__(self, events: list[StateEvent]) -> None:
-        self.events = events
-
-    def next(self, _timeout_s: float) -> StateEvent | None:
-        return self.events.pop(0) if self.events else None
-
-    def close(self) -> None:
-        pass
-
-
-class _Client:
-    """What the commands use of DaemonClient."""
-
-    def __init__(self, events: list[StateEvent], status: StatusResult) -> None:
-        self.events, self._status = events, status
-
-    def __enter__(self) -> _Client:
-        return self
-
-    def __exit__(self, *_exc: object) -> None:
-        pass
-
-    def status(self) -> StatusResult:
-        return self._status
-
-    def subscribe(self, previews: bool = False) -> _Stream:
-        return _Stream(list(self.events))
-
-    def request(self, command: str, **_args: Any) -> dict[str, Any]:
-        assert command == "capture"
-        return {"number": 1, "step": "pose/0000"}
-
-    def wait_until(self, _done: Any, _timeout_s: float, on_event: Any = None,
-                   stream: Any = None) -> StatusResult:
-        if stream is not None and on_event is not None:
-            while (event := stream.next(0)) is not None:
-                on_event(event)
-        return self._status
-
-
-def _fake_daemon(monkeypatch: pytest.MonkeyPatch, client: _Client) -> None:
+def _fake_daemon(monkeypatch: pytest.MonkeyPatch, client: FakeDaemonClient) -> None:
     import acquisition.daemon.client
 
     monkeypatch.setattr(acquisition.daemon.client, "client_from_args", lambda _args: client)
@@ -232,7 +192,7 @@ def _fake_daemon(monkeypatch: pytest.MonkeyPatch, client: _Client) -> None:
 def test_watch_json_is_pure_json_and_a_restart_is_not_negative_missed_events(
         monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
     events = [_event(120), _event(121), _event(0), _event(3)]
-    _fake_daemon(monkeypatch, _Client(events, _status()))
+    _fake_daemon(monkeypatch, FakeDaemonClient(_status(), events))
     assert main(["watch", "--json", "--count", "4"]) == 0
     out, err = capsys.readouterr()
     lines = out.splitlines()
@@ -242,7 +202,7 @@ def test_watch_json_is_pure_json_and_a_restart_is_not_negative_missed_events(
 
 def test_watch_text_says_the_daemon_restarted(monkeypatch: pytest.MonkeyPatch,
                                               capsys: pytest.CaptureFixture[str]) -> None:
-    _fake_daemon(monkeypatch, _Client([_event(122), _event(0)], _status()))
+    _fake_daemon(monkeypatch, FakeDaemonClient(_status(), [_event(122), _event(0)]))
     assert main(["watch", "--count", "2"]) == 0
     out = capsys.readouterr().out
     assert "the daemon restarted" in out and "missed -" not in out
@@ -254,7 +214,8 @@ def test_capture_quiet_prints_only_the_outcome(monkeypatch: pytest.MonkeyPatch,
                              poses_done=0, n_poses=2, created_utc=datetime.now(UTC))
     status = _status(session=session,
                      last_capture=LastCapture(number=1, step="pose/0000", outcome="complete"))
-    _fake_daemon(monkeypatch, _Client([_event(5)], status))
+    _fake_daemon(monkeypatch, FakeDaemonClient(status, [_event(5)],
+                                                {"capture": {"number": 1, "step": "pose/0000"}}))
     assert main(["capture", "--quiet"]) == 0
     assert capsys.readouterr().out == "pose/0000 complete\n"
     assert main(["capture"]) == 0
@@ -272,3 +233,11 @@ def test_the_summary_of_a_method_without_uncertainties_prints_no_nan() -> None:
     text = "\n".join(summary_lines(SimpleNamespace(result=result,  # type: ignore[arg-type]
                                                    data=SimpleNamespace(n_speakers=6))))
     assert "nan" not in text and "no position std (method paper gives none)" in text
+
+
+def test_the_fake_client_records_requests_and_refuses_unknown_ones() -> None:
+    fake = FakeDaemonClient(_status(), replies={"redo": {"step": "pose/0001"}})
+    assert fake.request("redo") == {"step": "pose/0001"}
+    assert fake.requests == [("redo", {})]
+    with pytest.raises(KeyError, match="no reply for 'capture'"):
+        fake.request("capture")
