@@ -1,4 +1,4 @@
-"""A real camera through OpenCV's V4L2 backend, behind the `acquisition.camera.Camera` protocol.
+"""A real camera through OpenCV's V4L2 backend, behind the `acquisition.contracts.camera.Camera` protocol.
 
 What it guarantees, and why:
 - the V4L2 backend is forced (`cv2.CAP_V4L2`): property handling is backend-specific, and

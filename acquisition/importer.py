@@ -1,6 +1,6 @@
 """`micam import`: a micam session from what any recorder produces.
 
-Input: one TOML file (the rig and array description of acquisition/rig_description.py plus a
+Input: one TOML file (the rig and array description of acquisition/contracts/rig_description.py plus a
 `[recordings]` table naming the files), beside it a folder of recordings (WAV, FLAC, RF64 or
 anything else libsndfile reads; HDF5 time data as Acoular writes it: a dataset `time_data` of
 shape (samples, channels) with the attribute `sample_freq`, read with h5py, an optional

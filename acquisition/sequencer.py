@@ -1,7 +1,7 @@
 """The capture sequencer: the steps of a calibration capture, run on whatever hardware is given.
 
-It knows boards only through `daq.SyncGroup`, cameras through `acquisition.camera.Camera` and
-the person moving the rig through `acquisition.operator.Operator`, so the same code drives real
+It knows boards only through `daq.SyncGroup`, cameras through `acquisition.contracts.camera.Camera` and
+the person moving the rig through `acquisition.contracts.instructions.Operator`, so the same code drives real
 boards, simulated ones and emulated USB devices.
 
 Steps, in order (paper IV-C):

@@ -2,7 +2,7 @@
 calibration worker, a capture scripted through the `micam` commands, the live and the final
 calibration, and a short report against the simulated truth.
 
-    python -m acquisition.demo_loop --out out/loop [--poses 20]
+    python -m micam.demo_loop --out out/loop [--poses 20]
 
 Both processes start with readiness handshakes (the daemon's READY=1 on a notify socket, the
 worker's appearance in the daemon's status), every wait is bounded, and both are stopped
@@ -202,7 +202,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     with Loop(args.out, args.poses, mls_order=args.mls_order) as loop, loop.client() as client:
         print(f"to watch it in a browser, run in another terminal: {sys.executable} -m "
-              f"acquisition.cli web --control {loop.control}   (then open "
+              f"micam.cli web --control {loop.control}   (then open "
               "http://127.0.0.1:8765/; docs/operator.md)", flush=True)
         stream = client.subscribe()
         try:

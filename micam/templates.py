@@ -86,7 +86,7 @@ def _daemon(title: str, boards: list[tuple[str, str, int, int]], n_mics: int,
                        subsequent_indent="# "),
         "# Check it with `micam config check FILE`, run it with `micam daemon --config FILE`.",
         "# Every key is described in docs/protocol.md (Configuration); [hardware.capture] in",
-        "# acquisition/capture_config.py, its rig in acquisition/rig_description.py.",
+        "# acquisition/contracts/capture_config.py, its rig in acquisition/contracts/rig_description.py.",
         "",
         'session_root = "~/micam-sessions"   # one directory per session under it',
         "",
@@ -154,7 +154,7 @@ def _daemon(title: str, boards: list[tuple[str, str, int, int]], n_mics: int,
 
 
 _RIG = [
-    "[hardware.capture.rig]   # the calibration rig as built (acquisition/rig_description.py)",
+    "[hardware.capture.rig]   # the calibration rig as built (acquisition/contracts/rig_description.py)",
     "corners_x = 6           # inner corners along the rig's X axis",
     "corners_y = 9           # ... and along Y (one even, one odd: no half-turn ambiguity)",
     "square_m = 0.030        # printed square, metres (measure the print)",

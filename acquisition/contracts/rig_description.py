@@ -9,7 +9,7 @@ clock/latency group), the sample rate, the burst layout, the cameras by name and
 and what the user measured (air temperature or speed of sound, a known camera calibration).
 
 It holds no hardware: board models, serials, input ranges, output wiring, a pose count or a
-camera's device id are the acquisition's business (acquisition/capture_config.py). A micam
+camera's device id are the acquisition's business (acquisition/contracts/capture_config.py). A micam
 session carries its capture configuration, from which `CaptureConfig.description` derives this;
 a session built by `micam import` carries this description itself (its `kind` says so).
 
@@ -303,7 +303,7 @@ class KnownAir(ConfigModel):
 
     def speed_of_sound_prior(self) -> tuple[float, float]:
         """(c, standard deviation) in m/s: the measured c, or Cramer's c of the measured air
-        (acquisition.air) with the temperature's and the humidity's std carried through
+        (acquisition.contracts.air) with the temperature's and the humidity's std carried through
         (humidity unknown: 0.5 +- 0.5)."""
         if self.speed_of_sound_m_s is not None:
             return self.speed_of_sound_m_s, float(self.speed_of_sound_std_m_s or 0.0)

@@ -1,6 +1,6 @@
 """What the operator's page shows, made from the daemon's messages.
 
-Pure functions of the protocol's models (acquisition.daemon.protocol): the levels named by
+Pure functions of the protocol's models (acquisition.contracts.protocol): the levels named by
 microphone id and board with the reference microphone apart and the flagged channels by name,
 each camera's pose count with a warning while it is on course to stay uncalibrated, the live
 calibration's microphones with their uncertainty, and the summary of a final result. The

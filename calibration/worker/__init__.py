@@ -5,7 +5,7 @@ heartbeats, one job at a time, reconnect), fetch (session files in chunks over t
 file endpoint, verified against the journal's checksums, into `cache`), compute (a job's
 calibration: the full one for a closed session, a quick one after a pose) and live (the live
 update: uncertainties, predicted accuracy, where a new pose would help most). The wire format
-is `acquisition.daemon.job_messages`; docs/protocol.md describes the exchange.
+is `acquisition.contracts.job_messages`; docs/protocol.md describes the exchange.
 """
 
 from .worker import Worker, WorkerSettings
