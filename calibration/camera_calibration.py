@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import contextlib
 import threading
-from collections import OrderedDict, deque
+from collections import deque
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -49,6 +49,7 @@ from acquisition.contracts.rigid import rotation_from_rotvec
 from acquisition.contracts.session import SessionReader
 
 from ._cores import default_workers
+from .memo import LruMemo
 
 _DETECTION_TIERS = (("classic", 0.5), ("sb", 1.0))
 """Detector and image scale of each attempt, cheapest first: the classic detector at half size
@@ -390,10 +391,14 @@ Detection = tuple[np.ndarray | None, tuple[int, int]]
 """The corners found in an image (None: no board) and the image's (width, height)."""
 
 DETECTION_CACHE_SIZE = 20_000
-"""Images whose detections `calibrate_session` remembers (about 1 kB each)."""
+"""Images whose detections a worker's `DetectionMemo` remembers (about 1 kB each)."""
 
-_detections: OrderedDict[tuple[str, Checkerboard], Detection] = OrderedDict()
-_detections_lock = threading.Lock()
+DetectionMemo = LruMemo[tuple[str, Checkerboard], Detection]
+"""Detections by (image SHA-256, board): `DetectionMemo(DETECTION_CACHE_SIZE)`."""
+
+PROCESS_DETECTIONS: DetectionMemo = LruMemo(DETECTION_CACHE_SIZE)
+"""The memo of the callers that bring none (a script, `micam calibrate`, the tests); the worker
+owns its own."""
 
 
 def _detect(image: np.ndarray, board: Checkerboard) -> Detection:
@@ -407,20 +412,22 @@ def calibrate_session(
     known: dict[str, KnownIntrinsics] | None = None,
     min_views: int = MIN_VIEWS,
     min_shared_views: int = MIN_SHARED_VIEWS,
+    detections: DetectionMemo | None = None,
 ) -> CameraCalibration:
     """Calibrate every camera of a session from all its checkerboard images.
 
     Every completed step with camera images ("pose/<nnnn>" and "refmic") is used: each is a
-    board view that constrains the intrinsics. The detections are remembered by the image
-    file's SHA-256 (session files never change once written), so that a long-running process
-    (the calibration worker, whose live jobs see the same images again with a few more poses
-    each time) decodes and searches each image once.
+    board view that constrains the intrinsics. The detections are remembered in a memo by the
+    image file's SHA-256 (session files never change once written), so that a long-running
+    process (the calibration worker, whose live jobs see the same images again with a few more
+    poses each time) decodes and searches each image once.
 
     Args:
         reader: the session.
         board: its checkerboard (`Checkerboard.of_rig`).
         cameras: camera names, camera 0 first.
         known: intrinsics known from elsewhere, by camera name (see `calibrate_detections`).
+        detections: the memo of detections to use and fill (None: `PROCESS_DETECTIONS`).
 
     Raises:
         CameraCalibrationError: camera 0 has too few views with a board.
@@ -428,8 +435,8 @@ def calibrate_session(
     files = {(camera, step): record.files[f"{camera}.png"]
              for step, record in sorted(reader.steps().items())
              for camera in cameras if f"{camera}.png" in record.files}
-    with _detections_lock:
-        remembered = {key: _detections.get((file.sha256, board)) for key, file in files.items()}
+    memo = detections if detections is not None else PROCESS_DETECTIONS
+    remembered = {key: memo.get((file.sha256, board)) for key, file in files.items()}
     new = [key for key, found in remembered.items() if found is None]
 
     def detect(key: tuple[str, str]) -> Detection:
@@ -439,15 +446,10 @@ def calibrate_session(
     # PNG decoding and OpenCV's search release the interpreter lock: one image per core
     with ThreadPoolExecutor(default_workers()) as pool:
         detected = dict(zip(new, pool.map(detect, new), strict=True))
-    with _detections_lock:
-        for key, found in detected.items():
-            _detections[(files[key].sha256, board)] = found
-        for key in files:
-            _detections.move_to_end((files[key].sha256, board))
-        while len(_detections) > DETECTION_CACHE_SIZE:
-            _detections.popitem(last=False)
-    detections = {key: remembered[key] or detected[key] for key in files}
-    return calibrate_detections(detections, cameras, board, min_views, min_shared_views, known)
+    for key, found in detected.items():
+        memo.put((files[key].sha256, board), found)
+    found_all = {key: remembered[key] or detected[key] for key in files}
+    return calibrate_detections(found_all, cameras, board, min_views, min_shared_views, known)
 
 
 def calibrate_images(

@@ -52,6 +52,7 @@ from acquisition.contracts.job_messages import (
 )
 from acquisition.contracts.keys import secure_client
 
+from ..camera_calibration import DETECTION_CACHE_SIZE, DetectionMemo
 from .cache import DEFAULT_MAX_BYTES, ChecksumMismatch, FileCache
 from .compute import compute
 from .fetch import CHUNK_BYTES, FetchFailed, fetch_job_files
@@ -101,6 +102,9 @@ class Worker:
     def __init__(self, settings: WorkerSettings) -> None:
         self.settings = settings
         self.cache = FileCache(settings.cache, settings.cache_max_bytes)
+        # the checkerboard detections of the session images this worker has seen (live jobs
+        # see the same images again, a pose more each time)
+        self.detections = DetectionMemo(DETECTION_CACHE_SIZE)
         self._context = zmq.Context()
         self._stop = threading.Event()
         self._reports: queue.Queue[BaseModel | tuple[Done, bytes] | None] = queue.Queue()
@@ -253,7 +257,8 @@ class Worker:
                 out = compute(job, session, self.settings.joint,
                               lambda stage: report(Progress(job_id=job.job_id,
                                                             attempt=job.attempt,
-                                                            stage=stage[:64])))
+                                                            stage=stage[:64])),
+                              self.detections)
             if isinstance(out, LiveUpdate):
                 report(Live(job_id=job.job_id, attempt=job.attempt, update=out))
             else:
