@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 
 from acquisition.contracts.camera import CameraError, CameraTimeoutError, Frame
+from daq import ClosesOnExit
 
 BY_ID_DIR = Path("/dev/v4l/by-id")
 V4L2_EXPOSURE_MANUAL = 1  # V4L2_EXPOSURE_MANUAL in raw (non-normalised) property mode
@@ -47,7 +48,7 @@ def stable_device_id(device: str, by_id_dir: Path = BY_ID_DIR) -> str:
     return str(path)
 
 
-class V4L2Camera:
+class V4L2Camera(ClosesOnExit):
     """One UVC/V4L2 camera in a fixed mode (see the module docstring)."""
 
     def __init__(self, name: str, device: str, width: int, height: int, fourcc: str = "MJPG",

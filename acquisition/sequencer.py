@@ -32,7 +32,7 @@ from acquisition.contracts.air import AIR_FILE, AirSensor
 from acquisition.contracts.camera import Camera
 from acquisition.contracts.capture_config import CaptureConfig
 from acquisition.contracts.instructions import Instruction, InstructionKind, Operator
-from acquisition.contracts.session import SessionWriter
+from acquisition.contracts.session import StepRecorder
 from acquisition.contracts.stimulus import mls_burst
 
 
@@ -86,7 +86,7 @@ class CaptureSequencer:
         group: SyncGroup,
         cameras: Sequence[Camera],
         operator: Operator,
-        writer: SessionWriter,
+        writer: StepRecorder,
         on_progress: Callable[[Progress], None] | None = None,
         camera_timeout_s: float = 2.0,
         air_sensor: AirSensor | None = None,

@@ -31,6 +31,7 @@ from ._models import (
     StepRecord,
 )
 from ._reader import SessionReader
+from ._recorder import StepRecorder
 from ._writer import MANIFEST_NAME, SessionWriter, attempt_dir
 
 __all__ = [
@@ -58,6 +59,7 @@ __all__ = [
     "StepBegin",
     "StepEnd",
     "StepRecord",
+    "StepRecorder",
     "attempt_dir",
     "journal_records",
 ]

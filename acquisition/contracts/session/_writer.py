@@ -22,6 +22,8 @@ import cv2
 import numpy as np
 import soundfile as sf
 
+from daq import ClosesOnExit
+
 from ..safe_names import is_name, is_step_id
 from ._atomic import PARTIAL_SUFFIX, fsync_dir, make_dirs, remove_partials, write_atomic
 from ._journal import JournalWriter, SessionState, journal_path, load_state, scan_journal
@@ -136,7 +138,7 @@ def _reserve_meta(meta: dict | None, own: dict[str, Any], name: str) -> dict[str
     return {**meta, **own}
 
 
-class SessionWriter:
+class SessionWriter(ClosesOnExit):
     """Writes one session directory. Get one with `create` or `resume`, never directly.
 
     Steps are recorded one attempt at a time: `begin_step`, the `write_*` calls, then `end_step`
