@@ -233,7 +233,8 @@ class Worker:
             self._send(Failed(job_id=job.job_id, attempt=job.attempt, retryable=True,
                               reason=f"worker {self.settings.name} is busy with another job"))
             return
-        log.info("job %s attempt %d (%s, %d poses)", job.job_id, job.attempt, job.kind, job.poses)
+        log.info("job %s attempt %d (%s, %d poses)", job.job_id, job.attempt, job.kind, job.poses,
+                 extra={"session_id": job.session_id})
         self._thread = threading.Thread(target=self._work, args=(job,), daemon=True,
                                         name=f"job-{job.job_id}")
         self._thread.start()
@@ -271,13 +272,13 @@ class Worker:
         except ValueError as exc:  # the pipeline's input errors: this session cannot calibrate
             report(self._failure(job, f"the session cannot be calibrated: {exc}", False))
         except Exception as exc:  # a bug or a full disk: another worker may do better
-            log.exception("job %s failed", job.job_id)
+            log.exception("job %s failed", job.job_id, extra={"session_id": job.session_id})
             report(self._failure(job, f"internal error: {type(exc).__name__}: {exc}", True))
         finally:
             report(None)  # the job thread is finished
 
     def _failure(self, job: Job, reason: str, retryable: bool) -> Failed:
-        log.error("job %s failed: %s", job.job_id, reason)
+        log.error("job %s failed: %s", job.job_id, reason, extra={"session_id": job.session_id})
         return Failed(job_id=job.job_id, attempt=job.attempt, reason=reason[:4000],
                       retryable=retryable)
 
