@@ -90,6 +90,8 @@ from .result import (
     TofQuality,
     TransformResult,
 )
+from .multilateration import multilaterate
+from .paper_method import solve_paper_method
 from .session_data import CalibrationInputError, SessionData, load_session
 from .solver import (
     MicrophoneSolution,
@@ -97,9 +99,7 @@ from .solver import (
     RigSources,
     SolverOptions,
     latency_columns,
-    multilaterate,
     solve_microphones,
-    solve_paper_method,
 )
 from .speakers import (
     ReferenceMicrophonePosition,
