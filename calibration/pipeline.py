@@ -53,7 +53,7 @@ from .bundle import (
     pose_estimate,
     refined_cameras,
 )
-from calibration.camera_calibration import (
+from .camera_calibration import (
     CameraCalibration,
     Checkerboard,
     DetectionMemo,
