@@ -23,6 +23,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from acquisition.contracts.rigid import rotation_from_rotvec
+
 from .camera_calibration import CameraCalibration, Extrinsics, Pose
 
 _STEP_RAD_OR_M = 1e-6
