@@ -163,6 +163,7 @@ def configure_logging(level: int = logging.INFO, identifier: str = "micam") -> N
     handler.addFilter(ContextFilter())
     root = logging.getLogger()
     for old in root.handlers:
-        old.close()
+        if isinstance(old, JournaldHandler):  # its socket is ours; other handlers are not
+            old.close()
     root.handlers[:] = [handler]
     root.setLevel(level)
