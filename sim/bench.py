@@ -24,6 +24,7 @@ import numpy as np
 from daq import CODE_FULL_SCALE, InputChannel, board_model, volts_to_codes
 
 from .arrivals import SpeakerState, linear_phase, transfer_functions
+from .live_scene import LiveScene
 from .setups import Key, Setups
 from .sound import creeping_path_length, fft_length, propagate
 from .world import World
@@ -78,6 +79,7 @@ class _Scan:
     reference_near_speaker: int | None  # the reference microphone is in its near field
     speed_of_sound_m_s: float  # the air at trigger time
     signals: dict[tuple[int, int], np.ndarray] | None = None  # (board, channel) -> volts
+    scene: LiveScene | None = None  # sources playing throughout the scan (live mode)
 
 
 class AcousticBench:
@@ -128,7 +130,7 @@ class AcousticBench:
             self._scans[n] = _Scan(
                 n, self.setups.next_scan(), self._pending, w.speaker_positions(),
                 w.rig_normal(), None if w.reference_mic_m is None else w.reference_mic_m.copy(),
-                w.reference_near_speaker, w.speed_of_sound_m_s)
+                w.reference_near_speaker, w.speed_of_sound_m_s, scene=w.live_scene)
             self._pending = {}
             for old in [k for k in self._scans if k < n - 2]:
                 del self._scans[old]
@@ -156,6 +158,7 @@ class AcousticBench:
             if record.signals is None:
                 record.signals = self._render(record)
         volts = self._noise(record.noise_key, b, start, n_samples)
+        self._add_scene(record, b, start, volts)
         out = np.empty((n_samples, len(channels)), dtype=np.int16)
         for col, ch in enumerate(channels):
             v = volts[:, ch.channel].copy()
@@ -165,6 +168,16 @@ class AcousticBench:
                 v[: stop - start] += signal[start:stop]
             out[:, col] = volts_to_codes(v, ch.range_v)
         return out
+
+    def _add_scene(self, record: _Scan, board: int, start: int, volts: np.ndarray) -> None:
+        """Add the live scene's microphone voltages to a board's input volts (in place)."""
+        if record.scene is None:
+            return
+        mics = [(m, r.channel) for m, r in enumerate(self.world.layout.mic_inputs)
+                if r.board == board]
+        if mics:
+            scene = record.scene.mic_volts(start, volts.shape[0])
+            volts[:, [c for _, c in mics]] += scene[:, [m for m, _ in mics]]
 
     def _noise(self, key: Key, board: int, start: int, n: int) -> np.ndarray:
         """Input noise in volts (n, n_inputs of the board) for samples start .. start + n - 1."""
