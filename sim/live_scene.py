@@ -41,10 +41,12 @@ CACHED_CHUNKS = 8
 @dataclass(frozen=True)
 class Trajectory:
     """Where a source is: waypoints (K, 3) in the camera-0 frame at times (K,) seconds from
-    the scan's start, linear in between, held before the first and after the last."""
+    the scan's start, linear in between, held before the first and after the last; with
+    `period_s`, the path starts again every period_s (for a scan without end)."""
 
     waypoints_m: np.ndarray
     times_s: np.ndarray = field(default_factory=lambda: np.zeros(1))
+    period_s: float | None = None
 
     def __post_init__(self) -> None:
         p = np.asarray(self.waypoints_m, dtype=np.float64).reshape(-1, 3)
@@ -54,6 +56,9 @@ class Trajectory:
                              f"waypoints and {t.size} times")
         if np.any(np.diff(t) <= 0):
             raise ValueError("trajectory times must increase")
+        if self.period_s is not None and not self.period_s > t[-1]:
+            raise ValueError(f"a trajectory's period {self.period_s} s must exceed its last "
+                             f"time {t[-1]} s")
         object.__setattr__(self, "waypoints_m", p)
         object.__setattr__(self, "times_s", t)
 
@@ -64,6 +69,8 @@ class Trajectory:
     def at(self, t_s: np.ndarray | float) -> np.ndarray:
         """Positions (..., 3) at times t_s."""
         t = np.asarray(t_s, dtype=np.float64)
+        if self.period_s is not None:
+            t = np.mod(t, self.period_s)
         return np.stack([np.interp(t, self.times_s, self.waypoints_m[:, k]) for k in range(3)],
                         axis=-1)
 
@@ -207,3 +214,17 @@ def world_truth(world: World) -> dict:
                               for b, lat in zip(layout.boards, world.board_latencies_s,
                                                 strict=True)},
     }
+
+
+def demo_scene(world: World) -> LiveScene:
+    """The live view's simulated scene: a speaker playing a 4 kHz tone carried around a loop
+    1 m in front of camera 0 (once every 8 s, back to its start), a second speaker at 1.6 kHz
+    standing at the right, and a broadband noise source 2.5 m away at the top left."""
+    loop = np.array([[-0.35, -0.15, 1.0], [0.3, -0.15, 1.0], [0.3, 0.2, 1.0],
+                     [-0.35, 0.2, 1.0], [-0.35, -0.15, 1.0]])
+    return LiveScene(world, [
+        LiveSource(Trajectory(loop, np.array([0.0, 3.0, 4.0, 7.0, 7.999]), period_s=8.0),
+                   0.05, 4000.0),
+        LiveSource(Trajectory.still([0.45, 0.05, 1.2]), 0.05, 1600.0),
+        LiveSource(Trajectory.still([-0.8, -0.6, 2.5]), 0.02, None, seed=1),
+    ])
