@@ -145,6 +145,11 @@ class DaemonClient:
                        if previews or t not in (PREVIEW_TOPIC, LIVE_FRAME_TOPIC))
         return self._socket(zmq.SUB, self.events_endpoint(), context, topics)
 
+    def topic_socket(self, topics: tuple[str, ...]) -> zmq.Socket:
+        """A SUB socket on the daemon's events subscribed to exactly `topics` (live mode's
+        `samples` and `live_frame`, which `event_socket` leaves out or cannot parse)."""
+        return self._socket(zmq.SUB, self.events_endpoint(), None, topics)
+
     def wait_until(self, done: Callable[[StatusResult], bool], timeout_s: float,
                    on_event: Callable[[Event], None] | None = None,
                    stream: EventStream | None = None, interval_s: float = 0.2) -> StatusResult:

@@ -45,7 +45,7 @@ class LiveControl:
 
     def __init__(self, hardware: Hardware, machine: StateMachine, session_root: Path,
                  publish: Callable[..., Any],
-                 publish_frames: Callable[[str, list[bytes]], None],
+                 publish_frames: Callable[[str, list[bytes | memoryview]], None],
                  camera_timeout_s: float) -> None:
         self.hardware = hardware
         self.machine = machine

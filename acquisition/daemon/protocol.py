@@ -370,6 +370,7 @@ class ColumnInfo(_Message):
     channel: int
     role: Literal["mic", "reference"]
     mic_id: int | None = None
+    range_v: float | None = Field(default=None, description="volts at full scale (code 32768)")
 
 
 class RigInfo(_Message):
@@ -646,6 +647,8 @@ class SamplesHeader(_Message):
     n_samples: int = Field(gt=0)
     n_columns: int = Field(gt=0)
     sample_rate_hz: float = Field(gt=0)
+    monotonic_s: float = Field(description="the daemon host's monotonic clock when the first "
+                                           "row was scanned (by the clock live mode reads by)")
 
 
 def utc_now() -> datetime:

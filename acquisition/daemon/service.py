@@ -332,7 +332,8 @@ class Daemon:
         return DescribeResult(
             simulated=self.hardware.simulated,
             columns=[ColumnInfo(column=j, board=c.board, channel=c.channel, role=c.role,
-                                mic_id=c.mic_id) for j, c in enumerate(capture.columns)],
+                                mic_id=c.mic_id, range_v=c.range_v)
+                     for j, c in enumerate(capture.columns)],
             cameras=[c.name for c in capture.cameras],
             rig=RigInfo(corners_x=capture.rig.corners_x, corners_y=capture.rig.corners_y,
                         square_m=capture.rig.square_m,

@@ -89,7 +89,7 @@ class LiveMode:
 
     def __init__(self, group_stream: GroupStream, cameras: list[Camera], config: CaptureConfig,
                  options: LiveOptions, publish_event: Callable[..., Any],
-                 publish_frames: Callable[[str, list[bytes]], None],
+                 publish_frames: Callable[[str, list[bytes | memoryview]], None],
                  camera_timeout_s: float = 2.0,
                  clock: Callable[[], float] = time.monotonic) -> None:
         self.stream = group_stream
@@ -142,7 +142,8 @@ class LiveMode:
             self.ring.append(codes)
             if self.options.samples:
                 header = SamplesHeader(start=start, n_samples=codes.shape[0],
-                                       n_columns=codes.shape[1], sample_rate_hz=fs)
+                                       n_columns=codes.shape[1], sample_rate_hz=fs,
+                                       monotonic_s=self._t0 + start / fs)
                 self._publish_frames(SAMPLES_TOPIC, [header.model_dump_json().encode(),
                                                      np.ascontiguousarray(codes, "<i2").data])
         self.max_behind_s = max(self.max_behind_s, self.behind_s())

@@ -2,13 +2,15 @@
 
 `write_live_recording` stores the latest seconds of a live scan as a session (the contract of
 docs/session-format.md) of one step, `live`, holding `live.wav` (every column's raw int16
-codes, the capture configuration naming each column as for any session) and, per camera, the
-frame taken nearest the middle of the recording (`<camera>.png`, with the stream index it was
-taken at); the session is closed as complete at once. Beside the journal, `time_data.h5` holds
-the microphones' time data as Acoular reads it (`acoular.TimeSamples(file=...)`): one dataset
-`time_data`, float32 volts shaped (samples, channels) with the microphones in the order of
-their ids (the order of `micam calibrate --acoular-xml`), and the attribute `sample_freq`
-(hertz). Its attribute `mic_ids` lists the ids; the reference microphone is left out.
+codes, the capture configuration naming each column as for any session) and every camera
+frame taken during it (`<camera>-<k>.png`, k = 0000, 0001, ..., each with the stream index it
+was taken at in its metadata, `sample`; the recording's own first index is `first_sample` in
+the metadata of live.wav); the session is closed as complete at once. Beside the journal,
+`time_data.h5` holds the microphones' time data as Acoular reads it
+(`acoular.TimeSamples(file=...)`): one dataset `time_data`, float32 volts shaped (samples,
+channels) with the microphones in the order of their ids (the order of `micam calibrate
+--acoular-xml`), and the attribute `sample_freq` (hertz). Its attribute `mic_ids` lists the
+ids; the reference microphone is left out.
 
 The HDF5 file is written to a temporary name, flushed and renamed, like every session file.
 """
@@ -21,12 +23,35 @@ from pathlib import Path
 import numpy as np
 
 from ..capture_config import CaptureConfig
-from ..session import SessionWriter
+from ..session import SessionReader, SessionWriter
 from .ring import StampedFrame
 
 STEP = "live"
 RECORDING = "live.wav"
 ACOULAR_FILE = "time_data.h5"
+
+
+def frame_name(camera: str, k: int) -> str:
+    """The file name of camera frame k of a live recording."""
+    return f"{camera}-{k:04d}.png"
+
+
+def read_live_recording(path: Path, camera: str
+                        ) -> tuple[np.ndarray, int, int, list[StampedFrame], CaptureConfig]:
+    """A live recording: its codes (n, columns), sample rate, first stream index, the frames
+    of `camera` (oldest first) and its capture configuration. Raises SessionError or
+    ValueError saying what is wrong."""
+    reader = SessionReader(path)
+    config = CaptureConfig.of_session(reader.capture, path)
+    step = reader.steps().get(STEP)
+    if step is None:
+        raise ValueError(f"{path} is not a live recording (it has no step {STEP!r})")
+    codes, fs = reader.read_recording(STEP, RECORDING)
+    first = int(step.files[RECORDING].meta.get("first_sample", 0))
+    names = sorted(n for n in step.files if n.startswith(f"{camera}-") and n.endswith(".png"))
+    frames = [StampedFrame(camera, int(step.files[n].meta["sample"]),
+                           reader.read_image(STEP, n)) for n in names]
+    return codes, fs, first, frames, config
 
 
 def mic_volts(codes: np.ndarray, config: CaptureConfig) -> tuple[np.ndarray, list[int]]:
@@ -66,8 +91,7 @@ def write_live_recording(path: Path, config: CaptureConfig, codes: np.ndarray,
         config: the capture configuration (columns, sample rate).
         codes: (n, columns) int16 codes, the columns of `config`.
         first_sample: the stream index of the first row (kept in the recording's metadata).
-        frames: camera frames taken during the recording; the one nearest its middle is kept
-            per camera.
+        frames: the camera frames taken during the recording.
     """
     if codes.ndim != 2 or codes.shape[1] != len(config.columns) or codes.shape[0] == 0:
         raise ValueError(f"a live recording needs (n, {len(config.columns)}) codes, got "
@@ -78,12 +102,11 @@ def write_live_recording(path: Path, config: CaptureConfig, codes: np.ndarray,
         writer.begin_step(STEP)
         writer.write_recording(STEP, RECORDING, codes, round(fs),
                                meta={"first_sample": int(first_sample)})
-        middle = first_sample + codes.shape[0] // 2
-        for camera in sorted({f.camera for f in frames}):
-            nearest = min((f for f in frames if f.camera == camera),
-                          key=lambda f: abs(f.sample - middle))
-            writer.write_image(STEP, f"{camera}.png", nearest.image,
-                               meta={"sample": int(nearest.sample)})
+        counts: dict[str, int] = {}
+        for frame in frames:
+            k = counts[frame.camera] = counts.get(frame.camera, -1) + 1
+            writer.write_image(STEP, frame_name(frame.camera, k), frame.image,
+                               meta={"sample": int(frame.sample)})
         writer.end_step(STEP)
         volts, ids = mic_volts(codes, config)
         write_acoular_h5(Path(path) / ACOULAR_FILE, volts, fs, ids)

@@ -60,8 +60,16 @@ class SlidingCsm:
         self._filled = 0  # blocks in the ring (up to n_blocks)
         self._next = 0  # ring slot of the next block
         self._pending = np.zeros((0, self.n_channels))  # samples not yet in a whole block
-        self.samples_in = 0  # samples pushed so far
+        self.samples_in = 0  # stream index one past the newest sample pushed
         self.last_block_end = 0  # stream index one past the newest transformed block
+
+    def restart(self, at_sample: int) -> None:
+        """Forget every block: the stream goes on at index `at_sample` after a gap (samples
+        were lost), and no window may span the gap."""
+        self._filled = 0
+        self._next = 0
+        self._pending = np.zeros((0, self.n_channels))
+        self.samples_in = self.last_block_end = int(at_sample)
 
     @property
     def window_samples(self) -> int:

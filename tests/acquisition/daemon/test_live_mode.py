@@ -14,20 +14,10 @@ import zmq
 
 from acquisition.daemon.client import DaemonError
 from acquisition.daemon.protocol import SAMPLES_TOPIC, SamplesHeader
-from acquisition.live.record import ACOULAR_FILE, RECORDING, STEP
+from acquisition.live.record import ACOULAR_FILE, RECORDING, STEP, read_live_recording
 from acquisition.session import SessionReader
 
-from .helpers import WAIT_S, ThreadDaemon
-
-
-def next_event(events, kind: str, **fields):
-    """The next event of type `kind` with these field values (bounded in count and time)."""
-    for _ in range(100_000):
-        event = events.next(WAIT_S)
-        assert event is not None, f"no {kind} event"
-        if event.type == kind and all(getattr(event, k) == v for k, v in fields.items()):
-            return event
-    raise AssertionError(f"no {kind} event among the first 100000")
+from .helpers import WAIT_S, ThreadDaemon, next_event
 
 
 def wait_for_samples(client, n: int) -> None:
@@ -51,7 +41,9 @@ def test_live_mode_is_entered_recorded_and_left(daemon: ThreadDaemon) -> None:
     assert reader.status == "complete"
     codes, fs = reader.read_recording(STEP, RECORDING)
     assert codes.shape == (24_000, len(reader.capture["columns"]))
-    assert reader.read_image(STEP, "cam0.png").ndim == 2
+    codes_again, _, first, frames, _ = read_live_recording(result["path"], "cam0")
+    assert np.array_equal(codes_again, codes) and first >= 30_000 - 24_000
+    assert frames and all(first <= f.sample < first + 24_000 for f in frames)
     mics = sorted((c["mic_id"], j, c["range_v"]) for j, c in enumerate(reader.capture["columns"])
                   if c["role"] == "mic")
     with h5py.File(f"{result['path']}/{ACOULAR_FILE}", "r") as f:
