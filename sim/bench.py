@@ -14,6 +14,7 @@ through the `AnalogBench` protocol only:
 
 from __future__ import annotations
 
+import functools
 import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -56,6 +57,16 @@ number within it (sim.setups), so a resumed capture records what an uninterrupte
 
 TAIL_SAMPLES = 4096
 """Samples rendered after the last output sample plus the longest path: the speaker's decay."""
+
+
+@functools.lru_cache(maxsize=32)
+def _noise_chunk(seed: int, key: Key, board: int, chunk: int, n_inputs: int) -> np.ndarray:
+    """Unit input noise (NOISE_CHUNK, n_inputs) of one chunk of a board's scan (read-only,
+    remembered: the reads of a long scan come in blocks smaller than a chunk)."""
+    out = np.random.default_rng([seed, 2, *key, board, chunk]).standard_normal(
+        (NOISE_CHUNK, n_inputs))
+    out.flags.writeable = False
+    return out
 
 
 @dataclass(frozen=True)
@@ -187,11 +198,8 @@ class AcousticBench:
         if ref.board == board:
             sigma[ref.channel] = self.world.noise.reference_noise_v
         first, last = start // NOISE_CHUNK, (start + n - 1) // NOISE_CHUNK
-        chunks = [
-            np.random.default_rng([self.world.seed, 2, *key, board, c]).standard_normal(
-                (NOISE_CHUNK, model_inputs))
-            for c in range(first, last + 1)
-        ]
+        chunks = [_noise_chunk(self.world.seed, key, board, c, model_inputs)
+                  for c in range(first, last + 1)]
         offset = start - first * NOISE_CHUNK
         return np.concatenate(chunks)[offset: offset + n] * sigma
 

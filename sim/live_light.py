@@ -20,6 +20,9 @@ SPEAKER_RADIUS_M = 0.04
 """Radius of the disc a source is drawn as."""
 TILE_PX = 80
 """Side of the wall's tiles, pixels."""
+NOISE_FIELDS = 8
+"""Sensor noise is drawn from this many fields kept per image size and noise level (a fresh
+field per frame costs more than the rest of the picture)."""
 
 
 @lru_cache(maxsize=8)
@@ -35,11 +38,25 @@ def _wall(width: int, height: int) -> np.ndarray:
     return out
 
 
+_NOISE: dict[tuple[int, int, float], list[np.ndarray]] = {}
+
+
+def _noise_field(width: int, height: int, noise_grey: float, rng: np.random.Generator
+                 ) -> np.ndarray:
+    """A field (height, width) int16 of Gaussian sensor noise (grey levels): a new one for
+    each of the first NOISE_FIELDS frames of a size and level, then one of those again."""
+    fields = _NOISE.setdefault((width, height, noise_grey), [])
+    if len(fields) < NOISE_FIELDS:
+        fields.append(np.rint(rng.normal(0.0, noise_grey, (height, width))).astype(np.int16))
+        return fields[-1]
+    return fields[int(rng.integers(NOISE_FIELDS))]
+
+
 def render_scene_image(model: CameraModel, sources_m: np.ndarray, rng: np.random.Generator,
                        noise_grey: float = 2.0) -> np.ndarray:
     """The grey image (height, width) uint8 camera `model` takes of sources at sources_m
     (K, 3), camera-0 frame."""
-    image = _wall(model.width, model.height).astype(np.float64)
+    image = _wall(model.width, model.height).copy()
     points = np.asarray(sources_m, dtype=np.float64).reshape(-1, 3)
     in_front = model.in_front(points)
     if np.any(in_front):
@@ -47,8 +64,9 @@ def render_scene_image(model: CameraModel, sources_m: np.ndarray, rng: np.random
         for (u, v), z in zip(model.project(points[in_front]), depth, strict=True):
             radius = max(2, round(model.K[0, 0] * SPEAKER_RADIUS_M / z))
             centre = (round(u * 16), round(v * 16))  # 4 fractional bits: sub-pixel centres
-            cv2.circle(image, centre, radius * 16, 215.0, -1, cv2.LINE_AA, 4)
-            cv2.circle(image, centre, round(0.8 * radius * 16), 35.0, -1, cv2.LINE_AA, 4)
+            cv2.circle(image, centre, radius * 16, 215, -1, cv2.LINE_AA, 4)
+            cv2.circle(image, centre, round(0.8 * radius * 16), 35, -1, cv2.LINE_AA, 4)
     if noise_grey > 0:
-        image += rng.normal(0.0, noise_grey, image.shape)
-    return image.clip(0, 255).astype(np.uint8)
+        noisy = _noise_field(model.width, model.height, float(noise_grey), rng) + image
+        image = np.clip(noisy, 0, 255).astype(np.uint8)
+    return image

@@ -49,6 +49,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                        help="seconds kept in the ring buffer (default 10)")
     start.add_argument("--camera-fps", type=float, default=10.0,
                        help="camera frames per second (default 10)")
+    start.add_argument("--camera", action="append", dest="cameras", metavar="NAME",
+                       help="a camera to stream (repeat for several; default: all)")
     actions.add_parser("stop", help="leave live mode")
     record = actions.add_parser("record", help="store the latest seconds (session format and "
                                                "Acoular's HDF5 time data)")
@@ -73,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
     with client_from_args(args) as client:
         if args.action == "start":
             status = client.request("live.start", seconds=args.seconds,
-                                    camera_fps=args.camera_fps)
+                                    camera_fps=args.camera_fps, cameras=args.cameras)
             print(f"live mode: {status['capacity_s']:g} s kept at "
                   f"{status['sample_rate_hz']:g} Hz; `micam live stop` to leave it")
         elif args.action == "stop":

@@ -57,7 +57,15 @@ class LiveControl:
 
     def start(self, args: LiveStartArgs) -> LiveStatus:
         hw = self.hardware
-        mode = LiveMode(GroupStream(hw.group, hw.config.scan_configs()), hw.cameras, hw.config,
+        cameras = hw.cameras
+        if args.cameras is not None:
+            known = {c.name: c for c in hw.cameras}
+            unknown = sorted(set(args.cameras) - set(known))
+            if unknown:
+                raise Refusal("bad_request", f"no camera {', '.join(unknown)}; the daemon has "
+                                             f"{', '.join(known) or 'none'}")
+            cameras = [known[name] for name in dict.fromkeys(args.cameras)]
+        mode = LiveMode(GroupStream(hw.group, hw.config.scan_configs()), cameras, hw.config,
                         LiveOptions(args.seconds, args.camera_fps, args.samples),
                         self._publish, self._publish_frames, self._timeout_s)
         if hw.live_scene is not None:

@@ -75,6 +75,8 @@ class LiveStartArgs(_Message):
                            description="the ring buffer holds this many of the latest seconds")
     camera_fps: float = Field(default=10.0, gt=0.0, le=30.0,
                               description="camera frames per second while live")
+    cameras: list[SafeName] | None = Field(default=None, max_length=16,
+                                           description="the cameras streamed (default: all)")
     samples: bool = Field(default=True,
                           description="publish the time data (`samples` messages) for clients "
                                       "that image it")

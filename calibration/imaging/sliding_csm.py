@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._blas import single_threaded_blas
 from .csm import WelchOptions, _dft_spectra
 from .csm_calibration import ChannelResponses
 
@@ -95,7 +96,8 @@ class SlidingCsm:
             skip = max(0, count - self.n_blocks)
             starts = hop * np.arange(skip, count)
             frames = np.stack([data[s: s + n].T for s in starts])  # (K, M, N)
-            spectra = _dft_spectra(frames, self._window, self.bins, len(starts))  # (F, M, K)
+            with single_threaded_blas():  # small products: see calibration._blas
+                spectra = _dft_spectra(frames, self._window, self.bins, len(starts))  # (F,M,K)
             if self._correction is not None:
                 spectra *= self._correction
             slots = (self._next + np.arange(spectra.shape[2])) % self.n_blocks
