@@ -209,7 +209,7 @@ class LiveImager:
         return self.mapper.to_image(live_map.level_db(self.settings.dynamic_range_db))
 
 
-CLEAN_BEAM_CELLS = 1.0
+CLEAN_BEAM_CELLS = 2.5
 """Standard deviation, in grid cells, of the Gaussian beam CLEAN-SC's point components are
 drawn with (a clean map of single nodes would be invisible on a camera image)."""
 
