@@ -75,8 +75,3 @@ class FrameRing:
         """The frames (of `camera`, or every camera) taken at stream indices [start, end)."""
         return [f for f in self._frames if start <= f.sample < end
                 and (camera is None or f.camera == camera)]
-
-    def nearest(self, sample: int, camera: str) -> StampedFrame | None:
-        """The frame of `camera` taken closest to stream index `sample`, or None."""
-        frames = [f for f in self._frames if f.camera == camera]
-        return min(frames, key=lambda f: abs(f.sample - sample), default=None)
