@@ -65,7 +65,7 @@ def test_maps_of_the_daemons_stream_follow_the_carried_speaker(live, geometry) -
                             image_scale=0.5)
     imager = LiveImager(geometry, settings, FS)
     with live.client() as client, LiveFeed(client, MapFrames(imager, 10.0), geometry) as feed:
-        fed = list(feed.frames_for(1.5))
+        fed = list(feed.frames_for(3.0))
     assert len(fed) >= 5 and feed.dropped == 0
     for f in fed:
         m = f.frame.live_map
