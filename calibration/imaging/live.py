@@ -4,7 +4,7 @@ Everything that does not change while the view runs is computed once, when the `
 is made: the scan grid (the plane z = depth of the chosen camera's frame over its field of
 view, `view_plane.depth_plane_grid`), the band's DFT bins, the steering vectors of the grid at
 the band centre (complex64 for delay-and-sum, complex128 for CLEAN-SC, see `cleansc`), their
-|h|^2, and the pixel table of the camera (`view_plane.ImageMapper`). Per frame there remain:
+|h|^2, and the pixel table of the camera (`overlay.ImageMapper`). Per frame there remain:
 the new Welch blocks' spectra (`sliding_csm`), the band CSM of the latest window (the sum of
 its bins' matrices, the paper's band CSM of section VI), and one beamforming pass
 (`beamform.beamform_csm`, the Cholesky form, on threads), or CLEAN-SC on it
@@ -34,10 +34,11 @@ from .cleansc import CleanScOptions, clean_sc
 from .csm import WelchOptions, band_bins
 from .geometry import ArrayGeometry, CameraView
 from .grid import PlaneGrid
+from .overlay import ImageMapper
 from .peaks import subgrid_peak
 from .sliding_csm import SlidingCsm
 from .steering import Formulation, SteeringModel
-from .view_plane import ImageMapper, depth_plane_grid
+from .view_plane import depth_plane_grid
 
 FRACTIONS = (1, 3)
 """Band widths a live view offers: octave and third-octave."""

@@ -11,9 +11,9 @@ from calibration.imaging.csm_calibration import ChannelResponses, correct_csm
 from calibration.imaging.geometry import geometry_from_dict
 from calibration.imaging.live import LiveImager, LiveSettings
 from calibration.imaging.live_draw import draw_live_frame
-from calibration.imaging.overlay import map_to_image
+from calibration.imaging.overlay import ImageMapper, map_to_image
 from calibration.imaging.sliding_csm import SlidingCsm
-from calibration.imaging.view_plane import ImageMapper, depth_plane_grid
+from calibration.imaging.view_plane import depth_plane_grid
 from sim.arrays import array_layout
 from sim.live_scene import LiveScene, LiveSource, Trajectory, world_truth
 from sim.world import World
@@ -49,16 +49,24 @@ def test_sliding_csm_refuses_a_chunk_of_the_wrong_width() -> None:
         sliding.push(np.zeros((10, 3)))
 
 
-def test_the_depth_plane_fills_the_image_and_its_table_matches_map_to_image(world) -> None:
+def test_the_depth_plane_fills_the_image_and_a_smaller_image_samples_the_same_map(world
+                                                                                 ) -> None:
     geometry = geometry_from_dict(world_truth(world))
     camera = geometry.camera("cam0")
     grid = depth_plane_grid(camera, 1.5, (31, 21))
     assert np.allclose(grid.points[:, 2], 1.5)
     corners = camera.project(grid.points[[0, 20, 630, 650]])
     assert corners[:, 0].min() < 5 and corners[:, 0].max() > camera.width - 6
-    values = np.random.default_rng(1).uniform(0, 1, grid.size)
-    np.testing.assert_allclose(ImageMapper(grid, camera).to_image(values),
-                               map_to_image(values, grid, camera), atol=1e-5, equal_nan=True)
+    u, v = np.meshgrid(np.arange(31.0), np.arange(21.0), indexing="ij")
+    values = (0.3 * u + 0.7 * v).ravel()  # linear on the grid: bilinear sampling is exact
+    full = map_to_image(values, grid, camera)
+    half = ImageMapper(grid, camera, 0.5).to_image(values)
+    assert half.shape == (480, 640)
+    # a pixel of the half-size image is centred between four of the full one
+    np.testing.assert_allclose(half[100:380:7, 100:540:7],
+                               0.25 * (full[200:760:14, 200:1080:14] + full[201:761:14, 200:1080:14]
+                                       + full[200:760:14, 201:1081:14]
+                                       + full[201:761:14, 201:1081:14]), atol=2e-3)
     with pytest.raises(ValueError, match="depth"):
         depth_plane_grid(camera, -1.0)
 
