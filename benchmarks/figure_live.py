@@ -18,7 +18,9 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from PIL import Image
 
+from calibration.figures.style import save_palette_png
 from calibration.imaging.geometry import geometry_from_dict
 from calibration.imaging.live import LiveImager, LiveSettings
 from calibration.imaging.live_frames import MapFrames, caption_of
@@ -56,7 +58,8 @@ def main() -> None:
         frame = drawn[-1]
         truth = camera.project(scene.sources[0].trajectory.at(
             (frame.live_map.end_sample - window / 2) / FS))[0]
-        cv2.imwrite(str(args.out / name), frame.image)
+        save_palette_png(Image.fromarray(cv2.cvtColor(frame.image, cv2.COLOR_BGR2RGB)),
+                         args.out / name)
         print(f"{args.out / name}: peak {np.linalg.norm(frame.live_map.peak_px - truth):.2f} "
               f"px from the speaker's projection, {frame.live_map.n_components} components")
 
