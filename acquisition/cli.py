@@ -20,6 +20,7 @@ from .commands import (
     image,
     import_session,
     inspect,
+    live,
     session,
     sessions,
     simulate,
@@ -33,7 +34,7 @@ from .errors import UserError
 SUBCOMMANDS = (
     simulate, import_session, inspect, calibrate, study, image, evaluate_imaging, daq, daemon,
     config, session,
-    capture, watch, sessions, web,
+    capture, watch, sessions, web, live,
     worker,
 )
 

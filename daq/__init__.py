@@ -24,6 +24,7 @@ from ._interface import (
     volts_to_codes,
 )
 from ._models import BOARD_MODELS, BoardModel, board_model
+from ._stream import GroupStream
 from ._sync import GroupRecording, SyncGroup
 
 __all__ = [
@@ -39,6 +40,7 @@ __all__ = [
     "DaqError",
     "DeviceDisconnectedError",
     "GroupRecording",
+    "GroupStream",
     "InputChannel",
     "OutputChannel",
     "OverrunError",

@@ -8,6 +8,7 @@ set-up; a person does that on the real rig) and its ground truth, stored with ea
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from daq import SyncGroup
@@ -36,6 +37,8 @@ class Hardware:
         session_files: top-level JSON files written into every new session (the ground truth).
         description: for the log and `status`.
         air_sensor: reads the air beside the array at every pose (None: no sensor).
+        live_scene: the simulated world's sources start (True) or stop (False) playing, for
+            live mode; None on real hardware (the room plays what it plays).
     """
 
     config: CaptureConfig
@@ -46,6 +49,7 @@ class Hardware:
     session_files: dict[str, dict] = field(default_factory=dict)
     description: str = ""
     air_sensor: AirSensor | None = None
+    live_scene: Callable[[bool], None] | None = None
 
     @property
     def simulated(self) -> bool:
@@ -59,12 +63,18 @@ class Hardware:
 
 def _simulated(options: SimulationConfig) -> Hardware:
     from sim.capture import build_simulated_capture, truth_document
+    from sim.live_scene import demo_scene
 
     sim = build_simulated_capture(options)
+    world = sim.world
+
+    def live_scene(playing: bool) -> None:
+        world.live_scene = demo_scene(world) if playing else None
+
     return Hardware(
         config=sim.config, group=sim.group, cameras=sim.cameras, world_operator=sim.operator,
         max_poses=options.poses, session_files={TRUTH_FILE: truth_document(sim)},
-        air_sensor=sim.air_sensor,
+        air_sensor=sim.air_sensor, live_scene=live_scene,
         description=f"simulated world ({options.array}, {options.poses} poses, seed "
                     f"{options.seed})")
 
