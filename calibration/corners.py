@@ -41,9 +41,12 @@ _DETECTION_TIERS = (("classic", 0.5), ("sb", 1.0))
 finds the boards of the simulated sessions in 1-2 ms (at quarter size it misses some, and its
 fast check rejects boards); the sector-based detector at full size (0.1-0.2 s) is the robust
 fallback, for small and distant boards."""
-_CLASSIC_FLAGS = (
-    cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
-)
+_CLASSIC_FLAGS = cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
+"""The classic detector without adaptive thresholding: on the realistic lab's images (30
+poses, 3 cameras) it finds the same 49 boards in 3.7 ms per image instead of 35 ms, and where
+it fails (a board cut by the image's edge) it fails in 4 ms instead of 120-360 ms; the
+sector-based fallback is the detector robust to uneven light, and it found every board the
+adaptive classic one found."""
 _SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 100, 1e-4)
 _SUBPIX_WINDOW_FRACTION = 0.3
 """cornerSubPix half-window as a fraction of the smallest corner spacing: the window must

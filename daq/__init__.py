@@ -26,6 +26,7 @@ from ._interface import (
     volts_to_codes,
 )
 from ._models import BOARD_MODELS, BoardModel, board_model
+from ._stream import GroupStream
 from ._sync import GroupRecording, SyncGroup
 
 __all__ = [
@@ -42,6 +43,7 @@ __all__ = [
     "DaqError",
     "DeviceDisconnectedError",
     "GroupRecording",
+    "GroupStream",
     "InputChannel",
     "OutputChannel",
     "OutputBoard",

@@ -36,6 +36,23 @@ class GroupRecording:
     columns: tuple[slice, ...]
 
 
+def read_aligned(boards: Sequence[Board], index: int, n: int, timeout_s: float
+                 ) -> list[np.ndarray]:
+    """The next n samples of every board (codes, one array per board), checked to be samples
+    index .. index + n - 1 on all of them; a SyncError names the first board that is not."""
+    out = []
+    for board in boards:
+        block = board.read(n, timeout_s)
+        if block.start_index != index or block.n_samples != n:
+            raise SyncError(
+                f"board {board.identity} delivered samples {block.start_index}.."
+                f"{block.start_index + block.n_samples - 1} where the group expected "
+                f"{index}..{index + n - 1}: the boards are no longer aligned"
+            )
+        out.append(block.codes)
+    return out
+
+
 class SyncGroup(ClosesOnExit):
     """Runs several boards as one instrument on a shared clock and trigger."""
 
@@ -125,15 +142,8 @@ class SyncGroup(ClosesOnExit):
             index = 0
             while index < n_total:
                 n = min(block_samples, n_total - index)
-                for k, board in enumerate(self.boards):
-                    block = board.read(n, timeout_s)
-                    if block.start_index != index or block.n_samples != n:
-                        raise SyncError(
-                            f"board {board.identity} delivered samples {block.start_index}.."
-                            f"{block.start_index + block.n_samples - 1} where the group expected "
-                            f"{index}..{index + n - 1}: the boards are no longer aligned"
-                        )
-                    chunks[k].append(block.codes)
+                for k, codes in enumerate(read_aligned(self.boards, index, n, timeout_s)):
+                    chunks[k].append(codes)
                 index += n
         finally:
             for board in self.boards:

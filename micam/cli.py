@@ -26,6 +26,7 @@ from .commands import (
     import_session,
     inspect_session,
     install,
+    live,
     session,
     sessions,
     simulate,
@@ -39,7 +40,7 @@ from acquisition.contracts.errors import UserError
 SUBCOMMANDS = (
     simulate, import_session, inspect_session, calibrate, study, image, evaluate_imaging, daq,
     daemon, config, session,
-    capture, watch, sessions, web,
+    capture, watch, sessions, web, live,
     worker, install,
 )
 

@@ -42,12 +42,18 @@ def load_daemon_config(path: Path | None = None) -> MicamDaemonConfig:
 
 def _simulated(options: SimulationConfig) -> Hardware:
     from sim.capture import build_simulated_capture, truth_document
+    from sim.live_scene import demo_scene
 
     sim = build_simulated_capture(options)
+    world = sim.world
+
+    def live_scene(playing: bool) -> None:
+        world.live_scene = demo_scene(world) if playing else None
+
     return Hardware(
         config=sim.config, group=sim.group, cameras=sim.cameras, world_operator=sim.operator,
         max_poses=options.poses, session_files={TRUTH_FILE: truth_document(sim)},
-        air_sensor=sim.air_sensor,
+        air_sensor=sim.air_sensor, live_scene=live_scene,
         description=f"simulated world ({options.array}, {options.poses} poses, seed "
                     f"{options.seed})")
 

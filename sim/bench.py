@@ -14,6 +14,7 @@ through the `AnalogBench` protocol only:
 
 from __future__ import annotations
 
+import functools
 import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -24,6 +25,7 @@ import numpy as np
 from daq import CODE_FULL_SCALE, InputChannel, board_model, volts_to_codes
 
 from .arrivals import SpeakerState, linear_phase, transfer_functions
+from .live_scene import LiveScene
 from .setups import Key, Setups
 from .sound import creeping_path_length, fft_length, propagate
 from .world import World
@@ -57,6 +59,16 @@ TAIL_SAMPLES = 4096
 """Samples rendered after the last output sample plus the longest path: the speaker's decay."""
 
 
+@functools.lru_cache(maxsize=32)
+def _noise_chunk(seed: int, key: Key, board: int, chunk: int, n_inputs: int) -> np.ndarray:
+    """Unit input noise (NOISE_CHUNK, n_inputs) of one chunk of a board's scan (read-only,
+    remembered: the reads of a long scan come in blocks smaller than a chunk)."""
+    out = np.random.default_rng([seed, 2, *key, board, chunk]).standard_normal(
+        (NOISE_CHUNK, n_inputs))
+    out.flags.writeable = False
+    return out
+
+
 @dataclass(frozen=True)
 class _Source:
     """What one input channel hears: an array microphone, the reference microphone, or nothing."""
@@ -78,6 +90,7 @@ class _Scan:
     reference_near_speaker: int | None  # the reference microphone is in its near field
     speed_of_sound_m_s: float  # the air at trigger time
     signals: dict[tuple[int, int], np.ndarray] | None = None  # (board, channel) -> volts
+    scene: LiveScene | None = None  # sources playing throughout the scan (live mode)
 
 
 class AcousticBench:
@@ -128,7 +141,7 @@ class AcousticBench:
             self._scans[n] = _Scan(
                 n, self.setups.next_scan(), self._pending, w.speaker_positions(),
                 w.rig_normal(), None if w.reference_mic_m is None else w.reference_mic_m.copy(),
-                w.reference_near_speaker, w.speed_of_sound_m_s)
+                w.reference_near_speaker, w.speed_of_sound_m_s, scene=w.live_scene)
             self._pending = {}
             for old in [k for k in self._scans if k < n - 2]:
                 del self._scans[old]
@@ -156,6 +169,7 @@ class AcousticBench:
             if record.signals is None:
                 record.signals = self._render(record)
         volts = self._noise(record.noise_key, b, start, n_samples)
+        self._add_scene(record, b, start, volts)
         out = np.empty((n_samples, len(channels)), dtype=np.int16)
         for col, ch in enumerate(channels):
             v = volts[:, ch.channel].copy()
@@ -166,6 +180,16 @@ class AcousticBench:
             out[:, col] = volts_to_codes(v, ch.range_v)
         return out
 
+    def _add_scene(self, record: _Scan, board: int, start: int, volts: np.ndarray) -> None:
+        """Add the live scene's microphone voltages to a board's input volts (in place)."""
+        if record.scene is None:
+            return
+        mics = [(m, r.channel) for m, r in enumerate(self.world.layout.mic_inputs)
+                if r.board == board]
+        if mics:
+            scene = record.scene.mic_volts(start, volts.shape[0])
+            volts[:, [c for _, c in mics]] += scene[:, [m for m, _ in mics]]
+
     def _noise(self, key: Key, board: int, start: int, n: int) -> np.ndarray:
         """Input noise in volts (n, n_inputs of the board) for samples start .. start + n - 1."""
         model_inputs = board_model(self.world.layout.boards[board].model).n_inputs
@@ -174,11 +198,8 @@ class AcousticBench:
         if ref.board == board:
             sigma[ref.channel] = self.world.noise.reference_noise_v
         first, last = start // NOISE_CHUNK, (start + n - 1) // NOISE_CHUNK
-        chunks = [
-            np.random.default_rng([self.world.seed, 2, *key, board, c]).standard_normal(
-                (NOISE_CHUNK, model_inputs))
-            for c in range(first, last + 1)
-        ]
+        chunks = [_noise_chunk(self.world.seed, key, board, c, model_inputs)
+                  for c in range(first, last + 1)]
         offset = start - first * NOISE_CHUNK
         return np.concatenate(chunks)[offset: offset + n] * sigma
 

@@ -12,6 +12,7 @@ from daq import ClosesOnExit
 
 from .geometry import CameraModel
 from .light import render_rig_image
+from .live_light import render_scene_image
 from .setups import Setups
 from .world import World
 
@@ -55,6 +56,11 @@ class SimulatedCamera(ClosesOnExit):
         key = self.setups.next_frame(self.index)
         rng = np.random.default_rng([self.world.seed, 3, self.index, *key])
         w = self.world
+        if w.live_scene is not None:  # live mode: the sources where they are now
+            scene = w.live_scene
+            image = render_scene_image(self.model, scene.positions_at(scene.now_s), rng,
+                                       w.noise.image_noise_grey * w.noise.scale)
+            return Frame(image=image, timestamp_s=time.monotonic(), camera=self.name)
         image = render_rig_image(
             self.model, w.physical_rig, w.rig_pose if w.rig_in_view else None, rng,
             noise_grey=w.noise.image_noise_grey * w.noise.scale,

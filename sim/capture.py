@@ -219,6 +219,7 @@ def build_simulated_capture(options: SimulationOptions) -> SimulatedCapture:
     stated_rig = rig.turned() if options.description_mistake == "turned-pattern" else rig
     stated_rate = world.sample_rate_hz * (1.1 if options.description_mistake == "sample-rate"
                                           else 1.0)
+    # the periods are chosen at the stated rate: the capture configuration is checked at it
     config = capture_config_for(layout, stated_rig, options.poses, stated_rate,
                                 options.burst(stated_rate), cameras)
     air_sensor = SimulatedAirSensor(world) if world.lab.air_sensor is not None else None

@@ -9,6 +9,7 @@ where the reference microphone is). Levels and noise are those of a real lab by 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -19,6 +20,9 @@ from .geometry import Rig, RigidTransform
 from .lab import LabEffects, LabTruth
 from .poses import FACING_CAMERA
 from .sound import SpeakerResponse, mls_burst
+
+if TYPE_CHECKING:
+    from .live_scene import LiveScene
 
 
 @dataclass(frozen=True)
@@ -117,6 +121,7 @@ class World:
         self.reference_mic_m: np.ndarray | None = None
         self.reference_near_speaker: int | None = None
         self.rig_in_view = True
+        self.live_scene: LiveScene | None = None  # sources playing continuously (live mode)
 
     @property
     def air_temperature_c(self) -> float:

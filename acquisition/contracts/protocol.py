@@ -70,6 +70,24 @@ class PreviewsArgs(_Message):
                     "before it runs out to keep them coming")
 
 
+class LiveStartArgs(_Message):
+    seconds: float = Field(default=10.0, ge=1.0, le=30.0,
+                           description="the ring buffer holds this many of the latest seconds "
+                                       "(14 MB a second for 73 columns at 96 kS/s)")
+    camera_fps: float = Field(default=10.0, gt=0.0, le=30.0,
+                              description="camera frames per second while live")
+    cameras: list[SafeName] | None = Field(default=None, max_length=16,
+                                           description="the cameras streamed (default: all)")
+    samples: bool = Field(default=True,
+                          description="publish the time data (`samples` messages) for clients "
+                                      "that image it")
+
+
+class LiveRecordArgs(_Message):
+    seconds: float = Field(default=5.0, gt=0.0, le=30.0,
+                           description="record this many of the latest seconds of the ring")
+
+
 class SessionFileArgs(_Message):
     session: SafeName = Field(description="the session's id")
     path: SafeRelativePath = Field(
@@ -174,15 +192,36 @@ class RedoRequest(_Request):
     args: NoArgs = NoArgs()
 
 
+class LiveStartRequest(_Request):
+    """Enter live mode: every board scanning without end, the cameras streaming (idle only)."""
+
+    command: Literal["live.start"] = "live.start"
+    args: LiveStartArgs = LiveStartArgs()
+
+
+class LiveStopRequest(_Request):
+    """Leave live mode."""
+
+    command: Literal["live.stop"] = "live.stop"
+    args: NoArgs = NoArgs()
+
+
+class LiveRecordRequest(_Request):
+    """Store the latest seconds of live mode (session format and Acoular's HDF5 layout)."""
+
+    command: Literal["live.record"] = "live.record"
+    args: LiveRecordArgs = LiveRecordArgs()
+
+
 _REQUESTS = (PingRequest, StatusRequest, SessionsListRequest, DescribeRequest, PreviewsRequest,
              SessionReportRequest, SessionFileRequest, SessionStartRequest, SessionStopRequest,
              SessionPauseRequest, SessionResumeRequest, SessionAbortRequest, CaptureRequest,
-             RedoRequest)
+             RedoRequest, LiveStartRequest, LiveStopRequest, LiveRecordRequest)
 Request = Annotated[
     PingRequest | StatusRequest | SessionsListRequest | DescribeRequest | PreviewsRequest
     | SessionReportRequest | SessionFileRequest | SessionStartRequest | SessionStopRequest
     | SessionPauseRequest | SessionResumeRequest | SessionAbortRequest | CaptureRequest
-    | RedoRequest,
+    | RedoRequest | LiveStartRequest | LiveStopRequest | LiveRecordRequest,
     Field(discriminator="command"),
 ]
 REQUEST_TYPES: dict[str, type[_Request]] = {
@@ -268,6 +307,26 @@ class PoseOutline(_Message):
     outline: list[tuple[float, float]] = Field(max_length=4)
 
 
+class LiveStatus(_Message):
+    """Live mode: how far the scan is, how much the ring holds, how far behind the clock the
+    daemon reads (it must stay near 0: the boards' FIFOs hold well under a second)."""
+
+    sample: int = Field(description="samples read per column since live mode began")
+    sample_rate_hz: float
+    held_s: float = Field(description="seconds of time data in the ring buffer")
+    capacity_s: float
+    behind_s: float = Field(description="the scan's time minus the time read")
+    max_behind_s: float = Field(description="the largest behind_s since live mode began")
+    frames: int = Field(description="camera frames taken")
+
+
+class LiveRecordResult(_Message):
+    path: str = Field(description="the recording's session directory")
+    session: str
+    seconds: float
+    acoular_file: str = Field(description="time_data.h5: Acoular's HDF5 time-data layout")
+
+
 class StatusResult(_Message):
     """The `status` reply: a snapshot of everything `watch` shows."""
 
@@ -294,6 +353,7 @@ class StatusResult(_Message):
                                 "completed pose (the most recent MAX_COVERAGE)")
     previews_until_s: float = Field(
         default=0.0, description="seconds from now during which previews are published")
+    live: LiveStatus | None = Field(default=None, description="live mode, while it runs")
 
 
 class SessionsResult(_Message):
@@ -313,6 +373,7 @@ class ColumnInfo(_Message):
     channel: int
     role: Literal["mic", "reference"]
     mic_id: int | None = None
+    range_v: float | None = Field(default=None, description="volts at full scale (code 32768)")
 
 
 class RigInfo(_Message):
@@ -437,6 +498,36 @@ class PreviewEvent(_Event):
     jpeg_b64: str
 
 
+class LiveModeEvent(_Event):
+    """Live mode began or ended (`reason`: why, e.g. a board's overrun)."""
+
+    type: Literal["live_mode"] = "live_mode"
+    running: bool
+    reason: str = ""
+
+
+class LiveRecordedEvent(_Event):
+    """A `live.record` is on disk (`error` empty), or failed (`error` says why)."""
+
+    type: Literal["live_recorded"] = "live_recorded"
+    path: str
+    error: str = ""
+
+
+class LiveFrameEvent(_Event):
+    """A camera frame of live mode, downscaled JPEG, taken when the scan had reached `sample`
+    (samples per column since live mode began)."""
+
+    type: Literal["live_frame"] = "live_frame"
+    camera: str
+    sample: int
+    width: int
+    height: int
+    source_width: int
+    source_height: int
+    jpeg_b64: str
+
+
 class LevelsEvent(_Event):
     """Per-channel levels of one recording (dBFS: 0 = full scale of the channel's range), one
     value per column (`describe` names them). `listening`: the columns that should hear the
@@ -531,7 +622,8 @@ class CalibrationEvent(_Event):
 Event = Annotated[
     StateEvent | InstructionEvent | ProgressEvent | LevelsEvent | CheckerboardEvent
     | WarningEvent | ErrorEvent | CaptureEvent | WorkerEvent | JobEvent | LiveCalibrationEvent
-    | CalibrationEvent | PreviewEvent,
+    | CalibrationEvent | PreviewEvent | LiveModeEvent | LiveFrameEvent
+    | LiveRecordedEvent,
     Field(discriminator="type"),
 ]
 EVENT_ADAPTER: TypeAdapter[Event] = TypeAdapter(Event)
@@ -541,7 +633,25 @@ EVENT_TOPICS: tuple[str, ...] = tuple(
 PREVIEW_TOPIC = "preview"
 """Previews are large (kilobytes each, a few a second): clients that do not draw them leave
 this topic out of their subscription (`DaemonClient.subscribe`), and the publisher drops them."""
+LIVE_FRAME_TOPIC = "live_frame"
+"""Live camera frames: large like previews, left out unless asked for."""
+SAMPLES_TOPIC = "samples"
+"""Live mode's time data: not JSON events but three frames (`SamplesHeader`), on a topic no
+event topic is a prefix of, so that subscribers to the events never receive them."""
 REQUEST_ADAPTER: TypeAdapter[Request] = TypeAdapter(Request)
+
+
+class SamplesHeader(_Message):
+    """The second frame of a `samples` message; the third is the codes, int16 little-endian,
+    (n_samples, n_columns) row-major, the columns of `describe`."""
+
+    v: Literal[2] = PROTOCOL_VERSION
+    start: int = Field(ge=0, description="stream index of the first row")
+    n_samples: int = Field(gt=0)
+    n_columns: int = Field(gt=0)
+    sample_rate_hz: float = Field(gt=0)
+    monotonic_s: float = Field(description="the daemon host's monotonic clock when the first "
+                                           "row was scanned (by the clock live mode reads by)")
 
 
 def utc_now() -> datetime:
@@ -558,6 +668,8 @@ def json_schemas() -> dict[str, dict]:
         "sessions-result": SessionsResult.model_json_schema(),
         "capture-result": CaptureResult.model_json_schema(),
         "describe-result": DescribeResult.model_json_schema(),
+        "live-record-result": LiveRecordResult.model_json_schema(),
+        "samples-header": SamplesHeader.model_json_schema(),
         "session-report-result": SessionReportResult.model_json_schema(),
         "session-file-result": SessionFileResult.model_json_schema(),
         **job_schemas(),

@@ -26,6 +26,7 @@ from acquisition.contracts.keys import secure_client
 from acquisition.contracts.protocol import (
     EVENT_ADAPTER,
     EVENT_TOPICS,
+    LIVE_FRAME_TOPIC,
     PREVIEW_TOPIC,
     PROTOCOL_VERSION,
     Event,
@@ -139,9 +140,15 @@ class DaemonClient:
     def event_socket(self, previews: bool = False,
                      context: zmq.Context | None = None) -> zmq.Socket:
         """A SUB socket (of `context`, default this client's) on the daemon's events,
-        subscribed to every topic, `preview` only if `previews`."""
-        topics = tuple(t for t in EVENT_TOPICS if previews or t != PREVIEW_TOPIC)
+        subscribed to every topic, `preview` and `live_frame` only if `previews`."""
+        topics = tuple(t for t in EVENT_TOPICS
+                       if previews or t not in (PREVIEW_TOPIC, LIVE_FRAME_TOPIC))
         return self._socket(zmq.SUB, self.events_endpoint(), context, topics)
+
+    def topic_socket(self, topics: tuple[str, ...]) -> zmq.Socket:
+        """A SUB socket on the daemon's events subscribed to exactly `topics` (live mode's
+        `samples` and `live_frame`, which `event_socket` leaves out or cannot parse)."""
+        return self._socket(zmq.SUB, self.events_endpoint(), None, topics)
 
     def wait_until(self, done: Callable[[StatusResult], bool], timeout_s: float,
                    on_event: Callable[[Event], None] | None = None,

@@ -15,6 +15,9 @@ from acquisition.contracts.protocol import (
     JobEvent,
     LevelsEvent,
     LiveCalibrationEvent,
+    LiveFrameEvent,
+    LiveModeEvent,
+    LiveRecordedEvent,
     ProgressEvent,
     StateEvent,
     StatusResult,
@@ -70,6 +73,14 @@ def format_event(event: Event) -> str:
     if isinstance(event, WorkerEvent):
         why = f" ({event.reason})" if event.reason else ""
         return f"worker {event.worker} {event.state}{why}"
+    if isinstance(event, LiveModeEvent):
+        why = f" ({event.reason})" if event.reason else ""
+        return f"live mode {'on' if event.running else 'off'}{why}"
+    if isinstance(event, LiveRecordedEvent):
+        return (f"live recording {event.path} written" if not event.error
+                else f"ERROR live recording {event.path}: {event.error}")
+    if isinstance(event, LiveFrameEvent):
+        return f"  live frame of {event.camera} at sample {event.sample}"
     return repr(event)  # pragma: no cover - every event type is listed above
 
 

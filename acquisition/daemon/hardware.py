@@ -8,6 +8,7 @@ its ground truth, stored with each session.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from daq import SyncGroup
@@ -32,6 +33,8 @@ class Hardware:
         session_files: top-level JSON files written into every new session (the ground truth).
         description: for the log and `status`.
         air_sensor: reads the air beside the array at every pose (None: no sensor).
+        live_scene: the simulated world's sources start (True) or stop (False) playing, for
+            live mode; None on real hardware (the room plays what it plays).
     """
 
     config: CaptureConfig
@@ -42,6 +45,7 @@ class Hardware:
     session_files: dict[str, dict] = field(default_factory=dict)
     description: str = ""
     air_sensor: AirSensor | None = None
+    live_scene: Callable[[bool], None] | None = None
 
     @property
     def simulated(self) -> bool:

@@ -264,6 +264,11 @@ class ControlServer:
         self._pub.send_multipart([topic.encode(), event.model_dump_json().encode()])
         return event
 
+    def publish_frames(self, topic: str, frames: list[bytes | memoryview]) -> None:
+        """Send a message of raw frames after its topic (live mode's time data; dropped
+        by ZeroMQ for subscribers that did not ask for the topic or do not keep up)."""
+        self._pub.send_multipart([topic.encode(), *frames], copy=False)
+
     def close(self) -> None:
         for name in ("_control", "_pub"):
             sock = getattr(self, name, None)

@@ -28,6 +28,7 @@ import zmq
 from pydantic import BaseModel
 
 from acquisition.contracts.capture_config import CaptureConfig
+from ..live.mode import POLL_S as LIVE_POLL_S
 from ..sequencer import plan_steps
 from acquisition.contracts.session import SessionError, SessionReader, SessionWriter
 from acquisition.contracts.session import write_atomic
@@ -37,6 +38,7 @@ from .files import MAX_FETCH_BYTES, FileServer
 from .hardware import Hardware
 from .index import SessionIndex, summarize
 from .jobs import job_for_session
+from .live_control import LiveControl
 from .outbox import Outbox
 from .previews import Previews
 from acquisition.contracts.protocol import (
@@ -102,6 +104,9 @@ class Daemon:
             "session.resume": lambda _: self._unpause(),
             "capture": lambda _: self._capture(),
             "redo": lambda _: self._redo(),
+            "live.start": lambda r: self.live.start(r.args),
+            "live.stop": lambda _: self.live.stop(),
+            "live.record": lambda r: self.live.record(r.args),
         }
         rig = hardware.config.rig
         self.previews = Previews(config.previews, hardware.cameras,
@@ -110,6 +115,8 @@ class Daemon:
         self.index = SessionIndex(self.session_root,
                                   busy=lambda: self.machine.state is State.CAPTURING)
         self.server = ControlServer(config.sockets, self._handle)
+        self.live = LiveControl(hardware, self.machine, self.session_root, self.publish,
+                                self.server.publish_frames, config.camera_timeout_s)
         try:
             self.broker, self.files = self._open_broker()
         except BaseException:
@@ -149,9 +156,11 @@ class Daemon:
                 if run is not None and run.ready():
                     self._advance(run)
                 elif self.terminating and run is None:
+                    self.live.stop(SIGTERM_REASON)
                     break
                 else:
-                    self.service(self.config.poll_interval_s)
+                    self.service(self.config.poll_interval_s if self.live.mode is None
+                                 else min(LIVE_POLL_S, self.config.poll_interval_s))
         finally:
             sd_notify("STOPPING=1")
             if self.run is not None:  # only on a second signal: left resumable
@@ -177,7 +186,9 @@ class Daemon:
         _guarded("the broker's timed work", self.broker.tick)
         if self.run is not None:
             _guarded("hands-free", self.run.hands_free_tick)
-        _guarded("the previews", self.previews.tick, self.machine.state is State.CAPTURING)
+        _guarded("live mode", self.live.tick)
+        _guarded("the previews", self.previews.tick,
+                 self.machine.state in (State.CAPTURING, State.LIVE))
         if not self._reconciled and self.index.complete:
             self._reconciled = True
             _guarded("the start-up checks", self._after_first_scan)
@@ -313,7 +324,7 @@ class Daemon:
             last_event_seq=self.server.last_event_seq, calibration=self.broker.status(),
             resumable=None if run else self.index.newest_interrupted(),
             cameras=run.cameras_seen() if run else [], coverage=run.coverage if run else [],
-            previews_until_s=self.previews.remaining_s)
+            previews_until_s=self.previews.remaining_s, live=self.live.status())
 
     def describe(self) -> DescribeResult:
         """What the daemon captures with, for clients that name and draw what events carry."""
@@ -322,7 +333,8 @@ class Daemon:
         return DescribeResult(
             simulated=self.hardware.simulated,
             columns=[ColumnInfo(column=j, board=c.board, channel=c.channel, role=c.role,
-                                mic_id=c.mic_id) for j, c in enumerate(capture.columns)],
+                                mic_id=c.mic_id, range_v=c.range_v)
+                     for j, c in enumerate(capture.columns)],
             cameras=[c.name for c in capture.cameras],
             rig=RigInfo(corners_x=capture.rig.corners_x, corners_y=capture.rig.corners_y,
                         square_m=capture.rig.square_m,

@@ -4,6 +4,7 @@
                              ^    \\            ^    \\              ^    \\
                              |     capturing --+     capturing ---+     capturing
     any session state -> paused (back by resume) ; any session state -> stopping -> idle
+    idle <-> live (live mode: the boards scanning without end, no session open)
 
 `references`, `reference_microphone` and `waiting_for_pose` wait for the operator's `capture`
 of the current step (its instruction says what to set up); `capturing` records it. Every
@@ -29,10 +30,11 @@ class State(StrEnum):
     CAPTURING = "capturing"
     PAUSED = "paused"
     STOPPING = "stopping"
+    LIVE = "live"
 
 
 WAITING_STATES = frozenset({State.REFERENCES, State.REFMIC, State.WAITING_FOR_POSE})
-SESSION_STATES = frozenset(State) - {State.IDLE}
+SESSION_STATES = frozenset(State) - {State.IDLE, State.LIVE}
 
 WAITING_STATE_FOR: dict[InstructionKind, State] = {
     InstructionKind.REFERENCE_AT_SPEAKER: State.REFERENCES,
@@ -41,7 +43,8 @@ WAITING_STATE_FOR: dict[InstructionKind, State] = {
 }
 
 _TRANSITIONS: dict[State, frozenset[State]] = {
-    State.IDLE: frozenset({State.SESSION_OPEN}),
+    State.IDLE: frozenset({State.SESSION_OPEN, State.LIVE}),
+    State.LIVE: frozenset({State.IDLE}),
     State.SESSION_OPEN: WAITING_STATES | {State.STOPPING},
     State.CAPTURING: WAITING_STATES | {State.PAUSED, State.STOPPING},
     State.PAUSED: WAITING_STATES | {State.STOPPING},
@@ -66,12 +69,16 @@ ALLOWED: dict[str, frozenset[State]] = {
     "session.resume": frozenset({State.PAUSED}),
     "capture": WAITING_STATES | {State.SESSION_OPEN},  # a go given while the session opens
     "redo": frozenset({State.CAPTURING}),
+    "live.start": frozenset({State.IDLE}),  # never while a calibration session runs
+    "live.stop": frozenset({State.LIVE}),
+    "live.record": frozenset({State.LIVE}),
 }
 """The states in which each command is accepted (the daemon may still refuse for a reason
 that is not the state, e.g. stop before the references are recorded)."""
 
 _WHY_NOT: dict[State, str] = {
     State.IDLE: "no session is open; start one with `micam session start`",
+    State.LIVE: "the daemon is in live mode; leave it with `micam live stop` first",
     State.SESSION_OPEN: "the session is opening; try again in a moment",
     State.CAPTURING: "a step is being captured; wait for it to finish",
     State.PAUSED: "the session is paused; continue with `micam session resume`",

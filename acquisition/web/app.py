@@ -37,6 +37,8 @@ COMMANDS: dict[str, frozenset[str]] = {
     "session.start": frozenset({"poses", "resume"}),
     "capture": frozenset(), "redo": frozenset(), "session.pause": frozenset(),
     "session.resume": frozenset(), "session.stop": frozenset(), "session.abort": frozenset(),
+    "live.start": frozenset({"seconds", "camera_fps", "cameras"}), "live.stop": frozenset(),
+    "live.record": frozenset({"seconds"}),
 }
 """What the page may ask the daemon to do, with the arguments of each."""
 MEDIA_TYPES = {".png": "image/png", ".jpg": "image/jpeg", ".json": "application/json",

@@ -21,7 +21,7 @@ import json
 import logging
 import time
 from collections import deque
-from typing import Any, cast
+from typing import TYPE_CHECKING, Any, cast
 
 import zmq
 import zmq.asyncio
@@ -36,12 +36,16 @@ from acquisition.contracts.protocol import (
     Event,
     LevelsEvent,
     LiveCalibrationEvent,
+    LiveFrameEvent,
     PreviewEvent,
     ProgressEvent,
     StateEvent,
     StatusResult,
 )
 from .view import cameras_view, levels_view, live_view
+
+if TYPE_CHECKING:
+    from .live_stream import LiveStream
 
 log = logging.getLogger("micam.web")
 
@@ -82,8 +86,10 @@ class Bridge:
     which the page says "enough poses"."""
 
     def __init__(self, client: DaemonClient, target_m: float | None = None,
-                 poll_s: float = 1.0, sessions_every_s: float = 10.0) -> None:
+                 poll_s: float = 1.0, sessions_every_s: float = 10.0,
+                 live_stream: LiveStream | None = None) -> None:
         self.client = client
+        self.live_stream = live_stream
         self.target_m = target_m
         self.poll_s = poll_s
         self.sessions_every_s = sessions_every_s
@@ -93,7 +99,7 @@ class Bridge:
                        "control": client.control},
             "describe": None, "status": None, "cameras": [], "levels": None, "previews": {},
             "live": None, "live_history": [], "sessions": None, "log": [],
-            "target_m": target_m,
+            "target_m": target_m, "live_stream": None,
         }
         self._log: deque[dict[str, Any]] = deque(maxlen=LOG_LINES)
         self._describe: DescribeResult | None = None
@@ -108,8 +114,17 @@ class Bridge:
     async def start(self) -> None:
         self._tasks = [asyncio.create_task(self._events(), name="daemon events"),
                        asyncio.create_task(self._poll(), name="daemon status")]
+        if self.live_stream is not None:
+            loop = asyncio.get_running_loop()
+
+            def publish(frame: dict[str, Any]) -> None:  # from the live view's thread
+                loop.call_soon_threadsafe(self._send, {"live_stream": frame})
+
+            self.live_stream.start(publish)
 
     async def stop(self) -> None:
+        if self.live_stream is not None:
+            await asyncio.to_thread(self.live_stream.close)
         for task in self._tasks:
             task.cancel()
         for task in self._tasks:
@@ -176,7 +191,7 @@ class Bridge:
         changed = self._apply(event)
         summary = {"seq": event.seq, "type": event.type,
                    "time_utc": event.time_utc.isoformat()}
-        if not isinstance(event, PreviewEvent):
+        if not isinstance(event, PreviewEvent | LiveFrameEvent):
             line = {"seq": event.seq, "time_utc": summary["time_utc"],
                     "line": format_event(event)}
             self._log.append(line)
@@ -255,6 +270,8 @@ class Bridge:
         await self._on_status(await asyncio.to_thread(self.client.status))
 
     async def _on_status(self, status: StatusResult) -> None:
+        if self.live_stream is not None:  # maps only while live and looked at
+            self.live_stream.want(bool(self.browsers) and status.live is not None)
         changed: dict[str, Any] = {"status": status.model_dump(mode="json")}
         session = status.session
         if session is not None and self._describe is not None:

@@ -103,8 +103,15 @@ def save(fig: Figure, path: Path) -> Path:
     plt.close(fig)
     buffer.seek(0)
     with Image.open(buffer) as image:
-        rgb = image.convert("RGB")
-        colours = rgb.quantize(PNG_COLOURS, method=Image.Quantize.FASTOCTREE)
-        palette = rgb.quantize(palette=colours, dither=Image.Dither.FLOYDSTEINBERG)
+        return save_palette_png(image, path)
+
+
+def save_palette_png(image: Image.Image, path: Path) -> Path:
+    """Write `image` as a PNG of `PNG_COLOURS` colours chosen for it, dithered (see `save`),
+    atomically. Returns the path."""
+    path = Path(path)
+    rgb = image.convert("RGB")
+    colours = rgb.quantize(PNG_COLOURS, method=Image.Quantize.FASTOCTREE)
+    palette = rgb.quantize(palette=colours, dither=Image.Dither.FLOYDSTEINBERG)
     write_atomic(path, lambda fh: palette.save(fh, format="PNG", optimize=True), replace=True)
     return path

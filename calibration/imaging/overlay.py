@@ -42,26 +42,52 @@ def _rays_on_plane(camera: CameraView, pixels: np.ndarray, origin_m: np.ndarray,
     return centre + np.where(hit, s, 0.0)[:, None] * direction, hit
 
 
+class ImageMapper:
+    """Resamples maps on one grid at every pixel of one camera (bilinear; NaN where a pixel's
+    ray misses the grid: outside it, or the plane is behind the camera). The pixel-to-grid
+    table is computed once, so a live view pays one `cv2.remap` per frame.
+
+    Args:
+        grid: the scan grid (camera-0 frame).
+        camera: the camera whose pixels are filled.
+        scale: the output image's size relative to the camera's (0.5: half width and height;
+            its pixel centres are those of the downscaled image).
+    """
+
+    def __init__(self, grid: PlaneGrid, camera: CameraView, scale: float = 1.0) -> None:
+        if not 0 < scale <= 1:
+            raise ValueError(f"image scale {scale} must be in (0, 1]")
+        self.grid = grid
+        self.width = max(1, round(camera.width * scale))
+        self.height = max(1, round(camera.height * scale))
+        cols, rows = np.meshgrid((np.arange(self.width) + 0.5) / scale - 0.5,
+                                 (np.arange(self.height) + 0.5) / scale - 0.5)
+        pixels = np.stack([cols.ravel(), rows.ravel()], axis=1)
+        points, hit = _rays_on_plane(camera, pixels, grid.origin_m, grid.normal)
+        uv = grid.coordinates(points)
+        du, dv = grid.spacing()
+        fi = (uv[:, 0] - grid.u_m[0]) / du if du else np.zeros(len(uv))
+        fj = (uv[:, 1] - grid.v_m[0]) / dv if dv else np.zeros(len(uv))
+        fi[~hit] = -1e6
+        # remap samples src[map_y, map_x]: rows are u (i), columns v (j)
+        self._map_x = fj.reshape(self.height, self.width).astype(np.float32)
+        self._map_y = fi.reshape(self.height, self.width).astype(np.float32)
+
+    def to_image(self, values: np.ndarray) -> np.ndarray:
+        """The map (G,) or (n_u, n_v) at every pixel: (height, width) float32."""
+        values = np.asarray(values, dtype=np.float32)
+        if values.size != self.grid.size:
+            raise ValueError(f"the map has {values.size} values but the grid "
+                             f"{self.grid.size} points")
+        return cv2.remap(values.reshape(self.grid.shape), self._map_x, self._map_y,
+                         interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                         borderValue=float("nan"))
+
+
 def map_to_image(values: np.ndarray, grid: PlaneGrid, camera: CameraView) -> np.ndarray:
     """The map resampled at every pixel of `camera`: (height, width) float64, NaN where the
     pixel's ray misses the grid (outside it, or the plane is behind the camera)."""
-    values = np.asarray(values, dtype=np.float64)
-    if values.size != grid.size:
-        raise ValueError(f"the map has {values.size} values but the grid {grid.size} points")
-    h, w = camera.height, camera.width
-    cols, rows = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-    pixels = np.stack([cols.ravel(), rows.ravel()], axis=1)
-    points, hit = _rays_on_plane(camera, pixels, grid.origin_m, grid.normal)
-    uv = grid.coordinates(points)
-    du, dv = grid.spacing()
-    fi = (uv[:, 0] - grid.u_m[0]) / du if du else np.zeros(len(uv))
-    fj = (uv[:, 1] - grid.v_m[0]) / dv if dv else np.zeros(len(uv))
-    fi[~hit] = -1e6
-    image = cv2.remap(values.reshape(grid.shape).astype(np.float32),
-                      fj.reshape(h, w).astype(np.float32), fi.reshape(h, w).astype(np.float32),
-                      interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                      borderValue=float("nan"))
-    return image.astype(np.float64)
+    return ImageMapper(grid, camera).to_image(values).astype(np.float64)
 
 
 def field_of_view_grid(camera: CameraView, pose: BoardPose, z_rig_m: float, spacing_m: float,

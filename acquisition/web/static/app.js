@@ -59,7 +59,7 @@ function arrived(event) {
 const RENDER = {
   daemon: renderHeader, status: renderHeader, progress: renderHeader, describe: renderAll,
   cameras: renderCameras, previews: renderCameras, live: renderLive, live_history: renderLive,
-  levels: renderLevels, sessions: renderSessions, log: renderLog,
+  levels: renderLevels, sessions: renderSessions, log: renderLog, live_stream: renderLiveStream,
 };
 
 function render(keys) {
@@ -68,10 +68,10 @@ function render(keys) {
     const f = RENDER[key];
     if (f && !done.has(f)) { done.add(f); f(); }
   }
-  if (keys.includes("status") || keys.includes("live")) { renderCameras(); renderControls(); }
+  if (keys.includes("status") || keys.includes("live")) { renderCameras(); renderControls(); renderLiveStream(); }
 }
 
-function renderAll() { renderHeader(); renderCameras(); renderLevels(); renderLive(); renderSessions(); renderLog(); }
+function renderAll() { renderHeader(); renderCameras(); renderLevels(); renderLive(); renderLiveStream(); renderSessions(); renderLog(); }
 
 // -- header and control ----------------------------------------------------------------------
 
@@ -113,6 +113,7 @@ function renderControls() {
     start: st === "idle", capture: WAITING.includes(st) || st === "session_open",
     redo: st === "capturing", pause: WAITING.includes(st) || st === "capturing",
     resume: st === "paused", stop: inSession, abort: inSession,
+    "live-start": st === "idle", "live-record": st === "live", "live-stop": st === "live",
   };
   for (const [id, on] of Object.entries(enable)) $(id).disabled = !(connected && on);
   const d = state.describe;
@@ -160,6 +161,25 @@ function setUpControls() {
       }
     });
   }
+}
+
+// -- the live acoustic view ------------------------------------------------------------------
+function renderLiveStream() {
+  // The newest map over camera 0 while the daemon is live (micam web --geometry draws them).
+  const live = state.status && state.status.live;
+  const frame = state.live_stream;
+  const img = $("live-stream");
+  const showing = Boolean(live && frame && frame.jpeg_b64);
+  img.classList.toggle("hidden", !showing);
+  if (showing) {
+    const src = "data:image/jpeg;base64," + frame.jpeg_b64;
+    if (img.getAttribute("src") !== src) img.setAttribute("src", src);
+    img.dataset.sample = String(frame.sample);
+  }
+  $("live-stream-info").textContent = live
+    ? `${live.held_s.toFixed(1)} s kept, ${(1e3 * live.behind_s).toFixed(0)} ms behind` : "";
+  $("live-stream-note").textContent = !live ? "not live" : frame && frame.error
+    ? frame.error : frame ? `latency ${frame.latency_ms} ms` : "no map (micam web --geometry)";
 }
 
 // -- cameras and the next pose ---------------------------------------------------------------

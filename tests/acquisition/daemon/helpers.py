@@ -150,3 +150,13 @@ class FakeWorker:
 
     def close(self) -> None:
         self.context.destroy(linger=0)
+
+
+def next_event(events, kind: str, **fields):
+    """The next event of type `kind` with these field values (bounded in count and time)."""
+    for _ in range(100_000):
+        event = events.next(WAIT_S)
+        assert event is not None, f"no {kind} event"
+        if event.type == kind and all(getattr(event, k) == v for k, v in fields.items()):
+            return event
+    raise AssertionError(f"no {kind} event among the first 100000")
