@@ -34,7 +34,7 @@ from daq import DaqError, GroupStream
 
 from acquisition.contracts.camera import Camera, CameraError
 from acquisition.contracts.capture_config import CaptureConfig
-from ..daemon.previews import encode_preview
+from ..preview_jpeg import encode_preview
 from acquisition.contracts.protocol import (
     SAMPLES_TOPIC,
     LiveFrameEvent,
