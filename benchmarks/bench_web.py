@@ -28,7 +28,7 @@ import numpy as np
 from _figures import report
 
 from micam.demo_loop import Loop
-from acquisition.web.testing import Chromium, WebProcess
+from micam.web.testing import Chromium, WebProcess
 
 RESULTS = Path(__file__).with_name("results") / "web.json"
 TICKS = os.sysconf("SC_CLK_TCK")

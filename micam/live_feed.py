@@ -33,8 +33,8 @@ from acquisition.contracts.protocol import (
     SamplesHeader,
 )
 
-from .geometry import ArrayGeometry
-from .live_frames import DrawnFrame, MapFrames
+from calibration.imaging.geometry import ArrayGeometry
+from calibration.imaging.live_frames import DrawnFrame, MapFrames
 
 
 @dataclass(frozen=True)

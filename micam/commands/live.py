@@ -116,7 +116,7 @@ def _video_of_recording(path: Path, geometry, settings, fps: float, video) -> in
     from acquisition.live.record import read_live_recording
     from acquisition.contracts.session import SessionError
     from calibration.imaging.live import LiveImager
-    from calibration.imaging.live_feed import mic_columns
+    from micam.live_feed import mic_columns
     from calibration.imaging.live_frames import MapFrames, caption_of
 
     try:
@@ -139,7 +139,7 @@ def _video_of_recording(path: Path, geometry, settings, fps: float, video) -> in
 def _video_of_live(args: argparse.Namespace, geometry, settings, video) -> int:
     from acquisition.daemon.client import client_from_args
     from calibration.imaging.live import LiveImager
-    from calibration.imaging.live_feed import LiveFeed
+    from micam.live_feed import LiveFeed
     from calibration.imaging.live_frames import MapFrames, caption_of
 
     with client_from_args(args) as client:

@@ -48,7 +48,7 @@ def _live_stream(args: argparse.Namespace):  # -> LiveStream | None
         return None
     from acquisition.daemon.client import client_from_args
     from acquisition.contracts.errors import UserError
-    from acquisition.web.live_stream import LiveStream
+    from micam.web.live_stream import LiveStream
     from calibration.imaging import load_geometry
     from calibration.imaging.live import LiveSettings
 
@@ -69,9 +69,9 @@ def run(args: argparse.Namespace) -> int:
     try:
         import uvicorn
 
-        from acquisition.web.access import check_listen, read_token
-        from acquisition.web.app import create_app
-        from acquisition.web.bridge import Bridge
+        from micam.web.access import check_listen, read_token
+        from micam.web.app import create_app
+        from micam.web.bridge import Bridge
     except ImportError as exc:
         raise UserError(f"`micam web` needs the web packages ({exc.name} is missing): "
                         "pip install 'micam[web]'") from None

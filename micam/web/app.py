@@ -25,7 +25,7 @@ from starlette.staticfiles import StaticFiles
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
-from ..daemon.client import DaemonError
+from acquisition.daemon.client import DaemonError
 from acquisition.contracts.safe_names import is_name, is_relative_path
 from .access import COOKIE, same_origin, token_matches
 from .bridge import Bridge, Browser

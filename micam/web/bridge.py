@@ -27,8 +27,8 @@ import zmq
 import zmq.asyncio
 from pydantic import ValidationError
 
-from ..daemon.client import DaemonClient, DaemonError
-from ..daemon.display import format_event
+from acquisition.daemon.client import DaemonClient, DaemonError
+from acquisition.daemon.display import format_event
 from acquisition.contracts.protocol import (
     EVENT_ADAPTER,
     CalibrationEvent,

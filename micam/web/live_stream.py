@@ -2,7 +2,7 @@
 
 `micam web --geometry result.json` makes one `LiveStream`. While the daemon is in live mode
 and a browser is connected (the bridge says so, `want`), a thread of the page subscribes to
-the daemon's stream like any client (`calibration.imaging.live_feed.LiveFeed`), draws the maps
+the daemon's stream like any client (`micam.live_feed.LiveFeed`), draws the maps
 over camera 0's frames (`MapFrames`) at `fps`, and hands each frame, as a JPEG, to the bridge,
 which sends it to the browsers as the `live_stream` part of the page's state. The imaging runs
 in the page's process, never in the daemon's: a slow page only draws fewer frames.
@@ -20,10 +20,10 @@ import cv2
 
 from calibration.imaging.geometry import ArrayGeometry
 from calibration.imaging.live import LiveImager, LiveSettings
-from calibration.imaging.live_feed import FedFrame, LiveFeed
+from micam.live_feed import FedFrame, LiveFeed
 from calibration.imaging.live_frames import MapFrames, caption_of
 
-from ..daemon.client import DaemonClient, DaemonError
+from acquisition.daemon.client import DaemonClient, DaemonError
 
 log = logging.getLogger("micam.web")
 

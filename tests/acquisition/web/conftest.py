@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from micam.demo_loop import Loop
-from acquisition.web.testing import Chromium, WebProcess, browser_missing
+from micam.web.testing import Chromium, WebProcess, browser_missing
 
 SKIP_ENV = "MICAM_SKIP_BROWSER_TESTS"
 POSES = 8  # the world's poses; sessions ask for fewer

@@ -13,8 +13,8 @@ from starlette.testclient import TestClient
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
 from acquisition.contracts.errors import UserError
-from acquisition.web.access import check_listen, read_token
-from acquisition.web.app import AccessGuard
+from micam.web.access import check_listen, read_token
+from micam.web.app import AccessGuard
 
 TOKEN = "s3cret-token-of-the-page"
 

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from selenium.webdriver.common.by import By
 
-from acquisition.web.testing import Chromium
+from micam.web.testing import Chromium
 
 from .conftest import Stack
 

@@ -12,7 +12,7 @@ import pytest
 from selenium.webdriver.common.by import By
 
 from micam.demo_loop import Loop
-from acquisition.web.testing import Chromium, WebProcess
+from micam.web.testing import Chromium, WebProcess
 from sim.arrays import array_layout
 from sim.live_scene import world_truth
 from sim.world import World

@@ -14,7 +14,7 @@ from acquisition.contracts.protocol import (
     QualityInfo,
     RigInfo,
 )
-from acquisition.web.view import camera_warning, cameras_view, levels_view, live_view
+from micam.web.view import camera_warning, cameras_view, levels_view, live_view
 
 
 def _describe() -> DescribeResult:
