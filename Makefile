@@ -20,7 +20,7 @@ $(STAMP): pyproject.toml
 # It stays headless; it prints the `micam web` command that shows it live in a browser (the
 # operator's page, docs/operator.md).
 demo: $(STAMP)
-	$(BIN)/python -m acquisition.demo_loop --out $(DEMO_DIR) --poses 20
+	$(BIN)/python -m micam.demo_loop --out $(DEMO_DIR) --poses 20
 
 # The same capture without the daemon, then `micam calibrate` in this process.
 demo-offline: $(STAMP)

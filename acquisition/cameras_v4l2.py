@@ -1,4 +1,4 @@
-"""A real camera through OpenCV's V4L2 backend, behind the `acquisition.camera.Camera` protocol.
+"""A real camera through OpenCV's V4L2 backend, behind the `acquisition.contracts.camera.Camera` protocol.
 
 What it guarantees, and why:
 - the V4L2 backend is forced (`cv2.CAP_V4L2`): property handling is backend-specific, and
@@ -24,7 +24,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .camera import CameraError, CameraTimeoutError, Frame
+from acquisition.contracts.camera import CameraError, CameraTimeoutError, Frame
+from daq import ClosesOnExit
 
 BY_ID_DIR = Path("/dev/v4l/by-id")
 V4L2_EXPOSURE_MANUAL = 1  # V4L2_EXPOSURE_MANUAL in raw (non-normalised) property mode
@@ -47,7 +48,7 @@ def stable_device_id(device: str, by_id_dir: Path = BY_ID_DIR) -> str:
     return str(path)
 
 
-class V4L2Camera:
+class V4L2Camera(ClosesOnExit):
     """One UVC/V4L2 camera in a fixed mode (see the module docstring)."""
 
     def __init__(self, name: str, device: str, width: int, height: int, fourcc: str = "MJPG",
@@ -78,7 +79,7 @@ class V4L2Camera:
     def _configure(self, fourcc: str, width: int, height: int, fps: float | None,
                    exposure: float | None) -> None:
         cap = self._cap
-        code = cv2.VideoWriter_fourcc(*fourcc)
+        code = cv2.VideoWriter.fourcc(*fourcc)
         cap.set(cv2.CAP_PROP_FOURCC, code)
         cap.set(cv2.CAP_PROP_FRAME_WIDTH, width)
         cap.set(cv2.CAP_PROP_FRAME_HEIGHT, height)

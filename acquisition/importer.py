@@ -1,6 +1,6 @@
 """`micam import`: a micam session from what any recorder produces.
 
-Input: one TOML file (the rig and array description of acquisition/rig_description.py plus a
+Input: one TOML file (the rig and array description of acquisition/contracts/rig_description.py plus a
 `[recordings]` table naming the files), beside it a folder of recordings (WAV, FLAC, RF64 or
 anything else libsndfile reads; HDF5 time data as Acoular writes it: a dataset `time_data` of
 shape (samples, channels) with the attribute `sample_freq`, read with h5py, an optional
@@ -22,7 +22,6 @@ recording's meta, `import_scale`.
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -34,15 +33,15 @@ import numpy as np
 import soundfile as sf
 from pydantic import Field, ValidationError, model_validator
 
-from .config_model import ConfigModel
+from acquisition.contracts.config_model import ConfigModel
 from .intrinsics_file import IntrinsicsFileError, read_intrinsics
-from .rig_description import (
+from acquisition.contracts.rig_description import (
     CameraDescription,
     RigArrayDescription,
     problem_text,
 )
-from .session import SessionError, SessionWriter
-from .session._writer import MAX_CHANNELS
+from acquisition.contracts.session import SessionError, SessionWriter, sha256_file
+from acquisition.contracts.session._writer import MAX_CHANNELS
 
 MAX_SPEC_BYTES = 4_000_000
 """The import TOML: a description and a list of files, far below this."""
@@ -490,7 +489,7 @@ def import_session(spec_path: Path, out: Path,
             for camera, path, _ in step.images:
                 writer.write_image(step.id, f"{camera}.png", p.images[(step.id, camera)],
                                    meta={"source": path})
-                sources[path] = _sha256(p.base / path)
+                sources[path] = sha256_file(p.base / path).sha256
             for name, recording, speaker in step.recordings:
                 codes, scale = recording.codes()
                 source = recording.path.relative_to(p.base).as_posix()
@@ -498,7 +497,7 @@ def import_session(spec_path: Path, out: Path,
                     step.id, name, codes, round(p.description.sample_rate_hz),
                     meta={"speaker": speaker, "source": source, "start_sample": recording.start,
                           "source_format": recording.source_format, "import_scale": scale})
-                sources[source] = _sha256(recording.path)
+                sources[source] = sha256_file(recording.path).sha256
             writer.end_step(step.id)
             if on_step is not None:
                 on_step(step.id)
@@ -514,14 +513,6 @@ def import_session(spec_path: Path, out: Path,
             writer.stop("failed", f"import stopped: {type(exc).__name__}: {exc}")
         raise
     return Path(out)
-
-
-def _sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(2**20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 __all__ = ["ImportSpec", "ImportSpecError", "Prepared", "import_session", "load_spec", "prepare"]

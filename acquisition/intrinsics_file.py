@@ -17,7 +17,7 @@ from typing import Literal
 import cv2
 import numpy as np
 
-from .rig_description import CAMERA_MODEL_COEFFICIENTS, KnownIntrinsics
+from acquisition.contracts.rig_description import CAMERA_MODEL_COEFFICIENTS, KnownIntrinsics
 
 MAX_FILE_BYTES = 1_000_000
 """An intrinsics file is a few hundred bytes; anything far larger is not one."""

@@ -1,7 +1,7 @@
 """The capture sequencer: the steps of a calibration capture, run on whatever hardware is given.
 
-It knows boards only through `daq.SyncGroup`, cameras through `acquisition.camera.Camera` and
-the person moving the rig through `acquisition.operator.Operator`, so the same code drives real
+It knows boards only through `daq.SyncGroup`, cameras through `acquisition.contracts.camera.Camera` and
+the person moving the rig through `acquisition.contracts.instructions.Operator`, so the same code drives real
 boards, simulated ones and emulated USB devices.
 
 Steps, in order (paper IV-C):
@@ -28,12 +28,12 @@ import numpy as np
 
 from daq import SyncGroup, volts_to_codes
 
-from .air import AIR_FILE, AirSensor
-from .camera import Camera
-from .capture_config import CaptureConfig
-from .operator import Instruction, InstructionKind, Operator
-from .session import SessionWriter
-from .stimulus import mls_burst
+from acquisition.contracts.air import AIR_FILE, AirSensor
+from acquisition.contracts.camera import Camera
+from acquisition.contracts.capture_config import CaptureConfig
+from acquisition.contracts.instructions import Instruction, InstructionKind, Operator
+from acquisition.contracts.session import StepRecorder
+from acquisition.contracts.stimulus import mls_burst
 
 
 @dataclass(frozen=True)
@@ -86,7 +86,7 @@ class CaptureSequencer:
         group: SyncGroup,
         cameras: Sequence[Camera],
         operator: Operator,
-        writer: SessionWriter,
+        writer: StepRecorder,
         on_progress: Callable[[Progress], None] | None = None,
         camera_timeout_s: float = 2.0,
         air_sensor: AirSensor | None = None,

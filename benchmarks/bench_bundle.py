@@ -19,7 +19,7 @@ import platform
 import time
 from pathlib import Path
 
-from acquisition.simulated import record_simulated_session
+from micam.simulated import record_simulated_session
 from calibration.pipeline import (
     CalibrationOptions,
     _assemble,

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from acquisition.simulated import record_simulated_session
+from micam.simulated import record_simulated_session
 from calibration.crlb import expected_error_norm, joint_crlb
 from calibration.pipeline import (
     CalibrationOptions,

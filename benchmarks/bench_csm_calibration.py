@@ -35,8 +35,8 @@ from pathlib import Path
 
 import numpy as np
 
-from acquisition.session import SessionReader
-from acquisition.simulated import record_simulated_session
+from acquisition.contracts.session import SessionReader
+from micam.simulated import record_simulated_session
 from calibration.figures.evaluation import csm_calibration_figure
 from calibration.figures.style import save
 from calibration.imaging import load_geometry

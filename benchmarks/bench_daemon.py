@@ -35,7 +35,7 @@ from _figures import report
 
 from acquisition.daemon.client import DaemonClient
 from acquisition.sequencer import CaptureSequencer, Progress
-from acquisition.session import SessionWriter
+from acquisition.contracts.session import SessionWriter
 from sim.capture import SimulationOptions, build_simulated_capture
 
 REPO = Path(__file__).resolve().parents[1]
@@ -59,7 +59,7 @@ def start_daemon(tmp: Path, options: SimulationOptions) -> tuple[subprocess.Pope
     notify.settimeout(60)
     env = {**os.environ, "NOTIFY_SOCKET": str(tmp / "notify")}
     log = (Path(tempfile.gettempdir()) / "micam-bench-daemon.log").open("w")
-    proc = subprocess.Popen([sys.executable, "-m", "acquisition.cli", "daemon", "--config",
+    proc = subprocess.Popen([sys.executable, "-m", "micam.cli", "daemon", "--config",
                              str(config)], env=env, cwd=REPO, stdout=log, stderr=log)
     for _ in range(100):
         if b"READY=1" in notify.recv(4096):

@@ -49,7 +49,7 @@ from pathlib import Path
 
 import numpy as np
 
-from acquisition.session import SessionReader
+from acquisition.contracts.session import SessionReader
 from calibration.imaging import (
     CleanScOptions,
     PlaneGrid,
@@ -239,7 +239,7 @@ def speed(repeat: int, clean_pairs: int) -> dict:
 def localization(session: Path | None, poses: int) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         if session is None:
-            from acquisition.cli import main as micam
+            from micam.cli import main as micam
 
             session = Path(tmp) / "s"
             if micam(["simulate", "--out", str(session), "--poses", str(poses), "--quiet"]):

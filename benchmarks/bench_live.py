@@ -40,7 +40,7 @@ from bench_daemon import cpu_seconds, start_daemon
 from acquisition.daemon.client import DaemonClient
 from calibration.imaging.geometry import ArrayGeometry, geometry_from_dict
 from calibration.imaging.live import LiveImager, LiveSettings
-from calibration.imaging.live_feed import LiveFeed
+from micam.live_feed import LiveFeed
 from calibration.imaging.live_frames import MapFrames, caption_of
 from sim.arrays import array_layout
 from sim.capture import SimulationOptions

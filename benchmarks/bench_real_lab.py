@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import chi2
 
-from acquisition.simulated import record_simulated_session
+from micam.simulated import record_simulated_session
 from calibration.crlb import expected_error_norm
 from calibration.pipeline import CalibrationOptions, calibrate
 from sim.capture import SimulationOptions

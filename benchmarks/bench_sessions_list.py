@@ -33,8 +33,8 @@ from pathlib import Path
 import zmq
 from _figures import report
 
-from acquisition.daemon.protocol import Reply
-from acquisition.simulated import record_simulated_session
+from acquisition.contracts.protocol import Reply
+from micam.simulated import record_simulated_session
 from sim.capture import SimulationOptions
 
 REPO = Path(__file__).resolve().parents[1]
@@ -69,7 +69,7 @@ class Daemon:
         self.notify.settimeout(120)
         log = (Path(tempfile.gettempdir()) / "micam-bench-sessions-list.log").open("w")
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "acquisition.cli", "daemon", "--config", str(config)],
+            [sys.executable, "-m", "micam.cli", "daemon", "--config", str(config)],
             env={**os.environ, "NOTIFY_SOCKET": str(notify_path)}, cwd=REPO, stdout=log,
             stderr=log)
         while b"READY=1" not in self.notify.recv(4096):

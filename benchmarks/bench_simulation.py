@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 
 from acquisition.sequencer import CaptureSequencer, Progress
-from acquisition.session import SessionWriter
+from acquisition.contracts.session import SessionWriter
 from sim.capture import SimulationOptions, build_simulated_capture
 
 

@@ -27,8 +27,8 @@ from pathlib import Path
 import numpy as np
 from _figures import report
 
-from acquisition.demo_loop import Loop
-from acquisition.web.testing import Chromium, WebProcess
+from micam.demo_loop import Loop
+from micam.web.testing import Chromium, WebProcess
 
 RESULTS = Path(__file__).with_name("results") / "web.json"
 TICKS = os.sysconf("SC_CLK_TCK")

@@ -1,7 +1,7 @@
 """Time from the last pose captured to the final calibration published, through the whole loop.
 
 The daemon runs on the simulated world (sphere72, 3 cameras) with one `micam worker`; the
-capture is scripted through the `micam` commands (acquisition.demo_loop), so live
+capture is scripted through the `micam` commands (micam.demo_loop), so live
 calibrations run during the capture as they would for an operator. The clock starts when the
 command that captured the last pose returns (the session is closed and the final job queued)
 and stops when the `calibration` event arrives: fetching the last files and the journal,
@@ -21,7 +21,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from acquisition.demo_loop import Loop, scripted_capture, wait_final
+from micam.demo_loop import Loop, scripted_capture, wait_final
 
 RESULTS = Path(__file__).with_name("results") / "worker.json"
 

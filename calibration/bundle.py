@@ -62,14 +62,15 @@ from scipy import sparse
 from scipy.linalg import cho_factor, cho_solve
 from scipy.spatial.transform import Rotation
 
+from acquisition.contracts.rigid import rotated_point_jacobian
+
 from ._blas import single_threaded_blas
-from .cameras import CameraCalibration, CameraIntrinsics, Extrinsics, Pose
-from .solver import rotated_point_jacobian
+from .camera_calibration import CameraCalibration, CameraIntrinsics, Extrinsics, Pose
+from .robust import inverse_normal, robust_sigma
 
 FIXED = 0.0
 """A prior standard deviation of 0 fixes the unknown at its prior mean."""
 
-_MAD_TO_SIGMA = 1.4826
 N_INTRINSICS = 9
 """fx, fy, cx, cy, k1, k2, p1, p2, k3 (OpenCV's order, projectPoints' Jacobian columns 6-15)."""
 GROUP_TOF = "tof"
@@ -447,7 +448,7 @@ class _Model:
         sources, d_sources = self._sources(s)
         tofs = self._tofs(s, (sources, d_sources, *self._normals(s)), trip)
         residual = np.concatenate([corners, tofs])
-        jac = trip.matrix(self.n_rows, self.layout.size) if jacobian else None
+        jac = trip.matrix(self.n_rows, self.layout.size) if trip is not None else None
         return residual, jac
 
     def _corners(self, s: BundleState, trip: _Triplets | None) -> np.ndarray:
@@ -690,7 +691,7 @@ def _estimate_sigmas(model: _Model, residual: np.ndarray, keep: np.ndarray) -> n
     for g in model.groups:
         kept = keep[g.index]
         e = residual[g.index][kept] / g.base_sigma[kept]
-        scale = max(_MAD_TO_SIGMA * float(np.median(np.abs(e))), 1e-12) if e.size else 1.0
+        scale = robust_sigma(e, floor=1e-12) if e.size else 1.0
         sigma[g.index] = g.base_sigma * scale
     return sigma
 
@@ -771,7 +772,7 @@ class _Pass:
         ones have zero rows and columns."""
         A, _ = self.normal_equations(residual, jac, x)
         out = np.zeros((x.size, x.size))
-        out[np.ix_(self.free, self.free)] = _inverse_spd(A)
+        out[np.ix_(self.free, self.free)] = inverse_normal(A)
         return out
 
 
@@ -781,18 +782,6 @@ def _solve_spd(A: np.ndarray, b: np.ndarray) -> np.ndarray:
         return cho_solve(cho_factor(A), b)
     except np.linalg.LinAlgError:
         return np.linalg.lstsq(A, b, rcond=None)[0]
-
-
-def _inverse_spd(A: np.ndarray) -> np.ndarray:
-    """Inverse of a normal matrix, scaled to unit diagonal first (its columns span pixels,
-    metres and seconds); pseudo-inverse if singular."""
-    scale = np.sqrt(np.maximum(np.diag(A), 1e-300))
-    A_s = A / scale / scale[:, None]
-    try:
-        inv = cho_solve(cho_factor(A_s), np.eye(A.shape[0]))
-    except np.linalg.LinAlgError:
-        inv = np.linalg.pinv(A_s)
-    return inv / scale / scale[:, None]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -906,7 +895,7 @@ def _solution(model: _Model, x: np.ndarray, residual: np.ndarray, keep: np.ndarr
     ref_out = np.zeros(p.reference_tof_s.shape, dtype=bool)
     ref_out[model.ref_valid] = ~keep[n_c + model.src.size:]
     corner_res = -residual[:n_c].reshape(n_view, n_corner, 2)
-    corner_out = ~keep[:n_c].reshape(n_view, n_corner, 2).all(axis=2)
+    corner_out = np.asarray(~keep[:n_c].reshape(n_view, n_corner, 2).all(axis=2))
     sq = np.where(corner_out, np.nan, np.sum(corner_res**2, axis=2))
     corner_rms = np.array([np.sqrt(np.nanmean(sq[p.view_camera == i]))
                            for i in range(p.n_camera)])

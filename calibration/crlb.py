@@ -28,7 +28,8 @@ from typing import Literal
 import numpy as np
 from scipy import sparse
 
-from calibration.solver import RigSources, SolverOptions, latency_columns, rotated_point_jacobian
+from acquisition.contracts.rigid import rotated_point_jacobian
+from calibration.solver import RigSources, SolverOptions, latency_columns
 
 
 def mic_position_crlb(

@@ -37,7 +37,7 @@ from typing import Literal
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from acquisition.rig_description import KnownIntrinsics
+from acquisition.contracts.rig_description import KnownIntrinsics
 
 from .bundle import (
     FIXED,
@@ -53,7 +53,12 @@ from .bundle import (
     pose_estimate,
     refined_cameras,
 )
-from .cameras import CameraCalibration, Checkerboard, calibrate_session
+from .camera_calibration import (
+    CameraCalibration,
+    Checkerboard,
+    DetectionMemo,
+    calibrate_session,
+)
 from .plausibility import (
     AIR_RANGE_M_S,
     FitFigures,
@@ -85,6 +90,8 @@ from .result import (
     TofQuality,
     TransformResult,
 )
+from .multilateration import multilaterate
+from .paper_method import solve_paper_method
 from .session_data import CalibrationInputError, SessionData, load_session
 from .solver import (
     MicrophoneSolution,
@@ -92,9 +99,7 @@ from .solver import (
     RigSources,
     SolverOptions,
     latency_columns,
-    multilaterate,
     solve_microphones,
-    solve_paper_method,
 )
 from .speakers import (
     ReferenceMicrophonePosition,
@@ -179,6 +184,8 @@ class CalibrationOptions:
             neither the options nor the description give one).
         dispersion: with `responses`, take every microphone's measured dispersion (its phase
             less a delay) out of its times of flight and fit again (calibration.responses).
+        detections: the caller's memo of checkerboard detections (a worker keeps one across
+            its jobs); None: the process's (`camera_calibration.PROCESS_DETECTIONS`).
     """
 
     method: Literal["micam", "paper"] = "micam"
@@ -200,6 +207,7 @@ class CalibrationOptions:
     responses: bool = True
     air_sensor: bool = True
     dispersion: bool = True
+    detections: DetectionMemo | None = field(default=None, compare=False, repr=False)
 
 
 @dataclass
@@ -278,7 +286,8 @@ def measure(path: Path, options: CalibrationOptions | None = None,
         data = load_session(path, options.allow_interrupted)
     with _timed(timings, "cameras", on_stage):
         cams = calibrate_session(data.reader, Checkerboard.of_rig(data.rig),
-                                 list(data.camera_names), known_intrinsics(data, options))
+                                 list(data.camera_names), known_intrinsics(data, options),
+                                 detections=options.detections)
     with _timed(timings, "speakers", on_stage):
         speakers = speaker_positions(cams, data.speakers_rig_m, data.pose_steps)
         reference = _reference_position(cams, data)

@@ -22,8 +22,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from acquisition.air import speed_of_sound
+from acquisition.contracts.air import speed_of_sound
 
+from .robust import robust_sigma
 from .session_data import CalibrationInputError
 
 AIR_RANGE_M_S = (float(speed_of_sound(-20.0, 0.0)), float(speed_of_sound(50.0, 1.0)))
@@ -37,7 +38,6 @@ wrong order give hundreds of microseconds. Failing there fails fast, before the 
 MAX_OUTLIER_FRACTION = 0.25
 MAX_CORNER_RMS_PX = 1.5
 MAX_PRIOR_DISAGREEMENT = 5.0
-_MAD_TO_SIGMA = 1.4826
 
 
 class ImplausibleCalibrationError(CalibrationInputError):
@@ -68,7 +68,7 @@ class FitFigures:
         """Robust standard deviation (1.4826 x median |r|) of the kept TOF residuals."""
         kept = np.isfinite(self.tof_residuals_s) & ~self.tof_outliers
         r = self.tof_residuals_s[kept]
-        return float(_MAD_TO_SIGMA * np.median(np.abs(r))) if r.size else float("inf")
+        return robust_sigma(r) if r.size else float("inf")
 
     @property
     def outlier_fraction(self) -> float:

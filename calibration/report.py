@@ -18,6 +18,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from acquisition.contracts.rigid import kabsch, rotation_from_rotvec
+
 from .figures.geometry import ArrayPicture, CameraMark, geometry_figure
 from .figures.residuals import (
     CornerResiduals,
@@ -30,7 +32,6 @@ from .figures.style import save
 from .imaging.evaluate import pose_index
 from .pipeline import CalibrationRun, _bundle_steps
 from .result import CalibrationResult, compare_with_truth
-from .solver import _kabsch
 
 FIGURES = ("geometry.png", "residuals.png", "corners.png", "tof_quality.png")
 
@@ -73,7 +74,7 @@ def write_report(run: CalibrationRun, directory: Path, truth: dict | None = None
 
 def _camera_mark(name: str, rotvec, t_m, calibrated: bool) -> CameraMark:
     """A camera at x_cam = R x_cam0 + t: centre -R^T t, optical axis R^T z."""
-    R, _ = cv2.Rodrigues(np.asarray(rotvec, dtype=np.float64).reshape(3, 1))
+    R = rotation_from_rotvec(rotvec)
     return CameraMark(name, -R.T @ np.asarray(t_m, dtype=np.float64), R.T @ [0.0, 0.0, 1.0],
                       calibrated)
 
@@ -101,7 +102,7 @@ def array_picture(result: CalibrationResult, truth: dict | None = None,
         reference, label = np.array([by_id[i] for i in ids], dtype=np.float64), "simulated truth"
     elif prior_m is not None:
         ok = np.all(np.isfinite(estimate), axis=1)
-        R, t = _kabsch(prior_m[ok], estimate[ok])
+        R, t = kabsch(prior_m[ok], estimate[ok])
         reference, label = prior_m @ R.T + t, "prior (rigidly fitted)"
     if covariance_m2 is None:
         covariance_m2 = np.array([np.diag(np.square(m.std_m)) for m in result.microphones])
@@ -178,12 +179,15 @@ def _reprojection_residual(run: CalibrationRun, key: tuple[str, str]) -> np.ndar
 def summary_lines(run: CalibrationRun, truth: dict | None = None) -> list[str]:
     """The few lines printed at the end of `micam calibrate`."""
     r = run.result
+    c_std = (f" ± {significant(r.speed_of_sound_std_m_s)}"
+             if math.isfinite(r.speed_of_sound_std_m_s) else "")
+    median_std = _median_std(run)
+    std = (f"median position std {significant(1e3 * median_std)} mm"
+           if math.isfinite(median_std) else f"no position std (method {r.method} gives none)")
     lines = [
         f"{len(r.microphones)} microphones from {len(r.poses)} poses "
         f"({len(r.poses) * run.data.n_speakers} sources), method {r.method}",
-        f"speed of sound {r.speed_of_sound_m_s:.3f} ± "
-        f"{significant(r.speed_of_sound_std_m_s)} m/s; median position std "
-        f"{significant(1e3 * _median_std(run))} mm; TOF residual RMS "
+        f"speed of sound {r.speed_of_sound_m_s:.3f}{c_std} m/s; {std}; TOF residual RMS "
         f"{significant(1e9 * r.residuals.rms_s)} ns",
     ]
     if truth is not None:

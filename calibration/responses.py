@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from acquisition.air import piston_directivity
+from acquisition.contracts.air import piston_directivity
 
 from .times_of_flight import SessionTofs
 

@@ -7,13 +7,14 @@ Comparing a result with the truth is one line because both use
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 from typing import Literal
 from xml.sax.saxutils import quoteattr
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
+
+from acquisition.contracts.session import write_atomic
 
 Vector3 = tuple[float, float, float]
 
@@ -197,13 +198,9 @@ class CalibrationResult(_Model):
         return np.array([m.position_m for m in self.microphones])
 
     def write(self, path: Path) -> None:
-        """Write result.json atomically (temporary name, fsync, rename)."""
-        tmp = path.with_name(path.name + ".partial")
-        with open(tmp, "w") as f:
-            f.write(self.model_dump_json(indent=1))
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
+        """Write result.json atomically (temporary name, fsync, rename, directory fsync)."""
+        data = self.model_dump_json(indent=1).encode()
+        write_atomic(Path(path), lambda fh: fh.write(data), replace=True)
 
 
 def write_acoular_xml(result: CalibrationResult, path: Path, name: str = "micam") -> None:
@@ -246,11 +243,13 @@ def compare_with_truth(result: CalibrationResult, truth: dict,
     truth.json: microphone errors (metres), the speed-of-sound error (m/s), the largest
     relative focal-length error and the largest board-latency error (seconds, relative to the
     gauge board) when the result names its gauge board."""
-    if camera_frozen and result.camera_frozen is None:
-        raise ValueError("the result has no camera-frozen solution (joint fit switched off)")
-    part = result.camera_frozen if camera_frozen else result
-    focal = (part.focal_px if camera_frozen
-             else {c.name: (c.K[0][0], c.K[1][1]) for c in result.cameras})
+    part: CameraFrozenResult | CalibrationResult = result
+    focal = {c.name: (c.K[0][0], c.K[1][1]) for c in result.cameras}
+    if camera_frozen:
+        if result.camera_frozen is None:
+            raise ValueError("the result has no camera-frozen solution (joint fit switched off)")
+        part = result.camera_frozen
+        focal = dict(result.camera_frozen.focal_px)
     true_pos = {m["id"]: np.array(m["position_m"]) for m in truth["microphones"]}
     errors = np.array([np.linalg.norm(np.array(m.position_m) - true_pos[m.id])
                        for m in part.microphones])
@@ -286,7 +285,7 @@ def load_prior_positions(path: Path, mic_ids: np.ndarray) -> np.ndarray:
 
             points = ET.parse(path).getroot().findall("pos")
             by_id = {int(p.get("Name", "").split()[-1]) - 1:
-                     [float(p.get(axis)) for axis in "xyz"] for p in points}
+                     [float(p.get(axis, "")) for axis in "xyz"] for p in points}
         else:
             doc = json.loads(path.read_text())
             by_id = {int(m["id"]): m["position_m"] for m in doc["microphones"]}

@@ -16,16 +16,16 @@ from pathlib import Path
 
 import numpy as np
 
-from acquisition.air import AIR_FILE, AirReading
-from acquisition.capture_config import CaptureConfig
-from acquisition.rig_description import (
+from acquisition.contracts.air import AIR_FILE, AirReading
+from acquisition.contracts.capture_config import CaptureConfig
+from acquisition.contracts.rig_description import (
     DESCRIPTION_KIND,
     DescriptionError,
     RigArrayDescription,
     RigDescription,
     validate_description,
 )
-from acquisition.session import SessionError, SessionReader
+from acquisition.contracts.session import SessionError, SessionReader
 
 
 class CalibrationInputError(ValueError):
@@ -96,7 +96,7 @@ class SessionData:
     def mic_volts_per_unit(self) -> np.ndarray:
         """(M,) volts per recorded unit of every microphone's column (ones where the
         description does not say: then every column is taken to have the same)."""
-        scale = {}
+        scale: dict[int, float] = {}
         for group in self.description.channels:
             if group.volts_per_unit is not None:
                 scale.update(zip(group.columns, group.volts_per_unit, strict=True))

@@ -16,18 +16,18 @@ Jacobian, robust loss) over the microphone positions, c, the latencies, and opti
 - a prior geometry (CAD, paper section IV-H): X_m = R(Omega) P_m + T (+ small deviations d_m
   with a prior sigma), which regularises the problem at small source counts.
 
-The start is a closed-form multilateration per microphone (`multilaterate`), with the
-camera-side rule for coplanar sources, then a robust fit, outlier rejection and a final
+The start is a closed-form multilateration per microphone (calibration.multilateration), with
+the camera-side rule for coplanar sources, then a robust fit, outlier rejection and a final
 least-squares fit on the inliers whose Jacobian gives the covariance.
 
-`solve_paper_method` is the paper's own solver (section IV-I, after Dobler): a
-derivative-free coordinate search from zero coordinates, kept as a baseline.
+The paper's own solver (section IV-I, after Dobler: a derivative-free coordinate search from
+zero coordinates) is calibration.paper_method, kept as a baseline; the SO(3) helpers are
+acquisition.contracts.rigid's, the robust scale and normal-matrix inverse calibration.robust's.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from itertools import combinations
 from typing import Literal
 
 import numpy as np
@@ -35,8 +35,10 @@ from scipy import sparse
 from scipy.optimize import OptimizeResult, least_squares
 from scipy.spatial.transform import Rotation
 
-_MAD_TO_SIGMA = 1.4826
+from acquisition.contracts.rigid import kabsch, rotated_point_jacobian
 
+from .multilateration import multilaterate
+from .robust import inverse_normal, robust_sigma
 
 # --------------------------------------------------------------------------------------
 # Inputs and outputs
@@ -181,195 +183,6 @@ class MicrophoneSolution:
 
 
 # --------------------------------------------------------------------------------------
-# Rotation helpers
-# --------------------------------------------------------------------------------------
-
-
-def skew(v: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) cross-product matrices [v]x, so that [v]x w = v x w."""
-    v = np.asarray(v, dtype=float)
-    out = np.zeros((*v.shape[:-1], 3, 3))
-    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
-    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
-    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
-    return out
-
-
-def right_jacobian(v: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) right Jacobian J_r of SO(3): R(v + dv) ~ R(v) exp([J_r(v) dv]x).
-
-    J_r(v) = I - (1 - cos t) / t^2 [v]x + (t - sin t) / t^3 [v]x^2, t = |v| (series near 0).
-    It gives d(R(v) B)/dv = -R(v) [B]x J_r(v), the rotation part of the analytic Jacobian.
-    """
-    v = np.asarray(v, dtype=float)
-    t = np.linalg.norm(v, axis=-1)[..., None, None]
-    small = t < 1e-4
-    ts = np.where(small, 1.0, t)
-    a = np.where(small, 0.5 - t**2 / 24.0, (1.0 - np.cos(ts)) / ts**2)
-    b = np.where(small, 1.0 / 6.0 - t**2 / 120.0, (ts - np.sin(ts)) / ts**3)
-    K = skew(v)
-    return np.eye(3) - a * K + b * (K @ K)
-
-
-def rotated_point_jacobian(rotvec: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """(n, 3, 3) d(R(rotvec) p)/d(rotvec) for rotvec (n, 3) and points (n, 3)."""
-    rotvec = np.array(rotvec, dtype=float)  # scipy needs a writable, contiguous buffer
-    R = Rotation.from_rotvec(rotvec).as_matrix()
-    return -R @ skew(points) @ right_jacobian(rotvec)
-
-
-# --------------------------------------------------------------------------------------
-# Closed-form start
-# --------------------------------------------------------------------------------------
-
-
-def multilaterate(
-    sources_m: np.ndarray,
-    ranges_m: np.ndarray,
-    valid: np.ndarray | None = None,
-    camera_center_m: np.ndarray | tuple[float, float, float] = (0.0, 0.0, 0.0),
-    planar_tolerance_m: float = 0.01,
-    inlier_threshold_m: float = 0.02,
-    n_subsets: int = 32,
-) -> np.ndarray:
-    """Closed-form position of every microphone from its ranges to known sources.
-
-    Squared ranges are linear in (x, |x|^2): |x - s|^2 = |x|^2 - 2 s.x + |s|^2 (the
-    spherical-interpolation family). Solved per microphone, vectorised, in coordinates
-    centred on that microphone's sources:
-
-    - Non-coplanar sources: linear least squares for (x, q = |x|^2), 4 unknowns.
-    - Coplanar sources (one rig pose, or RMS distance from their best plane below
-      `planar_tolerance_m`): writing x = s_bar + E a + n z with E an in-plane basis and n the
-      normal, |x - s|^2 = |a - y_s|^2 + z^2 is linear in (a, q = |a|^2 + z^2), and
-      z = +-sqrt(q - |a|^2): the two roots are mirror images through the source plane.
-      **Camera-side rule:** the sign of z is that of n.(camera_center - s_bar), i.e. the
-      microphone is put on the same side of the source plane as the camera centre. This is
-      right whenever the rig plane does not cut through the array (rig farther from the
-      camera than the array extends behind/around it); the wrong root would put the array
-      behind the board.
-
-    Gross outliers (reflections picked instead of the direct path: 0.1-1 m of range) wreck a
-    squared-range fit, so the fit starts from a consensus set: the fits to all sources and to
-    `n_subsets` random 5-source subsets (fixed seed; all subsets when few sources) are scored
-    per microphone by how many ranges they explain within `inlier_threshold_m`, and the best
-    one's inliers are refitted. Remaining outliers are then rejected one at a time (the
-    largest residual, when it exceeds 5 robust sigmas of the others, floor 0.5 mm).
-
-    Args:
-        sources_m: (n_src, 3) source positions.
-        ranges_m: (n_src, n_mic) ranges c * TOF (NaN where missing).
-        valid: (n_src, n_mic) usable measurements; defaults to the finite ranges.
-
-    Returns:
-        (n_mic, 3) positions; NaN for microphones with too few measurements (3 coplanar or 4
-        non-coplanar sources are needed).
-    """
-    sources = np.asarray(sources_m, dtype=float)
-    ranges = np.asarray(ranges_m, dtype=float)
-    valid = np.isfinite(ranges) if valid is None else valid & np.isfinite(ranges)
-    ranges = np.where(valid, ranges, 0.0)
-    camera = np.asarray(camera_center_m, dtype=float)
-    fit = lambda w: _multilaterate_weighted(sources, ranges, w, camera, planar_tolerance_m)  # noqa: E731
-    keep = _consensus(fit, sources, ranges, valid, inlier_threshold_m, n_subsets)
-    positions = np.full((ranges.shape[1], 3), np.nan)
-    for _ in range(max(1, int(0.3 * sources.shape[0]) + 1)):
-        positions = fit(keep)
-        residual = _range_residuals(positions, sources, ranges)
-        residual = np.where(keep > 0, np.nan_to_num(residual, nan=0.0), 0.0)
-        worst = np.argmax(residual, axis=1)
-        worst_value = residual[np.arange(residual.shape[0]), worst]
-        others = np.where(keep > 0, residual, np.nan)
-        others[np.arange(others.shape[0]), worst] = np.nan
-        with np.errstate(all="ignore"):
-            scale = _MAD_TO_SIGMA * np.nanmedian(others, axis=1)
-        drop = (worst_value > 5.0 * np.maximum(np.nan_to_num(scale), 5e-4)) & (keep.sum(1) > 5)
-        if not drop.any():
-            break
-        keep[np.flatnonzero(drop), worst[drop]] = 0.0
-    return positions
-
-
-def _range_residuals(positions: np.ndarray, sources: np.ndarray, ranges: np.ndarray) -> np.ndarray:
-    """(n_mic, n_src) |range mismatch| of positions (NaN positions give NaN)."""
-    return np.abs(np.linalg.norm(positions[:, None] - sources, axis=-1) - ranges.T)
-
-
-def _consensus(
-    fit,
-    sources: np.ndarray,
-    ranges: np.ndarray,
-    valid: np.ndarray,
-    threshold: float,
-    n_subsets: int,
-) -> np.ndarray:
-    """(n_mic, n_src) 0/1 inlier weights of the best-supported candidate fit per microphone."""
-    n_src = sources.shape[0]
-    rng = np.random.default_rng(0)
-    if n_src <= 8:
-        subsets = [
-            list(c) for k in (n_src - 1, n_src - 2) if k >= 3 for c in combinations(range(n_src), k)
-        ]
-    else:
-        subsets = [rng.choice(n_src, 5, replace=False) for _ in range(n_subsets)]
-    best_count = np.full(valid.shape[1], -1)
-    best = valid.T.astype(float)
-    for subset in [np.arange(n_src), *subsets]:
-        mask = np.zeros(n_src, dtype=bool)
-        mask[subset] = True
-        inlier = valid.T & (
-            np.nan_to_num(_range_residuals(fit(valid.T * mask), sources, ranges), nan=np.inf)
-            < threshold
-        )
-        count = inlier.sum(axis=1)
-        better = count > best_count
-        best[better], best_count[better] = inlier[better], count[better]
-    enough = best_count >= 4
-    return np.where(enough[:, None], best, valid.T.astype(float))
-
-
-def _multilaterate_weighted(
-    sources: np.ndarray, ranges: np.ndarray, weights: np.ndarray, camera: np.ndarray, tol: float
-) -> np.ndarray:
-    """One weighted pass of `multilaterate`; weights (n_mic, n_src) are 0/1 masks."""
-    count = weights.sum(axis=1)
-    centre = (weights @ sources) / np.maximum(count, 1.0)[:, None]  # (n_mic, 3)
-    local = sources[None] - centre[:, None]  # (n_mic, n_src, 3)
-    scatter = np.einsum("ms,msi,msj->mij", weights, local, local)
-    eigval, eigvec = np.linalg.eigh(scatter)  # ascending
-    thickness = np.sqrt(np.maximum(eigval[:, 0], 0.0) / np.maximum(count, 1.0))
-    planar = thickness < tol
-
-    rhs = ranges.T**2  # (n_mic, n_src)
-    # Non-coplanar: rows [-2 s^T, 1] (x, q) = r^2 - |s|^2.
-    design3 = np.concatenate([-2.0 * local, np.ones((*local.shape[:2], 1))], axis=-1)
-    x3 = _weighted_lstsq(design3, rhs - np.sum(local**2, axis=-1), weights)[:, :3]
-    # Coplanar: in-plane coordinates y = E^T s, then z from q - |a|^2 on the camera side.
-    basis, normal = eigvec[:, :, 1:], eigvec[:, :, 0]
-    y = np.einsum("msi,mik->msk", local, basis)
-    design2 = np.concatenate([-2.0 * y, np.ones((*y.shape[:2], 1))], axis=-1)
-    sol2 = _weighted_lstsq(design2, rhs - np.sum(y**2, axis=-1), weights)
-    a, q = sol2[:, :2], sol2[:, 2]
-    side = np.sign(np.einsum("mi,mi->m", normal, camera - centre))
-    z = np.where(side == 0, 1.0, side) * np.sqrt(np.maximum(q - np.sum(a**2, axis=1), 0.0))
-    x2 = np.einsum("mik,mk->mi", basis, a) + normal * z[:, None]
-
-    positions = centre + np.where(planar[:, None], x2, x3)
-    enough = np.where(planar, count >= 3, count >= 4)
-    return np.where(enough[:, None], positions, np.nan)
-
-
-def _weighted_lstsq(design: np.ndarray, rhs: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """Batched weighted least squares via normal equations; NaN where singular."""
-    normal = np.einsum("ms,msi,msj->mij", weights, design, design)
-    moment = np.einsum("ms,msi,ms->mi", weights, design, rhs)
-    out = np.full(moment.shape, np.nan)
-    ok = np.linalg.cond(normal) < 1e12
-    out[ok] = np.linalg.solve(normal[ok], moment[ok][..., None])[..., 0]
-    return out
-
-
-# --------------------------------------------------------------------------------------
 # The least-squares model
 # --------------------------------------------------------------------------------------
 
@@ -416,9 +229,11 @@ class _Model:
             latency_col,
         )
         st = structure
-        n_pose = st.sources.rotvec.shape[0] if st.refine_poses else 0
+        rig = st.sources if isinstance(st.sources, RigSources) else None
+        n_pose = rig.rotvec.shape[0] if st.refine_poses and rig is not None else 0
         n_src_refined = st.source_std_m.size if st.source_std_m is not None else 0
-        deviations = st.prior is not None and st.prior.deviation_std_m is not None
+        deviation_std = st.prior.deviation_std_m if st.prior is not None else None
+        deviations = deviation_std is not None
         sizes = {
             "mic": 6 if st.prior is not None else 3 * st.n_mic,
             "dev": 3 * st.n_mic if deviations else 0,
@@ -438,13 +253,14 @@ class _Model:
             self.whitening["c"] = np.full((1, 1, 1), 1.0 / st.c_prior_std)
         if st.n_latency and st.latency_prior_std is not None:
             self.whitening["lat"] = np.full((st.n_latency, 1, 1), 1.0 / st.latency_prior_std)
-        if deviations:
-            self.whitening["dev"] = np.broadcast_to(
-                np.eye(3) / st.prior.deviation_std_m, (st.n_mic, 3, 3)
-            )
+        if deviation_std is not None:
+            self.whitening["dev"] = np.broadcast_to(np.eye(3) / deviation_std, (st.n_mic, 3, 3))
         if n_pose:
-            self.whitening["pose"] = np.linalg.inv(np.linalg.cholesky(st.sources.pose_covariance))
-        if n_src_refined:
+            if rig is None or rig.pose_covariance is None:
+                raise ValueError("refining the poses needs their covariance "
+                                 "(RigSources.pose_covariance)")
+            self.whitening["pose"] = np.linalg.inv(np.linalg.cholesky(rig.pose_covariance))
+        if st.source_std_m is not None and n_src_refined:
             self.whitening["src"] = np.eye(3) / st.source_std_m[:, None, None]
 
     def part(self, name: str, x: np.ndarray) -> np.ndarray:
@@ -486,11 +302,12 @@ class _Model:
     ) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray]]]:
         """(n_src, 3) positions and their Jacobian blocks, as `mic_positions`."""
         sources = self.s.sources
+        blocks: list[tuple[np.ndarray, np.ndarray]] = []
         if not isinstance(sources, RigSources):
-            positions, blocks = np.asarray(sources, dtype=float), []
+            positions = np.asarray(sources, dtype=float)
         else:
             corr = self.pose_corrections(x)
-            positions, blocks = sources.positions(corr), []
+            positions = sources.positions(corr)
             if corr is not None:
                 pose = sources.pose_of_source
                 rotvec = (sources.rotvec + corr[:, :3])[pose]
@@ -673,25 +490,16 @@ def _initial_parameters(model: _Model, start: np.ndarray, options: SolverOptions
         x0[: 3 * model.s.n_mic] = start.ravel()
     else:
         ok = np.all(np.isfinite(start), axis=1)
-        R, t = _kabsch(model.s.prior.positions_m[ok], start[ok])
+        R, t = kabsch(model.s.prior.positions_m[ok], start[ok])
         x0[:3], x0[3:6] = Rotation.from_matrix(R).as_rotvec(), t
     if model.s.fit_c:
         x0[model.offsets["c"]] = options.speed_of_sound_m_s
     return x0
 
 
-def _kabsch(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rotation R and translation t minimising sum |R a_i + t - b_i|^2."""
-    ca, cb = a.mean(axis=0), b.mean(axis=0)
-    u, _, vt = np.linalg.svd((a - ca).T @ (b - cb))
-    d = np.sign(np.linalg.det(vt.T @ u.T))
-    R = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
-    return R, cb - R @ ca
-
-
 def _robust_scale(residuals: np.ndarray) -> float:
-    """1.4826 x median |r| (a Gaussian sigma that ignores outliers), floored to stay > 0."""
-    return max(_MAD_TO_SIGMA * float(np.median(np.abs(residuals))), 1e-6)
+    """The robust sigma of normalized residuals, floored at 1e-6 to stay > 0."""
+    return robust_sigma(residuals, floor=1e-6)
 
 
 def _least_squares(
@@ -725,7 +533,7 @@ def _solution(
     jac = final_model.jacobian(x)
     res = final_model.residuals(x)
     chi2 = float(res @ res) / max(res.size - model.n_params, 1)
-    cov = _inverse((jac.T @ jac).toarray()) * chi2
+    cov = inverse_normal((jac.T @ jac).toarray()) * chi2
     std = np.sqrt(np.maximum(np.diag(cov), 0.0))
 
     n_mic = valid.shape[1]
@@ -758,98 +566,11 @@ def _solution(
     )
 
 
-def _inverse(matrix: np.ndarray) -> np.ndarray:
-    """Inverse of a symmetric normal matrix; pseudo-inverse if it is singular."""
-    try:
-        return np.linalg.inv(matrix)
-    except np.linalg.LinAlgError:
-        return np.linalg.pinv(matrix)
-
-
 def _propagate(cov: np.ndarray, blocks: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
     """(n, 3, 3) covariance of points whose Jacobian blocks are `blocks`, from cov."""
-    out = 0.0
+    out: np.ndarray | float = 0.0
     for cols_a, d_a in blocks:
         for cols_b, d_b in blocks:
             sub = cov[cols_a[:, :, None], cols_b[:, None, :]]  # (n, wa, wb)
             out = out + np.einsum("niw,nwv,njv->nij", d_a, sub, d_b)
-    return out
-
-
-def solve_paper_method(
-    sources: np.ndarray | RigSources,
-    tof_s: np.ndarray,
-    tof_std_s: float | np.ndarray,
-    options: SolverOptions | None = None,
-    initial_step_m: float = 0.1,
-    min_step_m: float = 1e-6,
-    n_reweight: int = 3,
-    max_sweeps: int = 5000,
-) -> MicrophoneSolution:
-    """The paper's solver (section IV-I, after Dobler et al.), kept as the baseline.
-
-    Microphones start at [0, 0, 0] (the camera; no prior geometry, as in the paper's section
-    V) and c is fixed (options.speed_of_sound_m_s, from the IV-G fit); sources are not refined
-    (as in the paper's Table II runs) and there is no latency. For each microphone, in turn
-    (vectorised here, as the per-microphone costs are independent once c and the sources
-    are fixed), each coordinate is stepped by +-step while that lowers
-    sum_s phi_ms^-2 (|X_m - S_s| / c - tau_ms)^2, and the step is halved when no move helps,
-    down to `min_step_m` (steps 3-4). Then the weights of the sources that contribute most
-    to the cost are reduced, phi_s^2 *= max(1, C_s / median C) (step 6), and the search is
-    repeated (step 7). No covariance comes out of it (NaN).
-    """
-    options = options or SolverOptions()
-    tof = np.asarray(tof_s, dtype=float)
-    positions = np.asarray(sources.positions() if isinstance(sources, RigSources) else sources)
-    sigma = np.broadcast_to(np.asarray(tof_std_s, dtype=float), tof.shape)
-    valid = np.isfinite(tof) & (sigma > 0)
-    weight = np.where(valid, 1.0 / np.where(valid, sigma, 1.0) ** 2, 0.0)  # (n_src, n_mic)
-    tau = np.where(valid, tof, 0.0)
-    c = options.speed_of_sound_m_s
-
-    def residuals(X: np.ndarray) -> np.ndarray:
-        return np.linalg.norm(X[None] - positions[:, None], axis=-1) / c - tau
-
-    def cost(X: np.ndarray) -> np.ndarray:
-        return np.sum(weight * residuals(X) ** 2, axis=0)
-
-    X = np.zeros((tof.shape[1], 3))
-    evaluations = 0
-    for round_ in range(n_reweight + 1):
-        step = np.full(X.shape[0], initial_step_m)
-        current = cost(X)
-        for _ in range(max_sweeps):
-            active = step >= min_step_m
-            if not active.any():
-                break
-            improved = np.zeros(X.shape[0], dtype=bool)
-            for axis in range(3):
-                for sign in (1.0, -1.0):
-                    trial = X.copy()
-                    trial[:, axis] += sign * step
-                    trial_cost = cost(trial)
-                    better = active & (trial_cost < current)
-                    X[better], current[better] = trial[better], trial_cost[better]
-                    improved |= better
-            evaluations += 6
-            step = np.where(improved, step, 0.5 * step)
-        if round_ < n_reweight:
-            contribution = np.sum(weight * residuals(X) ** 2, axis=1)
-            weight = weight / np.maximum(1.0, contribution / np.median(contribution))[:, None]
-
-    res = np.where(valid, tof - np.linalg.norm(X[None] - positions[:, None], axis=-1) / c, np.nan)
-    return MicrophoneSolution(
-        positions_m=X,
-        covariance_m2=np.full((X.shape[0], 3, 3), np.nan),
-        speed_of_sound_m_s=c,
-        speed_of_sound_std_m_s=0.0,
-        latency_s=np.zeros(1),
-        latency_std_s=np.zeros(1),
-        pose_corrections=None,
-        pose_correction_std=None,
-        residuals_s=res,
-        outliers=np.zeros(tof.shape, dtype=bool),
-        sigma_scale=_robust_scale(res[valid] / sigma[valid]),
-        chi2_per_dof=float(np.nanmean((res / sigma) ** 2)),
-        nfev=evaluations,
-    )
+    return np.asarray(out)

@@ -22,7 +22,9 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .cameras import CameraCalibration, Extrinsics, Pose
+from acquisition.contracts.rigid import rotation_from_rotvec
+
+from .camera_calibration import CameraCalibration, Extrinsics, Pose
 
 _STEP_RAD_OR_M = 1e-6
 """Central-difference step for the pose parameters (radians and metres): small against the
@@ -187,7 +189,7 @@ def _to_cam0(rig_to_cam: Pose, cam_from_cam0: Extrinsics) -> Pose:
     params = np.concatenate([rig_to_cam.rvec, rig_to_cam.tvec])
 
     def compose(p: np.ndarray) -> np.ndarray:
-        R = cam_from_cam0.R.T @ cv2.Rodrigues(p[:3])[0]
+        R = cam_from_cam0.R.T @ rotation_from_rotvec(p[:3])
         rvec = Rotation.from_matrix(R).as_rotvec()
         return np.concatenate([rvec, cam_from_cam0.inverse_apply(p[3:])])
 
@@ -213,7 +215,7 @@ def _same_branch(params: np.ndarray, reference: np.ndarray) -> np.ndarray:
 
 def _transform(params: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Points (n, 3) mapped by the pose params = (rvec, tvec): R(rvec) x + tvec."""
-    return points @ cv2.Rodrigues(params[:3])[0].T + params[3:]
+    return points @ rotation_from_rotvec(params[:3]).T + params[3:]
 
 
 def _propagate(f: Callable[[np.ndarray], np.ndarray], x: np.ndarray, cov: np.ndarray) -> np.ndarray:

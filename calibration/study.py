@@ -23,6 +23,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
+from typing import Literal
 
 import numpy as np
 
@@ -109,7 +110,8 @@ def source_count_study(m: Measurements, truth: dict, n_sources: Sequence[int], t
     n_mic = len(m.data.mic_ids)
     rows = []
     for n in n_sources:
-        latency = "per_board" if n >= PER_BOARD_FROM_SOURCES else "none"
+        latency: Literal["per_board", "none"] = (
+            "per_board" if n >= PER_BOARD_FROM_SOURCES else "none")
         options = CalibrationOptions(latency=latency)
         errors, bounds, joint = [], [], []
         for _ in range(trials):

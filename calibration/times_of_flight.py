@@ -134,6 +134,7 @@ def measure_session_tofs(
 
     def correlate(i: int) -> TofEstimate:
         recordings = data.pose_recordings(data.pose_steps[i], columns, samples)
+        assert references is not None  # read whenever something is to do
         est = estimate_delays(recordings, references, data.fs, band=band_hz,
                               weighting=weighting, delay_window_s=window, n_fft=n_fft)
         _remember(keys[i], est)
@@ -141,8 +142,8 @@ def measure_session_tofs(
 
     fresh: dict[int, TofEstimate] = {}
     with ThreadPoolExecutor(max_workers=TOF_THREADS) as pool:
-        for i, est in zip(todo, pool.map(correlate, todo), strict=True):
-            fresh[i] = est
+        for i, done in zip(todo, pool.map(correlate, todo), strict=True):
+            fresh[i] = done
     parts = []
     for i, step in enumerate(data.pose_steps):
         est = fresh.get(i) or _remembered(keys[i])
@@ -153,12 +154,12 @@ def measure_session_tofs(
         step_of_lags = est.impulse_step
         if on_pose is not None:
             on_pose(step)
-    tof, std, snr, psr, impulses, first = (np.stack(p) for p in zip(*parts, strict=True))
+    tof, std, snr, psr, impulses, first_lag = (np.stack(p) for p in zip(*parts, strict=True))
     n_mic = data.mic_columns.size
     if not on_stand:  # no reference microphone in the pose recordings: nothing measured
         missing = np.full(tof.shape[:2], np.nan)
-        return SessionTofs(tof, std, snr, psr, missing, missing.copy(), impulses, first,
+        return SessionTofs(tof, std, snr, psr, missing, missing.copy(), impulses, first_lag,
                            step_of_lags)
     return SessionTofs(tof[..., :-1], std[..., :-1], snr[..., :-1], psr[..., :-1],
                        tof[..., -1], std[..., -1], impulses[:, :, :n_mic],
-                       first[:, :, :n_mic], step_of_lags)
+                       first_lag[:, :, :n_mic], step_of_lags)

@@ -185,8 +185,9 @@ def estimate_delays(
         )
         for i in range(0, n_rec, chunk)
     ]
-    fields = [np.concatenate(field) for field in zip(*parts, strict=True)]
-    return TofEstimate(*fields, impulse_step=lags.step)
+    delay, std, snr, psr, impulses, first_lag = (
+        np.concatenate(field) for field in zip(*parts, strict=True))
+    return TofEstimate(delay, std, snr, psr, impulses, first_lag, impulse_step=lags.step)
 
 
 @dataclass(frozen=True)
@@ -479,7 +480,7 @@ def tof_from_delay(
 
 def delay_crlb(
     signal_power: np.ndarray,
-    noise_power: np.ndarray,
+    noise_power: np.ndarray | float,
     freqs_hz: np.ndarray,
     reference_noise_power: np.ndarray | float = 0.0,
 ) -> float:

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from acquisition.config_model import dotted
+from acquisition.contracts.config_model import dotted
 
 SHAPE = ("a micam truth file has microphones = [{id, position_m}], speed_of_sound_m_s, "
          "cameras = [{name, K}] and optionally board_latencies_s, as `micam simulate` writes "

@@ -103,15 +103,15 @@ class ScanConfig(BaseModel):
                 f"{where}: this board has no analog outputs; drive the speakers from a board "
                 "with outputs (a DT9836-x-2 or -4)"
             )
-        for ch in self.outputs:
-            if ch.channel >= model.n_outputs:
+        for out in self.outputs:
+            if out.channel >= model.n_outputs:
                 raise ConfigurationError(
-                    f"{where}: output channel {ch.channel} does not exist; the board has "
+                    f"{where}: output channel {out.channel} does not exist; the board has "
                     f"outputs 0..{model.n_outputs - 1}"
                 )
-            if ch.range_v != model.output_range_v:
+            if out.range_v != model.output_range_v:
                 raise ConfigurationError(
-                    f"{where}: output range ±{ch.range_v} V is not offered; the outputs are "
+                    f"{where}: output range ±{out.range_v} V is not offered; the outputs are "
                     f"±{model.output_range_v} V"
                 )
         if self.outputs and self.sample_rate_hz > model.max_output_rate_hz:

@@ -8,7 +8,7 @@ codes, where code k means k / 32768 * range_v volts; `codes_to_volts` derives vo
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from typing import Protocol, Self, runtime_checkable
 
 import numpy as np
 
@@ -51,13 +51,28 @@ class Block:
         return int(self.codes.shape[0])
 
 
+class ClosesOnExit:
+    """`with` for a resource that has `close()`: the end of the block closes it, whatever
+    happened inside (boards, sync groups, cameras, session writers)."""
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+
 @runtime_checkable
 class Board(Protocol):
-    """One data-acquisition board.
+    """One data-acquisition board (its inputs; a board with outputs is also an `OutputBoard`).
 
-    Call order: configure -> (write) -> arm -> start -> read... -> stop; close at the end.
-    A board configured for an external trigger starts on the shared trigger edge after `arm`;
-    `start` is only meaningful for a board on a software trigger (it releases the scan).
+    Call order: configure -> (write) -> arm -> start -> read... -> stop; close at the end (or
+    `with board:`). A board configured for an external trigger starts on the shared trigger
+    edge after `arm`; `start` is only meaningful for a board on a software trigger (it
+    releases the scan).
     """
 
     @property
@@ -65,9 +80,6 @@ class Board(Protocol):
 
     def configure(self, config: ScanConfig) -> None:
         """Validate and apply a scan configuration (ConfigurationError if impossible)."""
-
-    def write(self, codes: np.ndarray) -> None:
-        """Queue an output waveform: int16 codes, shape (n_samples, n_output_channels)."""
 
     def arm(self) -> None:
         """Get ready to sample: on an external trigger, wait for its edge from now on."""
@@ -83,6 +95,18 @@ class Board(Protocol):
 
     def close(self) -> None:
         """Release the board; no call is valid afterwards."""
+
+    def __enter__(self) -> Self: ...
+
+    def __exit__(self, *exc_info: object) -> None: ...
+
+
+@runtime_checkable
+class OutputBoard(Board, Protocol):
+    """The capability of a board with analog outputs (a DT9836 driving the speakers)."""
+
+    def write(self, codes: np.ndarray) -> None:
+        """Queue an output waveform: int16 codes, shape (n_samples, n_output_channels)."""
 
 
 def codes_to_volts(codes: np.ndarray, range_v: float | np.ndarray) -> np.ndarray:

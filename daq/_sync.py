@@ -17,7 +17,7 @@ import numpy as np
 
 from ._config import ClockSource, ScanConfig, TriggerSource
 from ._errors import BoardStateError, ConfigurationError, SyncError
-from ._interface import Board, BoardIdentity
+from ._interface import Board, BoardIdentity, ClosesOnExit, OutputBoard
 
 
 @dataclass(frozen=True)
@@ -53,7 +53,7 @@ def read_aligned(boards: Sequence[Board], index: int, n: int, timeout_s: float
     return out
 
 
-class SyncGroup:
+class SyncGroup(ClosesOnExit):
     """Runs several boards as one instrument on a shared clock and trigger."""
 
     def __init__(self, boards: Sequence[Board], master: int = 0) -> None:
@@ -127,7 +127,10 @@ class SyncGroup:
                     f"board {self.boards[index].identity} has no outputs configured but an "
                     "output waveform was given for it"
                 )
-            self.boards[index].write(codes)
+            board = self.boards[index]
+            if not isinstance(board, OutputBoard):
+                raise ConfigurationError(f"board {board.identity} has no analog outputs")
+            board.write(codes)
         followers = [b for i, b in enumerate(self.boards) if i != self.master]
         master = self.boards[self.master]
         chunks: list[list[np.ndarray]] = [[] for _ in self.boards]

@@ -17,6 +17,7 @@ from daq import (
     Block,
     BoardIdentity,
     BoardStateError,
+    ClosesOnExit,
     ConfigurationError,
     DeviceDisconnectedError,
     OverrunError,
@@ -53,7 +54,7 @@ class BoardFaults:
     miss_trigger: bool = False
 
 
-class SimulatedBoard:
+class SimulatedBoard(ClosesOnExit):
     """One simulated DT9836 / DT9816 wired to an `AcousticBench`."""
 
     def __init__(self, spec: BoardSpec, bench: AcousticBench) -> None:

@@ -7,7 +7,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from acquisition.camera import CameraTimeoutError, Frame
+from acquisition.contracts.camera import CameraTimeoutError, Frame
+from daq import ClosesOnExit
 
 from .geometry import CameraModel
 from .light import render_rig_image
@@ -16,7 +17,7 @@ from .setups import Setups
 from .world import World
 
 
-class SimulatedCamera:
+class SimulatedCamera(ClosesOnExit):
     """Renders what camera `model` sees of the rig (as built: the world's `physical_rig`) at the
     world's current pose.
 

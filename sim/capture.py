@@ -12,8 +12,8 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from acquisition.camera import Camera
-from acquisition.capture_config import (
+from acquisition.contracts.camera import Camera
+from acquisition.contracts.capture_config import (
     BoardEntry,
     BurstConfig,
     CameraEntry,
@@ -23,7 +23,7 @@ from acquisition.capture_config import (
     RigEntry,
     SpeakerEntry,
 )
-from acquisition.rig_description import MIN_STEADY_PERIOD_S, steady_mls_order
+from acquisition.contracts.rig_description import MIN_STEADY_PERIOD_S, steady_mls_order
 from daq import Board, InputChannel, OutputChannel, SyncGroup, board_model
 
 from .air_sensor import SimulatedAirSensor
@@ -145,7 +145,7 @@ class SimulatedCapture:
 def capture_config_for(layout: ArrayLayout, rig: Rig, n_poses: int, sample_rate_hz: float,
                        burst: BurstConfig, cameras: list[Camera]) -> CaptureConfig:
     """The capture configuration of a simulated array: every wired input, in board order."""
-    wired: dict[int, list[tuple[int, str, int | None]]] = {}
+    wired: dict[int, list[tuple[int, Literal["mic", "reference"], int | None]]] = {}
     for m, ref in enumerate(layout.mic_inputs):
         wired.setdefault(ref.board, []).append((ref.channel, "mic", m))
     ref = layout.reference_input

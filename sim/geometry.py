@@ -18,43 +18,10 @@ from typing import Literal
 import cv2
 import numpy as np
 
+from acquisition.contracts.rigid import RigidTransform, rotation_from_rotvec, rotvec_from_rotation
 
-def rotation_from_rotvec(rotvec: np.ndarray) -> np.ndarray:
-    """3x3 rotation matrix from a rotation vector (axis times angle in radians)."""
-    R, _ = cv2.Rodrigues(np.asarray(rotvec, dtype=np.float64).reshape(3, 1))
-    return R
-
-
-def rotvec_from_rotation(R: np.ndarray) -> np.ndarray:
-    """Rotation vector (axis times angle in radians) of a 3x3 rotation matrix."""
-    v, _ = cv2.Rodrigues(np.asarray(R, dtype=np.float64))
-    return v.ravel()
-
-
-@dataclass(frozen=True)
-class RigidTransform:
-    """x_to = R @ x_from + t (R a rotation matrix, t in metres)."""
-
-    R: np.ndarray
-    t: np.ndarray
-
-    @staticmethod
-    def identity() -> RigidTransform:
-        return RigidTransform(np.eye(3), np.zeros(3))
-
-    def apply(self, points: np.ndarray) -> np.ndarray:
-        """Transform points of shape (..., 3)."""
-        return np.asarray(points) @ self.R.T + self.t
-
-    def compose(self, inner: RigidTransform) -> RigidTransform:
-        """The transform that applies `inner` first, then self."""
-        return RigidTransform(self.R @ inner.R, self.R @ inner.t + self.t)
-
-    def inverse(self) -> RigidTransform:
-        return RigidTransform(self.R.T, -self.R.T @ self.t)
-
-    def to_json(self) -> dict:
-        return {"rotvec": rotvec_from_rotation(self.R).tolist(), "t_m": self.t.tolist()}
+__all__ = ["CameraModel", "Rig", "RigidTransform", "pinhole", "rotation_from_rotvec",
+           "rotvec_from_rotation"]
 
 
 @dataclass(frozen=True)

@@ -148,8 +148,8 @@ def _cached_pixel_rays(key: tuple) -> _PixelRays:
     valid = np.hypot(u_back - u, v_back - v) < _RAY_CHECK_PX  # False for NaN too
     x_v, x_u = np.gradient(x)
     y_v, y_u = np.gradient(y)
-    maps = [m.astype(np.float32) for m in (x, y, x_u, x_v, y_u, y_v)]
-    return _PixelRays(*maps, valid=valid)
+    x, y, x_u, x_v, y_u, y_v = (m.astype(np.float32) for m in (x, y, x_u, x_v, y_u, y_v))
+    return _PixelRays(x, y, x_u, x_v, y_u, y_v, valid=valid)
 
 
 def _distort_to_pixels(
@@ -309,7 +309,7 @@ def _sensor(
     image: np.ndarray, rng: np.random.Generator, noise_grey: float, blur_sigma_px: float
 ) -> np.ndarray:
     """Blur, add Gaussian noise, clip and quantize an ideal float image to uint8."""
-    out = np.array(image, dtype=np.float32)
+    out: np.ndarray = np.array(image, dtype=np.float32)
     if blur_sigma_px > 0:
         out = cv2.GaussianBlur(out, (0, 0), blur_sigma_px, borderType=cv2.BORDER_REFLECT)
     if noise_grey > 0:

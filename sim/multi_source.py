@@ -70,6 +70,8 @@ def record_uncorrelated_noise(bench: AcousticBench, speakers: Sequence[int], dur
     for b, channels in drives.items():
         spec = layout.boards[b]
         range_v = board_model(spec.model).output_range_v
+        if range_v is None:
+            raise ValueError(f"board {spec.serial} ({spec.model}) has no outputs for a speaker")
         chans = sorted(channels)
         volts = np.clip(np.column_stack([channels[c] for c in chans]), -range_v, range_v)
         bench.load_output(spec.serial, chans, volts_to_codes(volts, range_v), range_v)

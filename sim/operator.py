@@ -6,7 +6,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from acquisition.operator import Instruction, InstructionKind
+from acquisition.contracts.instructions import Instruction, InstructionKind
 
 from .geometry import CameraModel, RigidTransform
 from .poses import FACING_CAMERA

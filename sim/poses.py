@@ -55,7 +55,7 @@ def sample_pose(
         ray = K_inv @ np.array([u, v, 1.0])
         centre_cam = camera.from_cam0.inverse().apply(d * ray / np.linalg.norm(ray))
         roll_angle = np.radians(rng.uniform(-max_roll_deg, max_roll_deg))
-        roll = rotation_from_rotvec([0.0, 0.0, roll_angle])
+        roll = rotation_from_rotvec(np.array([0.0, 0.0, roll_angle]))
         axis_angle = rng.uniform(0, 2 * np.pi)
         tilt = np.radians(rng.uniform(0, max_tilt_deg))
         tilt_R = rotation_from_rotvec(tilt * np.array([np.cos(axis_angle), np.sin(axis_angle), 0]))

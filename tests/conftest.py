@@ -19,7 +19,7 @@ def simulated_session(tmp_path_factory: pytest.TempPathFactory, name: str, *opti
                       ) -> Path:
     """A session recorded by `micam simulate --quiet` with these options, in a new temporary
     directory (for module- and session-scoped fixtures)."""
-    from acquisition.cli import main
+    from micam.cli import main
 
     path = tmp_path_factory.mktemp(name) / "s"
     assert main(["simulate", "--out", str(path), "--quiet", *options]) == 0
@@ -32,3 +32,11 @@ def small_session(tmp_path_factory: pytest.TempPathFactory) -> Path:
     recorded once per test run. Read it; copy it before changing it."""
     return simulated_session(tmp_path_factory, "small-session", "--array", "scatter48",
                              "--poses", "3", "--mls-order", "9", "--seed", "3")
+
+
+@pytest.fixture(scope="session")
+def twelve_pose_session(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The 72-microphone sphere with its 3 cameras at 12 poses (MLS order 10), recorded once per
+    test run for the camera and speaker tests. Read it; copy it before changing it."""
+    return simulated_session(tmp_path_factory, "twelve-poses", "--poses", "12",
+                             "--mls-order", "10")

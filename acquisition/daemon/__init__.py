@@ -1,9 +1,9 @@
 """The acquisition daemon: capture sessions driven over ZeroMQ (see docs/protocol.md).
 
 `micam daemon` runs `run_daemon`; the operator's commands use `DaemonClient`. Modules:
-config (pydantic settings), protocol (messages and their JSON Schemas), states (the state
+config (pydantic settings), states (the state
 machine), server (sockets), security and endpoints (CURVE, what is local), run (one open
-session and its quality gate), quality (checks), hardware (real or simulated), service (the
+session and its quality gate), quality (checks), hardware (what the daemon drives), service (the
 loop), systemd, translog (transitions in the session), client, cli_args and display (for the
 commands). The names below are imported on first use, so the light modules (cli_args) stay
 light for `micam --help`.
@@ -15,15 +15,11 @@ import importlib
 from typing import Any
 
 _EXPORTS = {
-    "PROTOCOL_VERSION": "protocol",
-    "json_schemas": "protocol",
     "ConfigError": "config",
     "DaemonConfig": "config",
     "load_config": "config",
     "DaemonClient": "client",
     "DaemonError": "client",
-    "check_config": "main",
-    "run_daemon": "main",
     "State": "states",
 }
 

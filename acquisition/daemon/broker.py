@@ -39,10 +39,10 @@ from typing import Any
 import zmq
 from pydantic import BaseModel, ValidationError
 
-from ..session import SessionError
-from ..session._atomic import fsync_dir, partial_path, sha256_file, write_atomic
+from acquisition.contracts.session import SessionError
+from acquisition.contracts.session import fsync_dir, partial_path, sha256_file, write_atomic
 from .config import WorkersConfig
-from .job_messages import (
+from acquisition.contracts.job_messages import (
     WORKER_MESSAGE,
     Ack,
     Bye,
@@ -60,7 +60,7 @@ from .job_messages import (
     version_problem,
 )
 from .outbox import JobRecord, Outbox
-from .protocol import (
+from acquisition.contracts.protocol import (
     CalibrationEvent,
     CalibrationStatus,
     ErrorEvent,
@@ -451,9 +451,7 @@ def _calibration_dir(job: JobRecord) -> Path:
 
 
 def _replace(path: Path, data: bytes) -> None:
-    """Write `path` atomically over its previous content (a `.partial` a crash left is
-    dropped first: this process is its only writer)."""
-    partial_path(path).unlink(missing_ok=True)
+    """Write `path` atomically over its previous content (this process is its only writer)."""
     write_atomic(path, lambda fh: fh.write(data), replace=True)
 
 

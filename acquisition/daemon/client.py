@@ -20,10 +20,10 @@ from typing import Any
 import zmq
 from pydantic import ValidationError
 
-from ..errors import UserError
+from acquisition.contracts.errors import UserError
 from .endpoints import default_control
-from .keys import secure_client
-from .protocol import (
+from acquisition.contracts.keys import secure_client
+from acquisition.contracts.protocol import (
     EVENT_ADAPTER,
     EVENT_TOPICS,
     LIVE_FRAME_TOPIC,

@@ -3,16 +3,18 @@
 Priority, highest first: environment (`MICAM_DAEMON_SESSION_ROOT=...`, nested sections with a
 double underscore: `MICAM_DAEMON_SOCKETS__CONTROL=ipc:///run/micam/control`), then the TOML
 file, then the defaults below. Unknown keys are refused so a misspelt option is never ignored.
-With no `[hardware]` section the daemon runs on the simulated world of `[simulation]`.
+With no `[hardware]` section the daemon runs on a simulated world; its `[simulation]` section is
+added by the application that builds that world (`micam.hardware.MicamDaemonConfig`), so this
+package never imports the simulator.
 """
 
 from __future__ import annotations
 
 import tomllib
 from pathlib import Path
-from typing import ClassVar, Literal
+from typing import ClassVar, Literal, TypeVar
 
-from pydantic import ConfigDict, Field, ValidationError, model_validator
+from pydantic import Field, ValidationError, model_validator
 from pydantic_settings import (
     BaseSettings,
     PydanticBaseSettingsSource,
@@ -20,11 +22,9 @@ from pydantic_settings import (
     TomlConfigSettingsSource,
 )
 
-from sim.capture import SimulationOptions
-
-from ..capture_config import CaptureConfig
-from ..config_model import ConfigModel, describe_problems
-from ..errors import UserError
+from acquisition.contracts.capture_config import CaptureConfig
+from acquisition.contracts.config_model import ConfigModel, describe_problems
+from acquisition.contracts.errors import UserError
 from .endpoints import beside, default_control, default_events
 
 ENV_PREFIX = "MICAM_DAEMON_"
@@ -195,12 +195,6 @@ class PreviewConfig(ConfigModel):
     jpeg_quality: int = Field(default=70, ge=10, le=95)
 
 
-class SimulationConfig(SimulationOptions):
-    """The simulated world the daemon runs on without hardware (unknown keys refused)."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
 class DaemonConfig(BaseSettings):
     """Everything `micam daemon` needs; see docs/protocol.md and README for an example."""
 
@@ -213,7 +207,6 @@ class DaemonConfig(BaseSettings):
                                description="sessions are directories under it")
     sockets: SocketsConfig = SocketsConfig()
     hardware: HardwareConfig | None = None
-    simulation: SimulationConfig = SimulationConfig()
     quality: QualityConfig = QualityConfig()
     hands_free: HandsFreeConfig = HandsFreeConfig()
     workers: WorkersConfig = WorkersConfig()
@@ -246,8 +239,14 @@ class DaemonConfig(BaseSettings):
         return self.hardware is None
 
 
-def load_config(path: Path | None = None) -> DaemonConfig:
+Config = TypeVar("Config", bound=DaemonConfig)
+
+
+def load_config(path: Path | None, config_class: type[Config]) -> Config:
     """Read the configuration from `path` (None: defaults) and the environment.
+
+    `config_class` is DaemonConfig or the application's subclass of it (the one with the
+    simulated world's section).
 
     Raises ConfigError naming the file, then one line per problem (the key, its section and,
     for an unknown key, the keys the section accepts), then where the keys are documented.
@@ -261,14 +260,14 @@ def load_config(path: Path | None = None) -> DaemonConfig:
             raise ConfigError(f"config file {path} does not exist") from None
         except (OSError, tomllib.TOMLDecodeError) as exc:
             raise ConfigError(f"config file {path} is not valid TOML: {exc}") from None
-    settings_cls = type("DaemonConfig", (DaemonConfig,), {"toml_path": path})
+    settings_cls = type(config_class.__name__, (config_class,), {"toml_path": path})
     try:
         return settings_cls()
     except ValidationError as exc:
         where = f"config file {path}" if path else "the configuration"
-        problems = describe_problems(exc, DaemonConfig)
+        problems = describe_problems(exc, config_class)
         raise ConfigError(
             f"{where} (with {ENV_PREFIX}* overrides) is invalid:\n"
             + "".join(f"  {line}\n" for line in problems)
             + f"(the keys and sections are described in {DOCS}; [hardware.capture] is "
-              "acquisition/capture_config.py)") from None
+              "acquisition/contracts/capture_config.py)") from None

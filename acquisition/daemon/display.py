@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .job_messages import LiveUpdate
-from .protocol import (
+from acquisition.contracts.job_messages import LiveUpdate
+from acquisition.contracts.protocol import (
     CalibrationEvent,
     CaptureEvent,
     CheckerboardEvent,

@@ -18,7 +18,7 @@ from pathlib import Path
 import zmq
 from pydantic import ValidationError
 
-from .job_messages import FETCH, Chunk, FetchError, encode, version_problem
+from acquisition.contracts.job_messages import FETCH, Chunk, FetchError, encode, version_problem
 from .outbox import JobRecord
 
 log = logging.getLogger("micam.daemon")

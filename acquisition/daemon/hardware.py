@@ -1,27 +1,23 @@
-"""The hardware the daemon drives: real boards and V4L2 cameras, or the simulated world.
+"""The hardware the daemon drives, and how the real kind is opened (boards and V4L2 cameras).
 
 Either way the daemon gets a sync group, cameras and a capture configuration. The simulated
-world also brings its operator (who moves the simulated rig when the daemon asks for a new
-set-up; a person does that on the real rig) and its ground truth, stored with each session.
+world, built by the application (`micam.hardware`), also brings its operator (who moves the
+simulated rig when the daemon asks for a new set-up; a person does that on the real rig) and
+its ground truth, stored with each session.
 """
 
 from __future__ import annotations
 
-import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from daq import SyncGroup
 
-from ..air import AirSensor
-from ..camera import Camera
-from ..capture_config import CaptureConfig
-from ..operator import Operator
-from .config import DaemonConfig, HardwareConfig, SimulationConfig
-
-log = logging.getLogger("micam.daemon")
-
-TRUTH_FILE = "truth.json"
+from acquisition.contracts.air import AirSensor
+from acquisition.contracts.camera import Camera
+from acquisition.contracts.capture_config import CaptureConfig
+from acquisition.contracts.instructions import Operator
+from .config import HardwareConfig
 
 
 @dataclass
@@ -60,26 +56,15 @@ class Hardware:
         for camera in self.cameras:
             camera.close()
 
+    def __enter__(self) -> Hardware:
+        return self
 
-def _simulated(options: SimulationConfig) -> Hardware:
-    from sim.capture import build_simulated_capture, truth_document
-    from sim.live_scene import demo_scene
-
-    sim = build_simulated_capture(options)
-    world = sim.world
-
-    def live_scene(playing: bool) -> None:
-        world.live_scene = demo_scene(world) if playing else None
-
-    return Hardware(
-        config=sim.config, group=sim.group, cameras=sim.cameras, world_operator=sim.operator,
-        max_poses=options.poses, session_files={TRUTH_FILE: truth_document(sim)},
-        air_sensor=sim.air_sensor, live_scene=live_scene,
-        description=f"simulated world ({options.array}, {options.poses} poses, seed "
-                    f"{options.seed})")
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
 
 
-def _real(hw: HardwareConfig) -> Hardware:
+def open_real_hardware(hw: HardwareConfig) -> Hardware:
+    """Open the configured boards (one sync group) and V4L2 cameras; nothing stays open on error."""
     from daq.usb import open_boards
 
     from ..cameras_v4l2 import V4L2Camera
@@ -98,10 +83,3 @@ def _real(hw: HardwareConfig) -> Hardware:
         raise
     return Hardware(config=hw.capture, group=SyncGroup(boards), cameras=cameras,
                     description=f"{len(boards)} boards, {len(cameras)} V4L2 cameras")
-
-
-def open_hardware(config: DaemonConfig) -> Hardware:
-    """Open the configured hardware, or build the simulated world when none is configured."""
-    hardware = _simulated(config.simulation) if config.hardware is None else _real(config.hardware)
-    log.info("hardware: %s", hardware.description)
-    return hardware

@@ -34,12 +34,12 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, ValidationError
 
-from ..capture_config import CaptureConfig
-from ..safe_names import SafeName, is_name
+from acquisition.contracts.capture_config import CaptureConfig
+from acquisition.contracts.safe_names import SafeName, is_name
 from ..sequencer import plan_steps
-from ..session import JOURNAL_NAME, SessionError, SessionReader
-from ..session._atomic import partial_path, write_atomic
-from .protocol import SessionSummary
+from acquisition.contracts.session import JOURNAL_NAME, SessionError, SessionReader
+from acquisition.contracts.session import partial_path, write_atomic
+from acquisition.contracts.protocol import SessionSummary
 
 log = logging.getLogger("micam.daemon")
 

@@ -10,10 +10,10 @@ from __future__ import annotations
 import hashlib
 from pathlib import Path
 
-from ..session import JOURNAL_NAME, SessionReader
-from .job_messages import JobFile, JobKind, JournalPrefix
+from acquisition.contracts.session import JOURNAL_NAME, SessionReader
+from acquisition.contracts.job_messages import JobFile, JobKind, JournalPrefix
 from .outbox import JobRecord
-from .protocol import utc_now
+from acquisition.contracts.protocol import utc_now
 
 
 def _journal_prefix(session: Path) -> JournalPrefix:

@@ -19,7 +19,7 @@ from daq import DaqError, GroupStream
 
 from ..live.mode import LiveFault, LiveMode, LiveOptions
 from .hardware import Hardware
-from .protocol import (
+from acquisition.contracts.protocol import (
     ErrorEvent,
     LiveModeEvent,
     LiveRecordArgs,

@@ -35,10 +35,10 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, ValidationError
 
-from ..safe_names import SafeName
-from ..session._atomic import fsync_dir, remove_partials, write_atomic
-from .job_messages import JobFile, JobKind, JournalPrefix
-from .protocol import utc_now
+from acquisition.contracts.safe_names import SafeName
+from acquisition.contracts.session import fsync_dir, remove_partials, write_atomic
+from acquisition.contracts.job_messages import JobFile, JobKind, JournalPrefix
+from acquisition.contracts.protocol import utc_now
 
 log = logging.getLogger("micam.daemon")
 

@@ -19,9 +19,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ..capture_config import CaptureConfig
-from ..session import SessionError, SessionReader
-from .job_messages import LiveUpdate
+from acquisition.contracts.capture_config import CaptureConfig
+from acquisition.contracts.session import SessionError, SessionReader
+from acquisition.contracts.job_messages import LiveUpdate
 
 SPEED_OF_SOUND_RANGE_M_S = (250.0, 450.0)
 """Air from -40 to 60 degC (306-366 m/s), with a margin for humidity and other gases."""

@@ -22,16 +22,16 @@ import numpy as np
 
 from daq import DaqError
 
-from ..camera import Camera, CameraError
-from ..capture_config import CaptureConfig
-from ..operator import Instruction, InstructionKind
+from acquisition.contracts.camera import Camera, CameraError
+from acquisition.contracts.capture_config import CaptureConfig
+from acquisition.contracts.instructions import Instruction, InstructionKind
 from ..sequencer import CaptureSequencer, Progress, plan_steps
-from ..session import SessionWriter
-from ..session._layout import attempt_dir
+from acquisition.contracts.session import SessionWriter
+from acquisition.contracts.session._layout import attempt_dir
 from .config import DaemonConfig
 from .hardware import Hardware
 from .previews import Previews
-from .protocol import (
+from acquisition.contracts.protocol import (
     CameraPoses,
     CaptureEvent,
     CheckerboardEvent,
@@ -137,7 +137,7 @@ class SessionRun:
         self.steps_total = len(plan_steps(self.capture))
         self.sequencer = CaptureSequencer(
             self.capture, hardware.group, hardware.cameras, operator=self,
-            writer=_ObservedWriter(writer, self),  # type: ignore[arg-type]
+            writer=_ObservedWriter(writer, self),
             on_progress=self._on_progress, camera_timeout_s=config.camera_timeout_s,
             air_sensor=hardware.air_sensor)
         columns = self.capture.columns
@@ -455,4 +455,7 @@ class _ObservedWriter:
 
     def stop(self, exit_status: str = "success", reason: str = "") -> None:
         self._writer.stop(exit_status, reason)
+
+    def close(self) -> None:
+        self._writer.close()
 

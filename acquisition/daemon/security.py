@@ -19,7 +19,7 @@ from zmq.auth.thread import ThreadAuthenticator
 
 from .config import ConfigError, CurveConfig, SocketsConfig
 from .endpoints import is_abstract_ipc, is_local_endpoint, is_tcp
-from .keys import load_certificate
+from acquisition.contracts.keys import load_certificate
 
 
 def check_exposure(sockets: SocketsConfig) -> None:

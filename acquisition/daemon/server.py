@@ -30,7 +30,7 @@ from pydantic import BaseModel, ValidationError
 
 from .config import ConfigError, SocketsConfig
 from .local_access import bind_local
-from .protocol import (
+from acquisition.contracts.protocol import (
     COMMANDS,
     PROTOCOL_VERSION,
     REQUEST_TYPES,
@@ -195,7 +195,7 @@ class ControlServer:
 
     @property
     def events_endpoint(self) -> str:
-        return self._pub.last_endpoint.decode()
+        return str(self._pub.getsockopt_string(zmq.LAST_ENDPOINT))
 
     @property
     def last_event_seq(self) -> int:

@@ -27,11 +27,11 @@ from typing import Any
 import zmq
 from pydantic import BaseModel
 
-from ..capture_config import CaptureConfig
+from acquisition.contracts.capture_config import CaptureConfig
 from ..live.mode import POLL_S as LIVE_POLL_S
 from ..sequencer import plan_steps
-from ..session import SessionError, SessionReader, SessionWriter
-from ..session._atomic import write_atomic
+from acquisition.contracts.session import SessionError, SessionReader, SessionWriter
+from acquisition.contracts.session import write_atomic
 from .broker import CALIBRATION_DIR, JOBS_QUEUE, RESULT_FILE, Broker
 from .config import DaemonConfig
 from .files import MAX_FETCH_BYTES, FileServer
@@ -41,7 +41,7 @@ from .jobs import job_for_session
 from .live_control import LiveControl
 from .outbox import Outbox
 from .previews import Previews
-from .protocol import (
+from acquisition.contracts.protocol import (
     CAMERA_MIN_VIEWS,
     PROTOCOL_VERSION,
     CaptureResult,
@@ -63,7 +63,7 @@ from .run import SessionEnding, SessionRun
 from .server import ControlServer, Refusal
 from .session_files import session_dir, session_file, session_report
 from .states import WAITING_STATES, State, StateMachine, Transition, WrongState, check_allowed
-from .systemd import Watchdog, sd_notify
+from .systemd import Watchdog, sd_notify, set_log_context
 from .translog import TransitionLog
 
 log = logging.getLogger("micam.daemon")
@@ -284,6 +284,7 @@ class Daemon:
 
     def _on_transition(self, t: Transition) -> None:
         run = self.run
+        set_log_context(run.session_id if run else None, run.step if run else None)
         log.info("%s -> %s (%s)", t.previous.value, t.state.value, t.reason)
         if self._translog is not None:
             self._translog.append(previous=t.previous.value, state=t.state.value,
@@ -337,7 +338,7 @@ class Daemon:
             cameras=[c.name for c in capture.cameras],
             rig=RigInfo(corners_x=capture.rig.corners_x, corners_y=capture.rig.corners_y,
                         square_m=capture.rig.square_m,
-                        speakers_m=[tuple(p) for p in capture.rig.speakers_m]),
+                        speakers_m=[(p[0], p[1], p[2]) for p in capture.rig.speakers_m]),
             n_poses=capture.n_poses, max_poses=self.hardware.max_poses,
             quality=QualityInfo(clip_fraction=quality.clip_fraction,
                                 min_level_dbfs=quality.min_level_dbfs,
@@ -422,8 +423,8 @@ class Daemon:
         writer = SessionWriter.create(path, capture=config.model_dump(mode="json"),
                                       session_id=session_id)
         for name, document in self.hardware.session_files.items():
-            text = json.dumps(document, indent=1).encode()
-            write_atomic(path / name, lambda fh, text=text: fh.write(text))
+            data = json.dumps(document, indent=1).encode()
+            write_atomic(path / name, lambda fh: fh.write(data))  # called before the next
         return writer
 
     def _reopen(self, which: str) -> SessionWriter:

@@ -16,10 +16,10 @@ import os
 import stat
 from pathlib import Path
 
-from ..session import SessionError, SessionReader
-from ..session._layout import attempt_dir
+from acquisition.contracts.session import SessionError, SessionReader
+from acquisition.contracts.session._layout import attempt_dir
 from .files import open_inside
-from .protocol import (
+from acquisition.contracts.protocol import (
     CalibrationFile,
     PoseQuality,
     SessionFileResult,

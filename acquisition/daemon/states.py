@@ -18,7 +18,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from enum import StrEnum
 
-from ..operator import InstructionKind
+from acquisition.contracts.instructions import InstructionKind
 
 
 class State(StrEnum):

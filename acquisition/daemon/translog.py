@@ -12,7 +12,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from .protocol import utc_now
+from acquisition.contracts.protocol import utc_now
 
 TRANSITION_LOG = "daemon.jsonl"
 

@@ -32,10 +32,10 @@ import numpy as np
 
 from daq import DaqError, GroupStream
 
-from ..camera import Camera, CameraError
-from ..capture_config import CaptureConfig
-from ..daemon.previews import encode_preview
-from ..daemon.protocol import (
+from acquisition.contracts.camera import Camera, CameraError
+from acquisition.contracts.capture_config import CaptureConfig
+from ..preview_jpeg import encode_preview
+from acquisition.contracts.protocol import (
     SAMPLES_TOPIC,
     LiveFrameEvent,
     LiveRecordedEvent,

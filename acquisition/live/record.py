@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..capture_config import CaptureConfig
-from ..session import SessionReader, SessionWriter
+from acquisition.contracts.capture_config import CaptureConfig
+from acquisition.contracts.session import SessionReader, SessionWriter
 from .ring import StampedFrame
 
 STEP = "live"

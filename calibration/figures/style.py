@@ -11,7 +11,6 @@ with the common colour-vision deficiencies) for lines and categories.
 from __future__ import annotations
 
 import io
-import os
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +22,8 @@ import matplotlib.pyplot as plt
 import matplotlib.style
 from matplotlib.figure import Figure
 from matplotlib.rcsetup import cycler
+
+from acquisition.contracts.session import write_atomic
 
 COLUMN_IN = 3.5
 """Width of one column of a two-column page, inches."""
@@ -112,7 +113,5 @@ def save_palette_png(image: Image.Image, path: Path) -> Path:
     rgb = image.convert("RGB")
     colours = rgb.quantize(PNG_COLOURS, method=Image.Quantize.FASTOCTREE)
     palette = rgb.quantize(palette=colours, dither=Image.Dither.FLOYDSTEINBERG)
-    tmp = path.with_name(path.name + ".partial")
-    palette.save(tmp, format="PNG", optimize=True)
-    os.replace(tmp, path)
+    write_atomic(path, lambda fh: palette.save(fh, format="PNG", optimize=True), replace=True)
     return path

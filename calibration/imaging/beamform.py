@@ -86,7 +86,7 @@ class HermitianForms:
             lower = np.linalg.cholesky(csm.astype(np.complex128))
         except np.linalg.LinAlgError:
             return "general", [np.ascontiguousarray(csm.T, dtype=self.dtype)]
-        conj = lower.conj().astype(self.dtype)
+        conj: np.ndarray = lower.conj().astype(self.dtype)
         return "cholesky", [np.ascontiguousarray(conj[j0:, j0:j1]) for j0, j1 in self._edges]
 
     def __len__(self) -> int:
@@ -112,7 +112,7 @@ class HermitianForms:
             return
         for (j0, j1), block in zip(self._edges, factors, strict=True):
             np.matmul(h[:, j0:], block, out=t[:, j0:j1])
-        tv = t.view(self.real)
+        tv: np.ndarray = t.view(self.real)
         out[:] = np.einsum("gk,gk->g", tv, tv)
 
 
@@ -142,7 +142,7 @@ def beamform_csm(h: np.ndarray, csm: np.ndarray, remove_diagonal: bool = True,
     values = np.empty(h.shape[0])
 
     def block(start: int, stop: int) -> None:
-        rows = h[start:stop].astype(forms.dtype, order="C", copy=False)
+        rows: np.ndarray = h[start:stop].astype(forms.dtype, order="C", copy=False)
         forms.evaluate(0, rows, values[start:stop])
 
     run_blocks(block, h.shape[0], workers)

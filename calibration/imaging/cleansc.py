@@ -167,7 +167,7 @@ def _coherence(d: np.ndarray, w: np.ndarray, peak: np.ndarray, options: CleanScO
 
 def _subgrid(lazy: LazyMap, index: int, shape: tuple[int, int]) -> tuple[float, float]:
     """Sub-grid peak from the exact 3 x 3 neighbourhood of a node."""
-    i, j = np.unravel_index(index, shape)
+    i, j = (int(k) for k in np.unravel_index(index, shape))
     rows = np.arange(max(i - 1, 0), min(i + 2, shape[0]))
     cols = np.arange(max(j - 1, 0), min(j + 2, shape[1]))
     flat = (rows[:, None] * shape[1] + cols[None, :]).ravel()

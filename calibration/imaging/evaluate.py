@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from acquisition.session import SessionReader
+from acquisition.contracts.session import SessionReader
 
 from .._cores import resolve_workers
 from .cleansc import LOCKSTEP_BINS, CleanScOptions, clean_sc_many
@@ -227,8 +227,9 @@ def locate(spectra: Iterable[CrossSpectra], steering: SteeringModel, grid: Plane
             node = int(np.argmax(result.clean_map))
             strongest = max((c for c in result.components if c.index == node),
                             key=lambda c: c.power)
+            sub = strongest.subgrid  # None only off a 2-D grid: the node itself then
             out.append(BandLocation(float(band.freqs_hz[0]), grid.points[node],
-                                    grid.at_index(*strongest.subgrid),
+                                    grid.at_index(*sub) if sub is not None else grid.points[node],
                                     float(result.clean_map[node]),
                                     float(result.components[0].peak)))
     return out

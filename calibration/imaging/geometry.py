@@ -29,15 +29,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from acquisition.contracts.rigid import rotation_from_rotvec
+
 from .csm_calibration import ChannelResponses, responses_from_document
 
 MAX_LATENCY_S = 0.01
 """Largest channel latency or delay a geometry file may state (a board's is microseconds)."""
-
-
-def _rotation(rotvec: list[float]) -> np.ndarray:
-    R, _ = cv2.Rodrigues(np.asarray(rotvec, dtype=np.float64).reshape(3, 1))
-    return R
 
 
 @dataclass(frozen=True)
@@ -133,11 +130,11 @@ def geometry_from_dict(doc: dict, source: str = "geometry") -> ArrayGeometry:
             CameraView(name=str(cam["name"]), width=int(cam["width"]), height=int(cam["height"]),
                        K=np.array(cam["K"], dtype=np.float64),
                        dist=np.array(cam["dist"], dtype=np.float64),
-                       R=_rotation(cam["from_cam0"]["rotvec"]),
+                       R=rotation_from_rotvec(cam["from_cam0"]["rotvec"]),
                        t=np.array(cam["from_cam0"]["t_m"], dtype=np.float64))
             for cam in doc.get("cameras", []))
         poses = {
-            int(p["index"]): BoardPose(int(p["index"]), _rotation(p["rig_to_cam0"]["rotvec"]),
+            int(p["index"]): BoardPose(int(p["index"]), rotation_from_rotvec(p["rig_to_cam0"]["rotvec"]),
                                        np.array(p["rig_to_cam0"]["t_m"], dtype=np.float64),
                                        np.array(p["speakers_m"], dtype=np.float64))
             for p in doc.get("poses", [])}

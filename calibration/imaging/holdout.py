@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from acquisition.session import SessionReader
+from acquisition.contracts.session import SessionReader
 
 from ..pipeline import CalibrationOptions, CalibrationRun, calibrate_measured, measure
 from .evaluate import (

@@ -47,7 +47,7 @@ def subgrid_peak(values: np.ndarray, shape: tuple[int, int], flat_index: int | N
     grid = np.asarray(values, dtype=np.float64).reshape(shape)
     if flat_index is None:
         flat_index = int(np.argmax(grid))
-    i, j = np.unravel_index(flat_index, shape)
+    i, j = (int(k) for k in np.unravel_index(flat_index, shape))
     lo_i, lo_j = max(i - 1, 0), max(j - 1, 0)
     patch = np.full((3, 3), np.nan)
     patch[lo_i - i + 1: min(i + 2, shape[0]) - i + 1, lo_j - j + 1: min(j + 2, shape[1]) - j + 1

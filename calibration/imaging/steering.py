@@ -106,7 +106,9 @@ def unit_phasors(angle: np.ndarray) -> np.ndarray:
 
 def _power(z: np.ndarray, n: int) -> np.ndarray:
     """z**n elementwise for a positive integer n, by repeated squaring."""
-    result = None
+    if n < 1:
+        raise ValueError(f"the power must be a positive integer, not {n}")
+    result: np.ndarray | None = None
     square = z.copy(order="K")
     while True:
         if n & 1:
@@ -116,6 +118,7 @@ def _power(z: np.ndarray, n: int) -> np.ndarray:
                 np.multiply(result, square, out=result)
         n >>= 1
         if not n:
+            assert result is not None  # n >= 1 has a set bit, met before n reaches 0
             return result
         np.multiply(square, square, out=square)
 
@@ -209,7 +212,8 @@ class SteeringModel:
         part = copy.copy(self)
         part.points = self.points[start:stop]
         if self._geometry is not None:
-            part._geometry = tuple(a[start:stop] for a in self._geometry)
+            r, path, amplitude = self._geometry
+            part._geometry = (r[start:stop], path[start:stop], amplitude[start:stop])
         return part
 
     @property

@@ -15,7 +15,6 @@ Only session mirrors (directories holding the journal) are counted and evicted.
 
 from __future__ import annotations
 
-import hashlib
 import logging
 import os
 import re
@@ -28,8 +27,9 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 
-from acquisition.daemon.job_messages import Job, JobFile
-from acquisition.safe_names import is_name
+from acquisition.contracts.job_messages import Job, JobFile
+from acquisition.contracts.safe_names import is_name
+from acquisition.contracts.session import sha256_file
 
 JOURNAL = "journal.jsonl"
 DEFAULT_MAX_BYTES = 4 * 2**30
@@ -165,16 +165,11 @@ class FileCache:
     def commit(self, job: Job, file: JobFile) -> None:
         """Verify the fetched `<name>.partial` and give it its name; ChecksumMismatch if not."""
         partial = self.partial(job, file.path)
-        digest = hashlib.sha256()
-        size = 0
-        with partial.open("rb") as fh:
-            while block := fh.read(1 << 20):
-                digest.update(block)
-                size += len(block)
-        if digest.hexdigest() != file.sha256 or size != file.bytes:
+        digest = sha256_file(partial)
+        if digest.sha256 != file.sha256 or digest.bytes != file.bytes:
             partial.unlink(missing_ok=True)
             raise ChecksumMismatch(
-                f"{file.path}: fetched {size} bytes with sha256 {digest.hexdigest()}, but the "
+                f"{file.path}: fetched {digest.bytes} bytes with sha256 {digest.sha256}, but the "
                 f"journal recorded {file.bytes} bytes with sha256 {file.sha256}; the daemon's "
                 f"copy may be damaged (check it with `micam inspect SESSION`)")
         os.replace(partial, self.target(job, file.path))

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import zmq
 
-from acquisition.daemon.job_messages import (
+from acquisition.contracts.job_messages import (
     FILE_REPLY,
     Chunk,
     Fetch,

@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from acquisition.daemon.job_messages import (
+from acquisition.contracts.job_messages import (
     LiveMicrophone,
     LiveUpdate,
     PoseSuggestion,

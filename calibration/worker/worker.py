@@ -32,7 +32,7 @@ from pathlib import Path
 import zmq
 from pydantic import BaseModel, ValidationError
 
-from acquisition.daemon.job_messages import (
+from acquisition.contracts.job_messages import (
     DAEMON_MESSAGE,
     Ack,
     Bye,
@@ -50,8 +50,9 @@ from acquisition.daemon.job_messages import (
     encode,
     version_problem,
 )
-from acquisition.daemon.keys import secure_client
+from acquisition.contracts.keys import secure_client
 
+from ..camera_calibration import DETECTION_CACHE_SIZE, DetectionMemo
 from .cache import DEFAULT_MAX_BYTES, ChecksumMismatch, FileCache
 from .compute import compute
 from .fetch import CHUNK_BYTES, FetchFailed, fetch_job_files
@@ -101,6 +102,9 @@ class Worker:
     def __init__(self, settings: WorkerSettings) -> None:
         self.settings = settings
         self.cache = FileCache(settings.cache, settings.cache_max_bytes)
+        # the checkerboard detections of the session images this worker has seen (live jobs
+        # see the same images again, a pose more each time)
+        self.detections = DetectionMemo(DETECTION_CACHE_SIZE)
         self._context = zmq.Context()
         self._stop = threading.Event()
         self._reports: queue.Queue[BaseModel | tuple[Done, bytes] | None] = queue.Queue()
@@ -229,7 +233,8 @@ class Worker:
             self._send(Failed(job_id=job.job_id, attempt=job.attempt, retryable=True,
                               reason=f"worker {self.settings.name} is busy with another job"))
             return
-        log.info("job %s attempt %d (%s, %d poses)", job.job_id, job.attempt, job.kind, job.poses)
+        log.info("job %s attempt %d (%s, %d poses)", job.job_id, job.attempt, job.kind, job.poses,
+                 extra={"session_id": job.session_id})
         self._thread = threading.Thread(target=self._work, args=(job,), daemon=True,
                                         name=f"job-{job.job_id}")
         self._thread.start()
@@ -253,7 +258,8 @@ class Worker:
                 out = compute(job, session, self.settings.joint,
                               lambda stage: report(Progress(job_id=job.job_id,
                                                             attempt=job.attempt,
-                                                            stage=stage[:64])))
+                                                            stage=stage[:64])),
+                              self.detections)
             if isinstance(out, LiveUpdate):
                 report(Live(job_id=job.job_id, attempt=job.attempt, update=out))
             else:
@@ -266,13 +272,13 @@ class Worker:
         except ValueError as exc:  # the pipeline's input errors: this session cannot calibrate
             report(self._failure(job, f"the session cannot be calibrated: {exc}", False))
         except Exception as exc:  # a bug or a full disk: another worker may do better
-            log.exception("job %s failed", job.job_id)
+            log.exception("job %s failed", job.job_id, extra={"session_id": job.session_id})
             report(self._failure(job, f"internal error: {type(exc).__name__}: {exc}", True))
         finally:
             report(None)  # the job thread is finished
 
     def _failure(self, job: Job, reason: str, retryable: bool) -> Failed:
-        log.error("job %s failed: %s", job.job_id, reason)
+        log.error("job %s failed: %s", job.job_id, reason, extra={"session_id": job.session_id})
         return Failed(job_id=job.job_id, attempt=job.attempt, reason=reason[:4000],
                       retryable=retryable)
 

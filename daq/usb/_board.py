@@ -20,6 +20,7 @@ from daq import (
     BoardIdentity,
     BoardStateError,
     ClockSource,
+    ClosesOnExit,
     ConfigurationError,
     DaqError,
     DeviceDisconnectedError,
@@ -59,7 +60,7 @@ class _State(Enum):
     CLOSED = "closed"
 
 
-class UsbBoard:
+class UsbBoard(ClosesOnExit):
     """One Data Translation board driven over USB; satisfies the `daq.Board` protocol."""
 
     def __init__(self, transport: UsbTransport, family: Family) -> None:

@@ -12,7 +12,7 @@ disconnects and re-enumerates with its running product id, at the same bus port.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 
 import usb.core
 
@@ -49,7 +49,7 @@ def download(transport: UsbTransport, loader: FirmwareImage, image: FirmwareImag
         pass  # the board may drop off the bus before acknowledging; re-enumeration tells
 
 
-def wait_for_running(find: Callable[..., object], bus: int | None,
+def wait_for_running(find: Callable[..., Iterable[usb.core.Device]], bus: int | None,
                      port_numbers: tuple[int, ...] | None, running_pid: int, where: str,
                      timeout_s: float) -> usb.core.Device:
     """Poll the bus until the board at (bus, port) shows its running id; FirmwareError if not."""

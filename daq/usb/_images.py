@@ -116,7 +116,7 @@ def _read_ihex(text: str) -> list[tuple[int, bytes]]:
 
 
 def _read_fw(data: bytes) -> list[tuple[int, bytes]]:
-    segments = []
+    segments: list[tuple[int, bytes]] = []
     offset = 0
     while True:
         address, length = struct.unpack_from(">IH", data, offset)

@@ -19,7 +19,7 @@ import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import IntEnum
-from typing import ClassVar, Protocol, Self
+from typing import Any, ClassVar, Protocol, Self
 
 from ._errors import ProtocolError
 from ._ids import COMMAND_PACKET_BYTES
@@ -323,7 +323,7 @@ class StopSubsystem(_SubsystemCommand):
     code: ClassVar[CommandCode] = CommandCode.STOP_SUBSYSTEM
 
 
-COMMANDS: dict[CommandCode, type] = {
+COMMANDS: dict[CommandCode, type[Any]] = {
     c.code: c
     for c in (ReadI2cBytes, ReadWord, WriteWord, ReadWords, WriteWords, StartSubsystem,
               StopSubsystem)

@@ -156,8 +156,8 @@ class UsbTransport:
                 ) from None
             if e.errno in (errno.EACCES, errno.EPERM):
                 raise UsbTransferError(
-                    f"{self.name}: no permission for {what}; install the udev rules from "
-                    "udev/ (see udev/README.md) and replug the board"
+                    f"{self.name}: no permission for {what}; install the udev rules with "
+                    "`sudo micam install udev` (micam/data/udev/README.md) and replug the board"
                 ) from None
             if e.errno == errno.EBUSY:
                 raise UsbTransferError(

@@ -11,12 +11,12 @@ from __future__ import annotations
 
 import array
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from usb.backend import IBackend
 
 from daq.usb._ids import INTERFACE
 
-from ._bus import EmulatedBoard, EmulatedBus
 from ._descriptors import (
     CONFIGURATION,
     RUNNING_ENDPOINTS,
@@ -26,6 +26,9 @@ from ._descriptors import (
     InterfaceDescriptor,
 )
 from ._errors import no_device, stall
+
+if TYPE_CHECKING:  # the bus builds its backend: at run time only the bus imports this module
+    from ._bus import EmulatedBoard, EmulatedBus
 
 _DIR_IN = 0x80
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 
 from sim.bench import AnalogBench
 
@@ -18,9 +19,12 @@ from sim.bench import AnalogBench
 class SharedClock:
     """Who fired the last trigger, when, and at what rate."""
 
-    def __init__(self, bench: AnalogBench, realtime: bool) -> None:
+    def __init__(self, bench: AnalogBench, realtime: bool,
+                 now: Callable[[], float] = time.monotonic) -> None:
+        """`now`: the wall clock in seconds that paces a real-time clock (tests pass their own)."""
         self.bench = bench
         self.realtime = realtime
+        self._now = now
         self._lock = threading.Lock()
         self.last_scan = 0
         self._t0 = 0.0
@@ -30,7 +34,7 @@ class SharedClock:
         """Release the trigger with the clock at `rate_hz`; return the new scan number."""
         with self._lock:
             scan = self.bench.fire_trigger()
-            self.last_scan, self._t0, self._rate_hz = scan, time.monotonic(), rate_hz
+            self.last_scan, self._t0, self._rate_hz = scan, self._now(), rate_hz
             return scan
 
     def wait_for_trigger(self, after_scan: int, timeout_s: float) -> int | None:
@@ -44,7 +48,7 @@ class SharedClock:
         with self._lock:
             if scan != self.last_scan:
                 return 0.0
-            return (time.monotonic() - self._t0) * self._rate_hz
+            return (self._now() - self._t0) * self._rate_hz
 
     def seconds_for(self, edges: float) -> float:
         """Wall time that `edges` clock edges take at the current rate."""

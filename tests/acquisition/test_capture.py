@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from acquisition.camera import CameraTimeoutError
+from acquisition.contracts.camera import CameraTimeoutError
 from acquisition.sequencer import CaptureSequencer, plan_steps
-from acquisition.session import SessionReader, SessionWriter, journal_records
-from acquisition.session._journal import JournalWriter
+from acquisition.contracts.session import SessionReader, SessionWriter, journal_records
+from acquisition.contracts.session._journal import JournalWriter
 from daq import DeviceDisconnectedError
 from sim.capture import SimulationOptions, build_simulated_capture, truth_document
 
@@ -174,7 +174,7 @@ def test_same_seed_same_recordings(tmp_path: Path, small_options: SimulationOpti
 def test_capture_config_refuses_unknown_keys(small_options: SimulationOptions) -> None:
     from pydantic import ValidationError
 
-    from acquisition.capture_config import CaptureConfig
+    from acquisition.contracts.capture_config import CaptureConfig
 
     doc = build_simulated_capture(small_options).config.model_dump(mode="json")
     doc["burst"]["mls_ordr"] = 12  # a typo in a hand-written config must not pass silently

@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from acquisition.cli import main
-from acquisition.session import SessionReader
+from micam.cli import main
+from acquisition.contracts.session import SessionReader
 
 
 def test_daq_list_emulated_shows_every_board(capsys: pytest.CaptureFixture) -> None:

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from acquisition.cli import main
-from acquisition.session import SessionReader, journal_records
+from micam.cli import main
+from acquisition.contracts.session import SessionReader, journal_records
 
 QUICK = ["--array", "scatter48", "--poses", "2", "--mls-order", "9", "--quiet"]
 
@@ -67,7 +67,7 @@ def test_resume_needs_a_simulated_session(tmp_path: Path, capsys: pytest.Capture
 def test_sigkill_during_capture_then_resume(tmp_path: Path) -> None:
     """A real kill -9 in the middle of a burst; the resumed session is complete and intact."""
     out = tmp_path / "s"
-    cmd = [sys.executable, "-m", "acquisition.cli", "simulate", "--out", str(out),
+    cmd = [sys.executable, "-m", "micam.cli", "simulate", "--out", str(out),
            "--array", "scatter48", "--poses", "3", "--mls-order", "12", "--quiet"]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     journal = out / "journal.jsonl"

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from acquisition.cli import main
-from acquisition.session import SessionError, SessionReader
+from micam.cli import main
+from acquisition.contracts.session import SessionError, SessionReader
 
 
 @pytest.fixture

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 import soundfile as sf
 
-from acquisition.cli import main
+from micam.cli import main
 from acquisition.importer import ImportSpecError, import_session, prepare
 from acquisition.intrinsics_file import IntrinsicsFileError, read_intrinsics
-from acquisition.session import SessionReader
+from acquisition.contracts.session import SessionReader
 
 FS = 8000
 N = 4 + 63 + 5  # silence before, MLS order 6, silence after

@@ -9,9 +9,9 @@ from typing import Any
 
 import pytest
 
-from acquisition.air import speed_of_sound
-from acquisition.config_model import models_within
-from acquisition.rig_description import (
+from acquisition.contracts.air import speed_of_sound
+from acquisition.contracts.config_model import models_within
+from acquisition.contracts.rig_description import (
     DescriptionError,
     RigArrayDescription,
     validate_description,

@@ -1,15 +1,17 @@
 """Tests of the crash-safe session store (acquisition.session).
 
-The crash tests run a small scripted session in a forked child that dies with os._exit at the
+The crash tests run a small scripted session in a child process that dies with os._exit at the
 k-th occurrence of a chosen point (a journal append, a rename, a mkdir), for every k; the parent
 then resumes the session, finishes it and checks that nothing completed was lost or changed.
 """
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import itertools
 import json
+import multiprocessing
 import os
 import traceback
 from collections import Counter
@@ -20,7 +22,7 @@ import numpy as np
 import pytest
 import soundfile as sf
 
-from acquisition.session import (
+from acquisition.contracts.session import (
     JOURNAL_NAME,
     MANIFEST_NAME,
     SessionError,
@@ -32,7 +34,7 @@ from acquisition.session import (
     attempt_dir,
     journal_records,
 )
-from acquisition.session._journal import JournalWriter, scan_journal
+from acquisition.contracts.session._journal import JournalWriter, scan_journal
 
 CAPTURE = {
     "channel_map": [{"board": "DT9836-A", "input": i, "mic": i} for i in range(80)],
@@ -208,27 +210,46 @@ def _count_hits(site: str, path: Path, monkeypatch: pytest.MonkeyPatch) -> int:
     return next(hits)
 
 
+# Children come from a fork server: a fresh single-threaded process started once, so no child
+# inherits pytest's threads (or their locks) as a fork of the test process itself would.
+_CHILDREN = multiprocessing.get_context("forkserver")
+_CHILDREN.set_forkserver_preload([__name__])  # each child starts with this module imported
+
+
+def _in_child(work: Callable[[], int]) -> int:
+    """Run `work` in a child process; the status it exits with (os._exit: no cleanup)."""
+    child = _CHILDREN.Process(target=_exit_with, args=(work,))
+    child.start()
+    child.join(timeout=120)
+    assert child.exitcode is not None, "the child process hung"
+    return child.exitcode
+
+
+def _exit_with(work: Callable[[], int]) -> None:
+    code = 3
+    try:
+        code = work()
+    except BaseException:  # the child must end in os._exit
+        traceback.print_exc()
+    finally:
+        os._exit(code)
+
+
+def _crash_script(path: Path, site: str, k: int) -> int:
+    hits = itertools.count(1)
+
+    def crash() -> None:
+        if next(hits) == k:
+            os._exit(CRASHED)
+
+    setattr(*_hooked(site, crash))
+    _run_script(path)
+    return 0
+
+
 def _run_script_crashing(path: Path, site: str, k: int) -> int:
-    """Run the script in a forked child that dies at the k-th hit of `site`; its exit code."""
-    pid = os.fork()
-    if pid == 0:  # the child never returns into pytest
-        code = 0
-        try:
-            hits = itertools.count(1)
-
-            def crash() -> None:
-                if next(hits) == k:
-                    os._exit(CRASHED)
-
-            setattr(*_hooked(site, crash))
-            _run_script(path)
-        except BaseException:  # the child must end in os._exit
-            traceback.print_exc()
-            code = 3
-        finally:
-            os._exit(code)
-    _, status = os.waitpid(pid, 0)
-    return os.waitstatus_to_exitcode(status)
+    """Run the script in a child that dies at the k-th hit of `site`; its exit code."""
+    return _in_child(functools.partial(_crash_script, path, site, k))
 
 
 def _file_hashes(path: Path) -> dict[str, str]:
@@ -496,19 +517,16 @@ def test_stop_other_than_success_abandons_the_open_attempt(open_writer: SessionW
         SessionWriter.resume(open_writer.path)
 
 
+def _resume_elsewhere(path: Path) -> int:
+    try:
+        SessionWriter.resume(path)
+        return 0
+    except SessionError as exc:
+        return 10 if "locked by another process" in str(exc) else 11
+
+
 def test_another_process_cannot_write_an_open_session(open_writer: SessionWriter) -> None:
-    pid = os.fork()
-    if pid == 0:  # the child never returns into pytest
-        code = 12
-        try:
-            SessionWriter.resume(open_writer.path)
-            code = 0
-        except SessionError as exc:
-            code = 10 if "locked by another process" in str(exc) else 11
-        finally:
-            os._exit(code)
-    _, status = os.waitpid(pid, 0)
-    assert os.waitstatus_to_exitcode(status) == 10
+    assert _in_child(functools.partial(_resume_elsewhere, open_writer.path)) == 10
     open_writer.write_json("pose/0000", "still-mine.json", {})
 
 

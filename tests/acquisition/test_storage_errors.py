@@ -20,9 +20,9 @@ from pathlib import Path
 import pytest
 
 import acquisition.daemon.outbox as outbox_module
-from acquisition.cli import main
+from micam.cli import main
 from acquisition.daemon.config import WorkersConfig
-from acquisition.session import SessionReader
+from acquisition.contracts.session import SessionReader
 from tests.acquisition.daemon.helpers import (
     REPO,
     ThreadDaemon,
@@ -31,7 +31,7 @@ from tests.acquisition.daemon.helpers import (
     wait_state,
 )
 
-SIMULATE = [sys.executable, "-m", "acquisition.cli", "simulate", "--array", "scatter48",
+SIMULATE = [sys.executable, "-m", "micam.cli", "simulate", "--array", "scatter48",
             "--poses", "2", "--mls-order", "9", "--seed", "3", "--quiet"]
 
 

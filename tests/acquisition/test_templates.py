@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from acquisition.cli import main
-from acquisition.daemon.config import load_config
+from micam.cli import main
+from micam.hardware import load_daemon_config as load_config
 from acquisition.importer import load_spec
-from acquisition.templates import TEMPLATES, template
+from micam.templates import TEMPLATES, template
 from daq import board_model
 
 
@@ -65,9 +65,9 @@ def test_the_import_template_describes_an_import(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("name", ["paper", "generic"])
 def test_a_daemon_template_drives_a_first_capture(tmp_path: Path, name: str) -> None:
-    from acquisition.capture_config import BurstConfig
+    from acquisition.contracts.capture_config import BurstConfig
     from acquisition.sequencer import CaptureSequencer
-    from acquisition.session import SessionWriter
+    from acquisition.contracts.session import SessionWriter
     from calibration.session_data import load_session
     from daq import SyncGroup
     from sim.arrays import ArrayLayout, BoardSpec, ChannelRef, fibonacci_sphere, sphere72

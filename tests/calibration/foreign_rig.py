@@ -23,7 +23,7 @@ import numpy as np
 import scipy.signal
 import soundfile as sf
 
-from acquisition.air import speed_of_sound as air_speed_of_sound
+from acquisition.contracts.air import speed_of_sound as air_speed_of_sound
 
 FS = 48_000
 MLS_ORDER = 11
@@ -243,9 +243,9 @@ def same_world_natively(world: ForeignWorld, session: Path) -> dict:
     (the capture sequencer on simulated boards: 3 DT9836-6-2 driving the speakers and 5
     DT9816-A, 6 microphones each, and the reference microphone on a DT9816-A of its own,
     recorded on every burst, with its image on the stand). Returns its truth."""
-    from acquisition.capture_config import BurstConfig
+    from acquisition.contracts.capture_config import BurstConfig
     from acquisition.sequencer import CaptureSequencer
-    from acquisition.session import SessionWriter
+    from acquisition.contracts.session import SessionWriter
     from daq import SyncGroup
     from sim.arrays import ArrayLayout, BoardSpec, ChannelRef
     from sim.bench import AcousticBench

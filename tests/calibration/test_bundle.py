@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from acquisition.cli import main
+from micam.cli import main
 from calibration.bundle import (
     BundleProblem,
     BundleSolution,

@@ -17,9 +17,8 @@ import cv2
 import numpy as np
 import pytest
 
-from acquisition.cli import main as micam
-from acquisition.session import SessionReader
-from calibration.cameras import (
+from acquisition.contracts.session import SessionReader
+from calibration.camera_calibration import (
     CameraCalibration,
     CameraCalibrationError,
     Checkerboard,
@@ -33,9 +32,8 @@ CAMERAS = ["cam0", "cam1", "cam2"]
 
 
 @pytest.fixture(scope="module")
-def session(tmp_path_factory: pytest.TempPathFactory) -> tuple[SessionReader, dict]:
-    out = tmp_path_factory.mktemp("cameras") / "session"
-    micam(["simulate", "--out", str(out), "--poses", "12", "--quiet", "--mls-order", "10"])
+def session(twelve_pose_session: Path) -> tuple[SessionReader, dict]:
+    out = twelve_pose_session
     truth = json.loads(Path(out, "truth.json").read_text())
     return SessionReader(out), truth
 

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from matplotlib.quiver import Quiver
 
-from acquisition.demo_loop import report as demo_report
+from micam.demo_loop import report as demo_report
 from calibration import report
 from calibration.figures.geometry import ArrayPicture, geometry_figure, inside_ellipsoids
 from calibration.figures.residuals import corner_residual_figure, tof_residual_figure

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from acquisition.cli import main
+from micam.cli import main
 from calibration.pipeline import CalibrationOptions, calibrate
 from calibration.result import compare_with_truth
 
@@ -199,7 +199,7 @@ def test_measuring_again_reuses_each_pose_and_image(session: Path,
                                                     monkeypatch: pytest.MonkeyPatch) -> None:
     """A long-running process (the worker's live jobs) decodes, searches and correlates every
     file once: the second measurement of the same files reads none of them."""
-    from acquisition.session import SessionReader
+    from acquisition.contracts.session import SessionReader
     from calibration.pipeline import measure
 
     first = measure(session)

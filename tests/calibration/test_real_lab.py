@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from acquisition.cli import main
-from acquisition.simulated import record_simulated_session
+from micam.cli import main
+from micam.simulated import record_simulated_session
 from calibration.pipeline import CalibrationRun, calibrate
 from calibration.plausibility import ImplausibleCalibrationError
 from calibration.result import compare_with_truth

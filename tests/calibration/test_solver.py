@@ -23,11 +23,11 @@ from calibration.solver import (
     SolverOptions,
     _Model,
     _Structure,
-    multilaterate,
     rotated_point_jacobian,
     solve_microphones,
-    solve_paper_method,
 )
+from calibration.multilateration import multilaterate
+from calibration.paper_method import solve_paper_method
 from tests.calibration.synthetic import C_TRUE, make_scene, mean_error
 
 

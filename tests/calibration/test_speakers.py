@@ -16,9 +16,8 @@ import cv2
 import numpy as np
 import pytest
 
-from acquisition.cli import main as micam
-from acquisition.session import SessionReader
-from calibration.cameras import (
+from acquisition.contracts.session import SessionReader
+from calibration.camera_calibration import (
     CameraCalibration,
     Checkerboard,
     Extrinsics,
@@ -45,9 +44,8 @@ class Setup:
 
 
 @pytest.fixture(scope="module")
-def setup(tmp_path_factory: pytest.TempPathFactory) -> Setup:
-    out = tmp_path_factory.mktemp("speakers") / "session"
-    micam(["simulate", "--out", str(out), "--poses", "12", "--quiet", "--mls-order", "10"])
+def setup(twelve_pose_session: Path) -> Setup:
+    out = twelve_pose_session
     reader = SessionReader(out)
     speakers = sorted(reader.capture["speakers"], key=lambda s: s["index"])
     return Setup(

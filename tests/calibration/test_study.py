@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from acquisition.cli import main
+from micam.cli import main
 from calibration.study import StudyRow, sources_needed
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from acquisition.air import piston_directivity, speed_of_sound
+from acquisition.contracts.air import piston_directivity, speed_of_sound
 from sim.air_sensor import SimulatedAirSensor
 from sim.arrays import planar64, sphere72
 from sim.arrivals import SpeakerState, linear_phase, transfer_functions

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from acquisition.camera import CameraError
-from acquisition.session import SessionReader
-from acquisition.simulated import prepare_simulated_capture, record_simulated_session
+from acquisition.contracts.camera import CameraError
+from acquisition.contracts.session import SessionReader
+from micam.simulated import prepare_simulated_capture, record_simulated_session
 from sim.capture import SimulationOptions
 
 

@@ -16,11 +16,11 @@ import sys
 import threading
 from pathlib import Path
 
-import acquisition.session._writer as session_writer
-from acquisition.daemon.main import run_daemon
+import acquisition.contracts.session._writer as session_writer
+from micam.daemon import run_daemon
 from acquisition.daemon.service import Daemon
 from acquisition.daemon.systemd import sd_notify
-from acquisition.session._atomic import partial_path
+from acquisition.contracts.session import partial_path
 from daq import SyncGroup
 from sim.boards import SimulatedBoard
 

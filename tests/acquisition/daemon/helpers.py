@@ -1,4 +1,5 @@
-"""Shared test helpers: a daemon in a thread or in a subprocess, and bounded drive loops.
+"""Shared test helpers: a daemon in a subprocess, and bounded drive loops (the thread daemon
+and the small world are micam.testing's, public for users' tests too).
 
 Readiness is a handshake, never a sleep: a subprocess daemon reports READY=1 on a notify socket
 exactly as it does to systemd; a thread daemon has bound its sockets before its thread starts.
@@ -12,7 +13,6 @@ import os
 import socket
 import subprocess
 import sys
-import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,27 +20,15 @@ from pathlib import Path
 import zmq
 
 from acquisition.daemon.client import DaemonClient
-from acquisition.daemon.config import DaemonConfig, SimulationConfig, SocketsConfig
-from acquisition.daemon.hardware import Hardware, open_hardware
-from acquisition.daemon.protocol import StatusResult
-from acquisition.daemon.service import Daemon
+from acquisition.contracts.protocol import StatusResult
+from micam.testing import SMALL_WORLD, ThreadDaemon
+from micam.testing import small_daemon_config as small_config
 
-SMALL_WORLD = {"array": "scatter48", "poses": 3, "mls_order": 9, "seed": 3}
+__all__ = ["SMALL_WORLD", "ThreadDaemon", "small_config"]  # re-exported for the tests
+
 WAIT_S = 60.0
 POLL_S = 0.01  # status polling period of the drive loops (each poll is a bounded request)
 REPO = Path(__file__).resolve().parents[3]
-
-
-def small_config(root: Path, **overrides) -> DaemonConfig:
-    """A daemon configuration on the small simulated world, with ipc sockets under `root`."""
-    fields = {
-        "session_root": root / "sessions",
-        "sockets": SocketsConfig(control=f"ipc://{root}/control", events=f"ipc://{root}/events"),
-        "simulation": SimulationConfig(**SMALL_WORLD),
-        "poll_interval_s": 0.02,
-        **overrides,
-    }
-    return DaemonConfig(**fields)
 
 
 def write_toml(path: Path, root: Path, extra: str = "") -> Path:
@@ -51,25 +39,6 @@ def write_toml(path: Path, root: Path, extra: str = "") -> Path:
         f'[sockets]\ncontrol = "ipc://{root}/control"\nevents = "ipc://{root}/events"\n'
         f"[simulation]\n{world}\n")
     return path
-
-
-class ThreadDaemon:
-    """A daemon serving in a background thread of the test process (fast; no signals)."""
-
-    def __init__(self, config: DaemonConfig, hardware: Hardware | None = None) -> None:
-        self.config = config
-        self.hardware = hardware or open_hardware(config)
-        self.daemon = Daemon(config, self.hardware)  # sockets are bound: ready
-        self.thread = threading.Thread(target=self.daemon.serve_forever, daemon=True)
-        self.thread.start()
-
-    def client(self, timeout_s: float = 10.0) -> DaemonClient:
-        return DaemonClient(self.config.sockets.control, timeout_s=timeout_s)
-
-    def stop(self) -> None:
-        self.daemon.terminate()
-        self.thread.join(WAIT_S)
-        assert not self.thread.is_alive(), "the daemon did not stop"
 
 
 @dataclass
@@ -87,7 +56,7 @@ class DaemonProcess:
         self.notify.bind(str(self.notify_path))
         env = {**os.environ, "NOTIFY_SOCKET": str(self.notify_path), **self.env}
         env.pop("JOURNAL_STREAM", None)
-        command = self.script or [sys.executable, "-m", "acquisition.cli", "daemon", "--config"]
+        command = self.script or [sys.executable, "-m", "micam.cli", "daemon", "--config"]
         self.log_path = self.notify_path.with_suffix(".log")  # a file: a pipe could fill up
         with self.log_path.open("w") as log:
             self.proc = subprocess.Popen([*command, str(self.config)], env=env, cwd=REPO,

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import acquisition.cameras_v4l2 as v4l2
-from acquisition.camera import Camera, CameraError, CameraTimeoutError
+from acquisition.contracts.camera import Camera, CameraError, CameraTimeoutError
 from acquisition.cameras_v4l2 import V4L2Camera, stable_device_id
 
 

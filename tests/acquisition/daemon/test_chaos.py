@@ -30,8 +30,8 @@ import pytest
 
 from acquisition.daemon.client import DaemonClient, DaemonError
 from acquisition.daemon.outbox import JobRecord
-from acquisition.session import SessionReader, journal_records
-from acquisition.simulated import record_simulated_session
+from acquisition.contracts.session import SessionReader, journal_records
+from micam.simulated import record_simulated_session
 from calibration.pipeline import CalibrationOptions, calibrate
 from sim.capture import SimulationOptions
 
@@ -89,7 +89,7 @@ class Rig:
         if self.worker is None or self.worker.poll() is not None:
             log = (self.root / "worker.log").open("a")
             self.worker = subprocess.Popen(
-                [sys.executable, "-m", "acquisition.cli", "worker", "--connect",
+                [sys.executable, "-m", "micam.cli", "worker", "--control",
                  f"ipc://{self.root}/control", "--name", "chaos", "--cache",
                  str(self.root / "cache"), "--heartbeat", "0.1", "--daemon-timeout", "2",
                  "--no-joint"], cwd=REPO, stdout=log, stderr=subprocess.STDOUT)

@@ -9,8 +9,10 @@ from typing import Any
 
 import pytest
 
-from acquisition.config_model import models_within
-from acquisition.daemon.config import ConfigError, DaemonConfig, SocketsConfig, load_config
+from acquisition.contracts.config_model import models_within
+from acquisition.daemon.config import ConfigError, SocketsConfig
+from micam.hardware import MicamDaemonConfig as DaemonConfig
+from micam.hardware import load_daemon_config as load_config
 from acquisition.daemon.endpoints import is_local_endpoint
 from acquisition.daemon.security import check_exposure
 

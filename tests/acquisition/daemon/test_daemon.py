@@ -14,10 +14,10 @@ import pytest
 
 from acquisition.daemon.client import DaemonClient, DaemonError
 from acquisition.daemon.config import CurveConfig, HandsFreeConfig, QualityConfig, SocketsConfig
-from acquisition.daemon.keys import make_keys
-from acquisition.daemon.protocol import RedoRequest
+from acquisition.contracts.keys import make_keys
+from acquisition.contracts.protocol import RedoRequest
 from acquisition.daemon.translog import read_transitions
-from acquisition.session import SessionReader, SessionWriter, journal_records
+from acquisition.contracts.session import SessionReader, SessionWriter, journal_records
 from sim.capture import SimulationOptions, build_simulated_capture
 
 from .helpers import ThreadDaemon, capture, small_config, wait_state

@@ -26,9 +26,9 @@ from hypothesis import strategies as st
 
 from acquisition.daemon.endpoints import beside, ipc_path
 from acquisition.daemon.files import MAX_FETCH_BYTES
-from acquisition.daemon.protocol import Reply
+from acquisition.contracts.protocol import Reply
 from acquisition.daemon.server import control_hard_limit
-from acquisition.session import SessionReader
+from acquisition.contracts.session import SessionReader
 
 from .helpers import ThreadDaemon, capture_all
 

@@ -16,7 +16,7 @@ import zmq
 
 from acquisition.daemon.endpoints import beside
 from acquisition.daemon.server import Refusal, parse_request
-from acquisition.session import SessionReader
+from acquisition.contracts.session import SessionReader
 
 from .helpers import DaemonProcess, ThreadDaemon, capture_all, write_toml
 

@@ -11,7 +11,7 @@ import pytest
 
 import acquisition.daemon.index as index_module
 from acquisition.daemon.index import SessionIndex
-from acquisition.session import SessionWriter
+from acquisition.contracts.session import SessionWriter
 from sim.capture import SimulationOptions, build_simulated_capture
 
 WAIT_S = 30.0

@@ -13,9 +13,9 @@ import pytest
 import zmq
 
 from acquisition.daemon.client import DaemonError
-from acquisition.daemon.protocol import SAMPLES_TOPIC, SamplesHeader
+from acquisition.contracts.protocol import SAMPLES_TOPIC, SamplesHeader
 from acquisition.live.record import ACOULAR_FILE, RECORDING, STEP, read_live_recording
-from acquisition.session import SessionReader
+from acquisition.contracts.session import SessionReader
 
 from .helpers import WAIT_S, ThreadDaemon, next_event
 

@@ -12,14 +12,14 @@ import cv2
 import numpy as np
 import pytest
 
-from acquisition.cli import main
+from micam.cli import main
 from acquisition.live.record import ACOULAR_FILE, read_live_recording
 from calibration.imaging import load_geometry
 from calibration.imaging.beamform import beamform
 from calibration.imaging.csm import WelchOptions, band_bins, cross_spectra
 from calibration.imaging.geometry import ArrayGeometry, geometry_from_dict
 from calibration.imaging.live import LiveImager, LiveSettings
-from calibration.imaging.live_feed import LiveFeed, mic_columns
+from micam.live_feed import LiveFeed, mic_columns
 from calibration.imaging.live_frames import MapFrames
 from calibration.imaging.steering import SteeringModel
 from calibration.imaging.view_plane import depth_plane_grid

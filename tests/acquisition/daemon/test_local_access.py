@@ -13,9 +13,9 @@ import pytest
 
 from acquisition.daemon.config import ConfigError, SocketsConfig
 from acquisition.daemon.endpoints import beside
-from acquisition.daemon.keys import load_certificate, make_keys
+from acquisition.contracts.keys import load_certificate, make_keys
 from acquisition.daemon.security import check_exposure
-from acquisition.errors import UserError
+from acquisition.contracts.errors import UserError
 
 from .helpers import ThreadDaemon, small_config
 

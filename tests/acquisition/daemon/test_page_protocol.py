@@ -13,13 +13,13 @@ import numpy as np
 import pytest
 
 from acquisition.daemon.client import DaemonError, EventStream
-from acquisition.daemon.protocol import (
+from acquisition.contracts.protocol import (
     CAMERA_MIN_VIEWS,
     LevelsEvent,
     PreviewEvent,
     ProgressEvent,
 )
-from calibration.cameras import MIN_VIEWS
+from calibration.camera_calibration import MIN_VIEWS
 
 from .helpers import ThreadDaemon, capture
 

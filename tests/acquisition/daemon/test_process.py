@@ -12,11 +12,11 @@ from pathlib import Path
 
 import pytest
 
-from acquisition.capture_config import CaptureConfig
-from acquisition.cli import main
+from acquisition.contracts.capture_config import CaptureConfig
+from micam.cli import main
 from acquisition.daemon.translog import read_transitions
 from acquisition.sequencer import plan_steps
-from acquisition.session import SessionReader, journal_records
+from acquisition.contracts.session import SessionReader, journal_records
 
 from .helpers import DaemonProcess, capture, capture_all, write_toml
 

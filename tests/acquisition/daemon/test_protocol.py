@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from acquisition.daemon.protocol import (
+from acquisition.contracts.protocol import (
     COMMANDS,
     EVENT_ADAPTER,
     CaptureRequest,

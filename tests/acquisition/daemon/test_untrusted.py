@@ -16,10 +16,10 @@ import zmq
 from acquisition.daemon.config import WorkersConfig
 from acquisition.daemon.endpoints import beside
 from acquisition.daemon.files import FileServer
-from acquisition.daemon.job_messages import JobFile, JournalPrefix
+from acquisition.contracts.job_messages import JobFile, JournalPrefix
 from acquisition.daemon.outbox import JobRecord
-from acquisition.session import SessionReader, SessionWriter
-from acquisition.session._atomic import sha256_file
+from acquisition.contracts.session import SessionReader, SessionWriter
+from acquisition.contracts.session import sha256_file
 
 from .helpers import FakeWorker, ThreadDaemon, capture_all, small_config, wait_state
 

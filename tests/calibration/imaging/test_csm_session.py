@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from acquisition.commands import evaluate_imaging
-from acquisition.errors import UserError
-from acquisition.session import SessionReader
+from micam.commands import evaluate_imaging
+from acquisition.contracts.errors import UserError
+from acquisition.contracts.session import SessionReader
 from calibration.imaging import load_geometry
 from calibration.imaging.csm_calibration import simulated_phase_error
 from calibration.imaging.evaluate import ImagingSettings, channel_calibration, evaluate_session

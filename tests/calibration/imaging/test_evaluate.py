@@ -10,9 +10,9 @@ import cv2
 import numpy as np
 import pytest
 
-from acquisition.commands import evaluate_imaging, image, simulate
-from acquisition.errors import UserError
-from acquisition.session import SessionReader
+from micam.commands import evaluate_imaging, image, simulate
+from acquisition.contracts.errors import UserError
+from acquisition.contracts.session import SessionReader
 from calibration.imaging import load_geometry
 from calibration.imaging.evaluate import ImagingSettings, evaluate_session
 
@@ -68,7 +68,7 @@ def test_map_figure_marks_speakers_and_sources_at_their_pixels(session: Path,
                                                               tmp_path: Path) -> None:
     from calibration.figures.maps import PLAYING_COLOUR, map_colours
     from calibration.figures.style import save
-    from calibration.imaging.recording_map import recording_map
+    from calibration.figures.recording_map import recording_map
 
     drawn = recording_map(SessionReader(session), load_geometry(session / "truth.json"), 0, 2,
                           8000.0, ImagingSettings(bands_hz=(8000.0,)), dynamic_range_db=20.0)

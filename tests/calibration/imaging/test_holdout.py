@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from acquisition.commands import evaluate_imaging
-from acquisition.errors import UserError
+from micam.commands import evaluate_imaging
+from acquisition.contracts.errors import UserError
 from calibration.imaging import load_geometry
 from calibration.imaging.evaluate import ImagingSettings
 from calibration.imaging.holdout import cross_validate, fold_poses

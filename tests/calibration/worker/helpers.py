@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from acquisition.daemon.client import DaemonClient, EventStream
-from acquisition.daemon.protocol import Event, StatusResult
+from acquisition.contracts.protocol import Event, StatusResult
 from tests.acquisition.daemon.helpers import REPO, WAIT_S, write_toml
 
 HARNESS = Path(__file__).with_name("worker_harness.py")

@@ -15,7 +15,7 @@ import pytest
 import zmq
 
 from acquisition.daemon.files import FileServer
-from acquisition.daemon.job_messages import (
+from acquisition.contracts.job_messages import (
     WORKER_MESSAGE,
     Done,
     Failed,

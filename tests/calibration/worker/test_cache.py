@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from acquisition.cli import build_parser
-from acquisition.daemon.job_messages import Done, Job, JobFile, JournalPrefix
+from micam.cli import build_parser
+from acquisition.contracts.job_messages import Done, Job, JobFile, JournalPrefix
 from calibration.worker import Worker, WorkerSettings
 from calibration.worker.cache import DEFAULT_MAX_BYTES, JOURNAL, FileCache, parse_size
 
@@ -122,7 +122,8 @@ def test_the_worker_keeps_its_session_while_calibrating(
         _fetch(cache, job, 600)
         return 600
 
-    def compute(job: Job, session: Path, _joint: bool, _on_stage: object) -> bytes:
+    def compute(job: Job, session: Path, _joint: bool, _on_stage: object,
+                _detections: object = None) -> bytes:
         seen["in_use"] = worker.cache.in_use()
         seen["files"] = sorted(p.name for p in session.rglob("*") if p.is_file())
         return b"{}"

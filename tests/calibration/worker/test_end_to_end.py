@@ -11,7 +11,7 @@ import json
 from pathlib import Path
 
 from acquisition.daemon.outbox import JobRecord
-from acquisition.daemon.protocol import CalibrationEvent, JobEvent
+from acquisition.contracts.protocol import CalibrationEvent, JobEvent
 from tests.acquisition.daemon.helpers import DaemonProcess, capture_all
 
 from .helpers import (

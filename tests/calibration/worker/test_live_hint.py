@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from acquisition.cli import main
+from micam.cli import main
 from calibration.pipeline import CalibrationOptions, measure, solve
 from calibration.worker.live import live_update
 

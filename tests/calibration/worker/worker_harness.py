@@ -15,13 +15,13 @@ import threading
 from pathlib import Path
 
 import calibration.worker.worker as worker_module
-from acquisition.cli import main
+from micam.cli import main
 
 HOLD_S = 120.0
 _compute = worker_module.compute
 
 
-def _holding(job, session, joint, on_stage):
+def _holding(job, session, joint, on_stage, detections=None):
     token = Path(os.environ["HOLD_TOKEN"])
     if job.kind == "final":
         try:
@@ -34,7 +34,7 @@ def _holding(job, session, joint, on_stage):
                 s.sendto(f"HOLDING={sys.argv[sys.argv.index('--name') + 1]}".encode(),
                          os.environ["NOTIFY_SOCKET"])
             threading.Event().wait(HOLD_S)
-    return _compute(job, session, joint, on_stage)
+    return _compute(job, session, joint, on_stage, detections)
 
 
 worker_module.compute = _holding

@@ -1,0 +1,570 @@
+"""Camera calibration from the session's checkerboard images (paper sections II and IV-D).
+
+Steps: find the checkerboard's inner corners in every image, put them in the rig frame's
+order, fit each camera's intrinsics and distortion (OpenCV's 5 coefficients, the paper's
+equation 4) with one board pose per image, give every pose a covariance, and find each
+camera's transform from the camera-0 frame from the views it shares with other cameras.
+
+The board and its corner detection (frames, orders, the detectors) are calibration.corners;
+a board pose (rvec, tvec) maps rig coordinates into the camera's: x_cam = R(rvec) x_rig + t.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+from collections import deque
+from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from acquisition.contracts.rig_description import KnownIntrinsics
+from acquisition.contracts.rigid import rotation_from_rotvec
+from acquisition.contracts.session import SessionReader
+
+from ._cores import default_workers
+from .corners import Checkerboard, detect_corners
+from .memo import LruMemo
+
+
+_CALIB_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 200, 1e-12)
+_OPENCV_THREADS_LOCK = threading.Lock()
+
+
+@contextlib.contextmanager
+def _reproducible() -> Iterator[None]:
+    """OpenCV on one thread for the block: calibrateCamera's parallel sums otherwise differ
+    in the last bits from run to run, and so would every calibration that follows from them
+    (a resumed capture could not be compared with an uninterrupted one). Its cost is small:
+    the fits take milliseconds."""
+    with _OPENCV_THREADS_LOCK:
+        threads = cv2.getNumThreads()
+        cv2.setNumThreads(1)
+        try:
+            yield
+        finally:
+            cv2.setNumThreads(threads)
+MIN_VIEWS = 4
+"""Fewest board views per camera for calibrateCamera: 9 intrinsic and distortion unknowns from
+planar views need several orientations (one view fixes at most two intrinsics)."""
+MIN_SHARED_VIEWS = 2
+"""Fewest views two cameras must share to fit the transform between them."""
+
+
+class CameraCalibrationError(ValueError):
+    """The images cannot calibrate the cameras (too few views with a detectable board)."""
+
+
+@dataclass(frozen=True)
+class Pose:
+    """A rigid transform x_to = R(rvec) x_from + tvec with the covariance of its parameters.
+
+    Attributes:
+        rvec: (3,) rotation vector, radians (OpenCV's Rodrigues convention).
+        tvec: (3,) translation, metres.
+        cov: (6, 6) covariance of (rvec, tvec) in rad^2, rad m, m^2.
+    """
+
+    rvec: np.ndarray
+    tvec: np.ndarray
+    cov: np.ndarray
+
+    @property
+    def R(self) -> np.ndarray:
+        return rotation_from_rotvec(self.rvec)
+
+    def apply(self, points: np.ndarray) -> np.ndarray:
+        """Transform points of shape (..., 3)."""
+        return np.asarray(points) @ self.R.T + self.tvec
+
+
+@dataclass(frozen=True)
+class BoardView:
+    """One image in which the board was found.
+
+    Attributes:
+        camera: camera name ("cam0", ...).
+        step: session step of the image ("pose/0003", "refmic").
+        corners_px: (n_corners, 2) refined corner pixels in rig order (X fastest).
+        rig_to_cam: the board pose in this camera's frame; its covariance comes from the
+            Jacobian of the reprojection scaled by this image's residual variance, and includes
+            the uncertainty of the camera's intrinsics (see `_pose_covariances`).
+        rms_px: RMS reprojection error of the image's corners, pixels.
+    """
+
+    camera: str
+    step: str
+    corners_px: np.ndarray
+    rig_to_cam: Pose
+    rms_px: float
+
+
+@dataclass(frozen=True)
+class CameraIntrinsics:
+    """One camera's intrinsics.
+
+    Attributes:
+        name: camera name.
+        width, height: image size, pixels.
+        K: (3, 3) intrinsic matrix, pixels.
+        dist: (5,) distortion (k1, k2, p1, p2, k3), OpenCV's order.
+        cov: (9, 9) covariance of (fx, fy, cx, cy, k1, k2, p1, p2, k3), pixels and unitless.
+        rms_px: RMS reprojection error over all the camera's views, pixels.
+        n_views: images used.
+    """
+
+    name: str
+    width: int
+    height: int
+    K: np.ndarray
+    dist: np.ndarray
+    cov: np.ndarray
+    rms_px: float
+    n_views: int
+
+    @property
+    def std(self) -> np.ndarray:
+        """(9,) standard deviations of (fx, fy, cx, cy, k1, k2, p1, p2, k3)."""
+        return np.sqrt(np.diag(self.cov))
+
+
+@dataclass(frozen=True)
+class Extrinsics:
+    """A camera's transform from the camera-0 frame: x_cam = R x_cam0 + t.
+
+    Attributes:
+        R: (3, 3) rotation.
+        t: (3,) translation, metres.
+        rms_px: RMS reprojection error of the shared views used to fit it (0 for camera 0).
+        n_shared_views: board views the fit used (0 for camera 0).
+        via: the camera it was fitted against (itself for camera 0).
+    """
+
+    R: np.ndarray
+    t: np.ndarray
+    rms_px: float
+    n_shared_views: int
+    via: str
+
+    def inverse_apply(self, points: np.ndarray) -> np.ndarray:
+        """Points (..., 3) from this camera's frame into the camera-0 frame."""
+        return (np.asarray(points) - self.t) @ self.R
+
+
+@dataclass(frozen=True)
+class MissedImage:
+    """An image that was skipped, and why."""
+
+    camera: str
+    step: str
+    reason: str
+
+
+@dataclass(frozen=True)
+class CameraCalibration:
+    """Every camera's intrinsics, every board view and the cameras' transforms from camera 0.
+
+    Attributes:
+        board: the checkerboard.
+        intrinsics: calibrated cameras by name, camera 0 first.
+        cam_from_cam0: transform from the camera-0 frame of every camera linked to camera 0
+            through shared views (camera 0 itself: the identity).
+        views: board views by (camera, step), calibrated cameras only.
+        missed: images without a detectable board, reported and skipped.
+        uncalibrated: cameras left out, with the reason.
+    """
+
+    board: Checkerboard
+    intrinsics: dict[str, CameraIntrinsics]
+    cam_from_cam0: dict[str, Extrinsics]
+    views: dict[tuple[str, str], BoardView]
+    missed: list[MissedImage]
+    uncalibrated: dict[str, str]
+
+    @property
+    def reference_camera(self) -> str:
+        """The camera whose frame is the calibration's frame (camera 0)."""
+        return next(iter(self.intrinsics))
+
+    def views_of_step(self, step: str) -> list[BoardView]:
+        """The step's views by calibrated cameras, in camera order."""
+        return [self.views[(c, step)] for c in self.intrinsics if (c, step) in self.views]
+
+
+# ---------------------------------------------------------------------------------------------
+# Calibration
+
+
+Detection = tuple[np.ndarray | None, tuple[int, int]]
+"""The corners found in an image (None: no board) and the image's (width, height)."""
+
+DETECTION_CACHE_SIZE = 20_000
+"""Images whose detections a worker's `DetectionMemo` remembers (about 1 kB each)."""
+
+DetectionMemo = LruMemo[tuple[str, Checkerboard], Detection]
+"""Detections by (image SHA-256, board): `DetectionMemo(DETECTION_CACHE_SIZE)`."""
+
+PROCESS_DETECTIONS: DetectionMemo = LruMemo(DETECTION_CACHE_SIZE)
+"""The memo of the callers that bring none (a script, `micam calibrate`, the tests); the worker
+owns its own."""
+
+
+def _detect(image: np.ndarray, board: Checkerboard) -> Detection:
+    return detect_corners(image, board), image.shape[1::-1]
+
+
+def calibrate_session(
+    reader: SessionReader,
+    board: Checkerboard,
+    cameras: list[str],
+    known: dict[str, KnownIntrinsics] | None = None,
+    min_views: int = MIN_VIEWS,
+    min_shared_views: int = MIN_SHARED_VIEWS,
+    detections: DetectionMemo | None = None,
+) -> CameraCalibration:
+    """Calibrate every camera of a session from all its checkerboard images.
+
+    Every completed step with camera images ("pose/<nnnn>" and "refmic") is used: each is a
+    board view that constrains the intrinsics. The detections are remembered in a memo by the
+    image file's SHA-256 (session files never change once written), so that a long-running
+    process (the calibration worker, whose live jobs see the same images again with a few more
+    poses each time) decodes and searches each image once.
+
+    Args:
+        reader: the session.
+        board: its checkerboard (`Checkerboard.of_rig`).
+        cameras: camera names, camera 0 first.
+        known: intrinsics known from elsewhere, by camera name (see `calibrate_detections`).
+        detections: the memo of detections to use and fill (None: `PROCESS_DETECTIONS`).
+
+    Raises:
+        CameraCalibrationError: camera 0 has too few views with a board.
+    """
+    files = {(camera, step): record.files[f"{camera}.png"]
+             for step, record in sorted(reader.steps().items())
+             for camera in cameras if f"{camera}.png" in record.files}
+    memo = detections if detections is not None else PROCESS_DETECTIONS
+    remembered = {key: memo.get((file.sha256, board)) for key, file in files.items()}
+    new = [key for key, found in remembered.items() if found is None]
+
+    def detect(key: tuple[str, str]) -> Detection:
+        camera, step = key
+        return _detect(reader.read_image(step, f"{camera}.png"), board)
+
+    # PNG decoding and OpenCV's search release the interpreter lock: one image per core
+    with ThreadPoolExecutor(default_workers()) as pool:
+        detected = dict(zip(new, pool.map(detect, new), strict=True))
+    for key, found in detected.items():
+        memo.put((files[key].sha256, board), found)
+    found_all = {key: remembered[key] or detected[key] for key in files}
+    return calibrate_detections(found_all, cameras, board, min_views, min_shared_views, known)
+
+
+def calibrate_images(
+    images: dict[tuple[str, str], np.ndarray],
+    cameras: list[str],
+    board: Checkerboard,
+    min_views: int = MIN_VIEWS,
+    min_shared_views: int = MIN_SHARED_VIEWS,
+    known: dict[str, KnownIntrinsics] | None = None,
+) -> CameraCalibration:
+    """Calibrate cameras from images keyed by (camera, step) (see `calibrate_detections`)."""
+    with ThreadPoolExecutor(default_workers()) as pool:  # OpenCV releases the lock
+        found = list(pool.map(lambda image: _detect(image, board), images.values()))
+    return calibrate_detections(dict(zip(images, found, strict=True)), cameras, board,
+                                min_views, min_shared_views, known)
+
+
+def calibrate_detections(
+    detections: dict[tuple[str, str], Detection],
+    cameras: list[str],
+    board: Checkerboard,
+    min_views: int = MIN_VIEWS,
+    min_shared_views: int = MIN_SHARED_VIEWS,
+    known: dict[str, KnownIntrinsics] | None = None,
+) -> CameraCalibration:
+    """Calibrate cameras from the corners found in their images, keyed by (camera, step).
+
+    Args:
+        detections: corners (None: no board, reported in `missed`) and image size per image.
+        cameras: camera names, camera 0 (the reference frame) first.
+        board: the checkerboard.
+        min_views: fewest views a camera needs; cameras other than camera 0 with fewer are
+            reported in `uncalibrated`. A camera with known intrinsics needs one view.
+        min_shared_views: fewest views two cameras must share to link their frames.
+        known: intrinsics known from elsewhere, by camera name: "fixed" ones are used as
+            given (the board poses are fitted with them), a "prior" is combined with the
+            images' own fit, each weighted by its information (see `_combine_with_prior`).
+
+    Raises:
+        CameraCalibrationError: camera 0 has fewer than `min_views` views with a board.
+    """
+    known = known or {}
+    corners: dict[tuple[str, str], np.ndarray] = {}
+    missed = []
+    for (camera, step), (found, _) in detections.items():
+        if found is None:
+            missed.append(MissedImage(camera, step, "no checkerboard found"))
+        else:
+            corners[(camera, step)] = found
+    intrinsics: dict[str, CameraIntrinsics] = {}
+    views: dict[tuple[str, str], BoardView] = {}
+    uncalibrated: dict[str, str] = {}
+    for camera in cameras:
+        own = {step: c for (cam, step), c in corners.items() if cam == camera}
+        needed = 1 if camera in known else min_views
+        if len(own) < needed:
+            reason = (
+                f"the board was found in {len(own)} of its images, fewer than the {needed} "
+                "needed to fit intrinsics and distortion"
+            )
+            if camera == cameras[0]:
+                raise CameraCalibrationError(
+                    f"cannot calibrate {camera}, the reference camera: {reason}; capture more "
+                    "rig poses with the whole checkerboard in view"
+                )
+            uncalibrated[camera] = reason
+            continue
+        size = _image_size(detections, camera)
+        intrinsics[camera], camera_views = _calibrate_camera(camera, own, size, board,
+                                                             known.get(camera), min_views)
+        views.update({(camera, v.step): v for v in camera_views})
+    extrinsics = _link_cameras(intrinsics, views, board, min_shared_views)
+    for camera in intrinsics:
+        if camera not in extrinsics:
+            uncalibrated[camera] = (
+                f"shares fewer than {min_shared_views} board views with the cameras linked to "
+                f"{cameras[0]}"
+            )
+    linked = {c: i for c, i in intrinsics.items() if c in extrinsics}
+    views = {k: v for k, v in views.items() if k[0] in extrinsics}
+    return CameraCalibration(board, linked, extrinsics, views, missed, uncalibrated)
+
+
+def _image_size(detections: dict[tuple[str, str], Detection], camera: str) -> tuple[int, int]:
+    """(width, height) of a camera's images, checked to be the same for all of them."""
+    sizes = {size for (cam, _), (_, size) in detections.items() if cam == camera}
+    if len(sizes) != 1:
+        raise CameraCalibrationError(f"{camera}'s images differ in size: {sorted(sizes)}")
+    return sizes.pop()
+
+
+def _calibrate_camera(
+    camera: str, corners: dict[str, np.ndarray], size: tuple[int, int], board: Checkerboard,
+    known: KnownIntrinsics | None = None, min_views: int = MIN_VIEWS,
+) -> tuple[CameraIntrinsics, list[BoardView]]:
+    """calibrateCamera on one camera's views (or its known intrinsics), then the covariances
+    and errors of the fit."""
+    steps = sorted(corners)
+    obj = board.object_points().astype(np.float32)
+    image_points = [corners[s].astype(np.float32).reshape(-1, 1, 2) for s in steps]
+    if known is not None and (known.use == "fixed" or len(steps) < min_views):
+        K, dist = np.array(known.camera_matrix), np.array(known.distortion)
+        intrinsics_cov = (np.diag(np.square(known.std)) if known.std is not None
+                          else np.zeros((9, 9)))
+        fits = _fits_with(K, dist, corners, steps, board)
+    else:
+        flags = cv2.CALIB_USE_INTRINSIC_GUESS if known is not None else 0
+        K0 = np.array(known.camera_matrix) if known is not None else None
+        d0 = np.array(known.distortion) if known is not None else None
+        with _reproducible():
+            _, K, dist, rvecs, tvecs = cv2.calibrateCamera(
+                [obj] * len(steps), image_points, size, K0, d0, flags=flags,
+                criteria=_CALIB_CRITERIA
+            )
+        dist = dist.ravel()[:5]
+        fits = [
+            _view_fit(corners[s], r.ravel(), t.ravel(), K, dist, board)
+            for s, r, t in zip(steps, rvecs, tvecs, strict=True)
+        ]
+        intrinsics_cov = np.linalg.inv(_intrinsics_information(fits))
+        if known is not None:
+            K, dist, intrinsics_cov = _combine_with_prior(K, dist, intrinsics_cov, known)
+            fits = _fits_with(K, dist, corners, steps, board)
+    pose_covs = _pose_covariances(fits, intrinsics_cov)
+    views = [
+        BoardView(camera, s, corners[s], Pose(f.rvec, f.tvec, cov), f.rms_px)
+        for s, f, cov in zip(steps, fits, pose_covs, strict=True)
+    ]
+    rms = float(np.sqrt(np.mean([f.rms_px**2 for f in fits])))
+    intr = CameraIntrinsics(camera, size[0], size[1], K, dist, intrinsics_cov, rms, len(steps))
+    return intr, views
+
+
+def _fits_with(K: np.ndarray, dist: np.ndarray, corners: dict[str, np.ndarray],
+               steps: list[str], board: Checkerboard) -> list[_ViewFit]:
+    """Every view's board pose fitted with the given intrinsics (solvePnP), and its fit."""
+    obj = board.object_points()
+    fits = []
+    for s in steps:
+        ok, rvec, tvec = cv2.solvePnP(obj, corners[s].reshape(-1, 1, 2), K, dist,
+                                      flags=cv2.SOLVEPNP_ITERATIVE)
+        if not ok:
+            raise CameraCalibrationError(f"no board pose fits the corners of {s} with the "
+                                         "known intrinsics; check the intrinsics file")
+        fits.append(_view_fit(corners[s], rvec.ravel(), tvec.ravel(), K, dist, board))
+    return fits
+
+
+def _combine_with_prior(K: np.ndarray, dist: np.ndarray, cov: np.ndarray,
+                        known: KnownIntrinsics) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The images' intrinsics combined with a prior, each weighted by its information
+    (the linearized maximum a posteriori: x = (S + P)^-1 (S x_images + P x_prior), with S the
+    images' information and P = diag(1 / std^2) the prior's); its covariance (S + P)^-1."""
+    x_images = np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], *dist])
+    Kp = np.array(known.camera_matrix)
+    x_prior = np.array([Kp[0, 0], Kp[1, 1], Kp[0, 2], Kp[1, 2], *known.distortion])
+    S = np.linalg.inv(cov)
+    P = np.diag(1.0 / np.square(known.std))  # type: ignore[arg-type]
+    combined_cov = np.linalg.inv(S + P)
+    x = combined_cov @ (S @ x_images + P @ x_prior)
+    K_new = np.array([[x[0], 0.0, x[2]], [0.0, x[1], x[3]], [0.0, 0.0, 1.0]])
+    return K_new, x[4:], combined_cov
+
+
+@dataclass(frozen=True)
+class _ViewFit:
+    """One view's pose and the Jacobians of its reprojection at the fitted parameters.
+
+    Attributes:
+        rvec, tvec: the pose (rig to camera).
+        J_pose: (2 n, 6) derivatives of the pixel coordinates by (rvec, tvec).
+        J_intr: (2 n, 9) derivatives by (fx, fy, cx, cy, k1, k2, p1, p2, k3).
+        s2: residual variance per pixel coordinate, px^2 (sum of squares / (2 n - 6)).
+        rms_px: RMS reprojection error per corner, pixels.
+    """
+
+    rvec: np.ndarray
+    tvec: np.ndarray
+    J_pose: np.ndarray
+    J_intr: np.ndarray
+    s2: float
+    rms_px: float
+
+
+def _view_fit(
+    corners: np.ndarray,
+    rvec: np.ndarray,
+    tvec: np.ndarray,
+    K: np.ndarray,
+    dist: np.ndarray,
+    board: Checkerboard,
+) -> _ViewFit:
+    """Reprojection residuals and Jacobians of one view (cv2.projectPoints)."""
+    projected, jac = cv2.projectPoints(board.object_points(), rvec, tvec, K, dist)
+    residual = corners - projected.reshape(-1, 2)
+    sq = float(np.sum(residual**2))
+    return _ViewFit(
+        rvec=rvec,
+        tvec=tvec,
+        J_pose=jac[:, :6],
+        J_intr=jac[:, 6:15],
+        s2=sq / (residual.size - 6),
+        rms_px=float(np.sqrt(sq / len(residual))),
+    )
+
+
+def _intrinsics_information(fits: list[_ViewFit]) -> np.ndarray:
+    """Information matrix (9, 9) of the intrinsics in the joint fit of all views, the poses
+    marginalized out.
+
+    The information matrix of the joint fit, each view weighted by its own residual variance
+    s_i^2 (a blurred image counts less), is [[U, W], [W^T, V]] with V block-diagonal:
+    V_i = J_i^T J_i / s_i^2, W_i = C_i^T J_i / s_i^2, U = sum C_i^T C_i / s_i^2 (J: pose
+    Jacobian, C: intrinsics Jacobian). The intrinsics' information is the Schur complement
+    S = U - sum W_i V_i^-1 W_i^T (its inverse their covariance).
+    """
+    S = sum(f.J_intr.T @ f.J_intr / f.s2 for f in fits)
+    for f in fits:
+        W = f.J_intr.T @ f.J_pose / f.s2
+        S = S - W @ np.linalg.inv(f.J_pose.T @ f.J_pose / f.s2) @ W.T
+    return S
+
+
+def _pose_covariances(fits: list[_ViewFit], intrinsics_cov: np.ndarray) -> list[np.ndarray]:
+    """Each pose's marginal covariance (6, 6): V_i^-1 + V_i^-1 W_i^T C W_i V_i^-1, its own
+    noise plus the intrinsics' uncertainty C (notation of `_intrinsics_information`).
+
+    Why the second term: a focal-length error scales every pose's depth; left out, the
+    covariance claims depths several times better than they are. (The intrinsics' errors also
+    correlate the poses with each other; those cross terms are not returned.)
+    """
+    covs = []
+    for f in fits:
+        V_inv = np.linalg.inv(f.J_pose.T @ f.J_pose / f.s2)
+        W = f.J_intr.T @ f.J_pose / f.s2
+        covs.append(V_inv + V_inv @ W.T @ intrinsics_cov @ W @ V_inv)
+    return covs
+
+
+# ---------------------------------------------------------------------------------------------
+# Camera-to-camera transforms
+
+
+def _link_cameras(
+    intrinsics: dict[str, CameraIntrinsics],
+    views: dict[tuple[str, str], BoardView],
+    board: Checkerboard,
+    min_shared_views: int,
+) -> dict[str, Extrinsics]:
+    """Each camera's transform from camera 0, breadth-first through shared views.
+
+    A camera that shares no views with camera 0 is still linked through a camera that does
+    (cameras around a sphere may each overlap only with their neighbours).
+    """
+    cameras = list(intrinsics)
+    reference = cameras[0]
+    linked = {reference: Extrinsics(np.eye(3), np.zeros(3), 0.0, 0, reference)}
+    queue = deque([reference])
+    while queue:
+        known = queue.popleft()
+        for camera in cameras:
+            if camera in linked:
+                continue
+            shared = _shared_steps(views, known, camera)
+            if len(shared) < min_shared_views:
+                continue
+            R, t, rms = _stereo(intrinsics[known], intrinsics[camera], views, shared, board)
+            base = linked[known]
+            linked[camera] = Extrinsics(R @ base.R, R @ base.t + t, rms, len(shared), known)
+            queue.append(camera)
+    return {c: linked[c] for c in cameras if c in linked}
+
+
+def _shared_steps(views: dict[tuple[str, str], BoardView], a: str, b: str) -> list[str]:
+    steps_a = {s for c, s in views if c == a}
+    return sorted(s for c, s in views if c == b and s in steps_a)
+
+
+def _stereo(
+    first: CameraIntrinsics,
+    second: CameraIntrinsics,
+    views: dict[tuple[str, str], BoardView],
+    steps: list[str],
+    board: Checkerboard,
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """R, t (x_second = R x_first + t) and RMS error from stereoCalibrate, intrinsics fixed.
+
+    Fitting the transform to the corners of both images of every shared view weighs each
+    view by how well it constrains the transform, unlike averaging per-view pose differences.
+    """
+    obj = board.object_points().astype(np.float32)
+    pts_a = [views[(first.name, s)].corners_px.astype(np.float32) for s in steps]
+    pts_b = [views[(second.name, s)].corners_px.astype(np.float32) for s in steps]
+    with _reproducible():
+        rms, *_, R, t, _, _ = cv2.stereoCalibrate(
+            [obj] * len(steps),
+            pts_a,
+            pts_b,
+            first.K,
+            first.dist,
+            second.K,
+            second.dist,
+            (first.width, first.height),
+            flags=cv2.CALIB_FIX_INTRINSIC,
+            criteria=_CALIB_CRITERIA,
+        )
+    return R, t.ravel(), float(rms)

@@ -1,0 +1,247 @@
+"""`micam calibrate SESSION --out result.json`: microphone coordinates in the camera-0 frame."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from acquisition.contracts.errors import UserError
+
+from ..outputs import check_outputs
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "calibrate", help="calibrate cameras, speakers, c and microphones from a session",
+        description="Turn a capture session into camera intrinsics, speaker positions, times "
+                    "of flight, the speed of sound and every microphone's position in the "
+                    "frame of camera 0, with uncertainties and a report.")
+    p.add_argument("session", type=Path, help="session directory")
+    p.add_argument("--out", type=Path, required=True, help="result file (JSON)")
+    p.add_argument("--report", type=Path, default=None,
+                   help="directory for report.md and its pictures (default: beside --out)")
+    p.add_argument("--acoular-xml", type=Path, default=None,
+                   help="also write the geometry in Acoular's MicGeom XML format")
+    p.add_argument("--acoular-calib", type=Path, default=None, metavar="FILE",
+                   help="also write the microphones' relative sensitivities in Acoular's "
+                        "calibration XML format (acoular.Calib)")
+    p.add_argument("--method", choices=("micam", "paper"), default="micam",
+                   help="micam (default) or the paper's coordinate search (baseline)")
+    p.add_argument("--latency", choices=("per_board", "common", "none"), default="per_board",
+                   help="fit one latency per board (default), one for all, or none")
+    p.add_argument("--speed-of-sound", choices=("reference", "solve"), default="reference",
+                   help="fix c at the reference-microphone fit (default) or solve for it")
+    p.add_argument("--refine-poses", action="store_true",
+                   help="fit a rigid correction per rig pose, weighted by the camera")
+    p.add_argument("--no-joint", action="store_true",
+                   help="skip the final joint fit of cameras and array (optical-acoustic "
+                        "bundle adjustment) and report the camera-frozen solution")
+    p.add_argument("--prior", type=Path, default=None, metavar="FILE",
+                   help="a known geometry of the array in its own frame (result.json, "
+                        "truth.json or Acoular XML): fit its rigid transform into the camera "
+                        "frame (paper IV-H)")
+    p.add_argument("--prior-std-mm", type=float, default=None,
+                   help="let each microphone deviate from the prior by about this much "
+                        "(default: the prior is rigid)")
+    p.add_argument("--temperature", type=float, default=None, metavar="DEGC",
+                   help="the air temperature measured during the session, degC (with "
+                        "--temperature-std); replaces the session's own")
+    p.add_argument("--temperature-std", type=float, default=None, metavar="K",
+                   help="its standard deviation, kelvin")
+    p.add_argument("--humidity", type=float, default=None, metavar="RH",
+                   help="the relative humidity measured with --temperature, 0..1 (with "
+                        "--humidity-std); without it any humidity is assumed possible "
+                        "(about +-0.6 m/s at 20 degC)")
+    p.add_argument("--humidity-std", type=float, default=None, metavar="RH",
+                   help="its standard deviation, 0..1")
+    p.add_argument("--known-speed-of-sound", type=float, default=None, metavar="M_S",
+                   help="a measured speed of sound, m/s (with --known-speed-of-sound-std)")
+    p.add_argument("--known-speed-of-sound-std", type=float, default=None, metavar="M_S",
+                   help="its standard deviation, m/s")
+    p.add_argument("--intrinsics", action="append", default=[], metavar="CAMERA=FILE",
+                   help="a known calibration of a camera (OpenCV YAML/JSON/XML, ROS "
+                        "camera_info or a micam result.json); repeat per camera")
+    p.add_argument("--intrinsics-use", choices=("fixed", "prior"), default="fixed",
+                   help="use --intrinsics as given (default) or as a prior weighted by the "
+                        "file's standard deviations (a micam result.json has them)")
+    p.add_argument("--weighting", choices=("compact", "matched", "phat"), default="compact",
+                   help="spectral weighting of the TOF correlations: compact (default; robust "
+                        "to early reflections), matched (maximum likelihood in free field) "
+                        "or phat (GCC-PHAT)")
+    p.add_argument("--allow-interrupted", action="store_true",
+                   help="calibrate the completed poses of an interrupted session")
+    p.add_argument("--truth", type=Path, default=None,
+                   help="a micam truth file to compare with: microphones [{id, position_m}], "
+                        "speed_of_sound_m_s, cameras [{name, K}] (default: SESSION/truth.json "
+                        "if present)")
+    p.add_argument("--force", action="store_true", help="overwrite an existing result file")
+    p.set_defaults(run=run)
+
+
+def _prior(args: argparse.Namespace):
+    """The --prior geometry in the session's microphone order (checked before any work)."""
+    if args.prior is None:
+        if args.prior_std_mm is not None:
+            raise UserError("--prior-std-mm needs --prior")
+        return None
+    from acquisition.contracts.session import SessionError
+    from calibration.result import load_prior_positions
+    from calibration.session_data import load_session
+    from calibration.solver import PriorGeometry
+
+    if args.method == "paper":
+        raise UserError("--prior works with --method micam only (the paper's search has none)")
+    if args.prior_std_mm is not None and args.prior_std_mm <= 0:
+        raise UserError("--prior-std-mm must be positive")
+    try:
+        data = load_session(args.session, args.allow_interrupted)
+        positions = load_prior_positions(args.prior, data.mic_ids)
+    except (ValueError, SessionError) as exc:
+        raise UserError(str(exc)) from None
+    std = None if args.prior_std_mm is None else args.prior_std_mm / 1000.0
+    return PriorGeometry(positions, std)
+
+
+def _check_files(session: Path) -> None:
+    """Every file of the session against the journal's checksum, before any work (the
+    calibration remembers detections by checksum, so it might not read a damaged file)."""
+    from acquisition.contracts.session import SessionError, SessionReader
+
+    try:
+        problems = SessionReader(session).verify()
+    except SessionError as exc:
+        raise UserError(str(exc)) from None
+    if problems:
+        more = f" (and {len(problems) - 1} more: `micam inspect {session}`)" \
+            if len(problems) > 1 else ""
+        raise UserError(f"{session} is damaged: {problems[0]}{more}; restore the file from a "
+                        "copy of the session, nothing was calibrated")
+
+
+_AIR_FLAGS = {"temperature_c": "--temperature", "temperature_std_c": "--temperature-std",
+              "relative_humidity": "--humidity", "relative_humidity_std": "--humidity-std",
+              "speed_of_sound_m_s": "--known-speed-of-sound",
+              "speed_of_sound_std_m_s": "--known-speed-of-sound-std"}
+
+
+def _known_air(args: argparse.Namespace) -> tuple[float, float] | None:
+    """The known (c, std) of --temperature or --known-speed-of-sound, checked."""
+    from pydantic import ValidationError
+
+    from acquisition.contracts.rig_description import KnownAir
+
+    given = {key: getattr(args, flag[2:].replace("-", "_"))
+             for key, flag in _AIR_FLAGS.items()}
+    given = {k: v for k, v in given.items() if v is not None}
+    if not given:
+        return None
+    for value, std in (("temperature_c", "temperature_std_c"),
+                       ("relative_humidity", "relative_humidity_std"),
+                       ("speed_of_sound_m_s", "speed_of_sound_std_m_s")):
+        if (value in given) != (std in given):
+            raise UserError(f"{_AIR_FLAGS[value]} and {_AIR_FLAGS[std]} go together: write the "
+                            "measured value and how well it is known")
+    if "temperature_c" in given and "speed_of_sound_m_s" in given:
+        raise UserError("--temperature and --known-speed-of-sound: write only the one you "
+                        "measured")
+    try:
+        return KnownAir.model_validate(given).speed_of_sound_prior()
+    except ValidationError as exc:
+        problems = [f"{_AIR_FLAGS.get(str(e['loc'][0]), e['loc'][0])}: {e['msg']}"
+                    for e in exc.errors()]
+        raise UserError("; ".join(problems)) from None
+
+
+def _known_intrinsics(args: argparse.Namespace, data) -> dict:
+    """--intrinsics CAMERA=FILE, read for the session's cameras."""
+    from acquisition.intrinsics_file import IntrinsicsFileError, read_intrinsics
+
+    sizes = {c.name: (c.width, c.height) for c in data.description.cameras}
+    known = {}
+    for item in args.intrinsics:
+        camera, sep, file = item.partition("=")
+        if not sep or not file:
+            raise UserError(f"--intrinsics {item!r}: write CAMERA=FILE, e.g. cam0=cam0.yaml")
+        if camera not in sizes:
+            raise UserError(f"--intrinsics {item!r}: the session has no camera {camera!r} (it "
+                            f"has {', '.join(sizes)}); write one of those names")
+        try:
+            known[camera] = read_intrinsics(Path(file), camera, sizes[camera],
+                                            args.intrinsics_use)
+        except (IntrinsicsFileError, ValueError) as exc:
+            raise UserError(f"--intrinsics {item!r}: {exc}") from None
+    return known
+
+
+def _truth(args: argparse.Namespace, data) -> dict | None:
+    """The truth file, checked against the session before any work (None: there is none)."""
+    from calibration.truth import TruthError, load_truth
+
+    path = args.truth or (args.session / "truth.json")
+    if args.truth is not None and not path.is_file():
+        raise UserError(f"--truth {path} is not a file")
+    if not path.is_file():
+        return None
+    try:
+        return load_truth(path, [int(i) for i in data.mic_ids], list(data.camera_names))
+    except TruthError as exc:
+        raise UserError(str(exc)) from None
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from acquisition.contracts.session import SessionError
+    from calibration.pipeline import CalibrationOptions, calibrate
+    from calibration.report import summary_lines, write_report
+    from calibration.result import write_acoular_calib_xml, write_acoular_xml
+    from calibration.session_data import load_session
+
+    out: Path = args.out
+    if out.exists() and not args.force:
+        raise UserError(f"{out} exists; choose another --out or pass --force to overwrite it")
+    check_outputs(("--out", out), ("--acoular-xml", args.acoular_xml),
+                  ("--acoular-calib", args.acoular_calib))
+    if args.acoular_calib is not None and (args.no_joint or args.method == "paper"):
+        raise UserError("--acoular-calib needs the joint fit (it estimates the responses); "
+                        "leave out --no-joint and --method paper")
+    _check_files(args.session)
+    try:
+        data = load_session(args.session, args.allow_interrupted)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    truth = _truth(args, data)
+    prior = _prior(args)
+    options = CalibrationOptions(
+        method=args.method, latency=args.latency, speed_of_sound=args.speed_of_sound,
+        refine_poses=args.refine_poses, weighting=args.weighting,
+        allow_interrupted=args.allow_interrupted, joint=not args.no_joint,
+        prior=prior, speed_of_sound_prior=_known_air(args),
+        intrinsics=_known_intrinsics(args, data) or None)
+    stages = ["load", "cameras", "speakers", "times of flight", "solver", "dispersion",
+              "joint fit", "responses"]
+    with tqdm(total=len(stages), unit="stage", desc="calibrate") as bar:
+        def on_stage(name: str) -> None:
+            bar.set_postfix_str(name)
+            bar.n = stages.index(name)
+            bar.refresh()
+
+        try:
+            run_ = calibrate(args.session, options, on_stage)
+        except ValueError as exc:  # CalibrationInputError and the cameras' own errors
+            raise UserError(str(exc)) from None
+        except SessionError as exc:  # a damaged file: every read is checked against the journal
+            raise UserError(str(exc)) from None
+        bar.n = len(stages)
+        bar.refresh()
+    run_.result.write(out)
+    report = write_report(run_, args.report or out.parent / (out.stem + "-report"), truth,
+                          None if prior is None else prior.positions_m)
+    if args.acoular_xml is not None:
+        write_acoular_xml(run_.result, args.acoular_xml)
+    if args.acoular_calib is not None:
+        write_acoular_calib_xml(run_.result, args.acoular_calib)
+    for line in summary_lines(run_, truth):
+        print(line)
+    print(f"result: {out}\nreport: {report}")
+    return 0

@@ -1,0 +1,76 @@
+"""`micam config template NAME` and `micam config check FILE`: configurations to start from,
+and a check of a hand-edited one."""
+
+from __future__ import annotations
+
+import argparse
+import tomllib
+from pathlib import Path
+
+from acquisition.contracts.errors import UserError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "config", help="write a commented starting configuration, or check one",
+        description="Write a commented, valid configuration to start from (the daemon on the "
+                    "paper's set-up or a smaller rig, or an import of another recorder's "
+                    "files), or check a configuration file.")
+    actions = p.add_subparsers(dest="action", required=True, metavar="ACTION")
+    t = actions.add_parser("template", help="write a commented starting configuration",
+                           description="paper: the daemon on 3 x DT9836 + 6 x DT9816-A + the "
+                                       "reference board, 3 cameras; generic: the daemon on a "
+                                       "smaller rig, one camera; import: `micam import`.")
+    t.add_argument("name", choices=("paper", "generic", "import"),
+                   help="paper (the paper's 9 boards, 3 cameras), generic (3 DT9836, one "
+                        "camera) or import (a session from another recorder's files)")
+    t.add_argument("--out", type=Path, default=None, metavar="FILE",
+                   help="write it to FILE (never over an existing file); default: print it")
+    t.set_defaults(run=run_template)
+    c = actions.add_parser("check", help="validate a daemon configuration or an import file",
+                           description="A file with a [recordings] table is checked as an "
+                                       "import description, any other as the daemon's.")
+    c.add_argument("file", type=Path, help="the daemon configuration or import spec to check")
+    c.set_defaults(run=run_check)
+
+
+def run_template(args: argparse.Namespace) -> int:
+    from micam.templates import template
+
+    text = template(args.name)
+    if args.out is None:
+        print(text, end="")
+        return 0
+    if args.out.exists():
+        raise UserError(f"{args.out} exists; choose another --out (a configuration is never "
+                        "overwritten)")
+    try:
+        args.out.write_text(text)
+    except OSError as exc:
+        raise UserError(f"cannot write {args.out}: {exc}") from None
+    print(f"{args.out}: the '{args.name}' template; edit what its comments point out, then "
+          f"`micam config check {args.out}`")
+    return 0
+
+
+def run_check(args: argparse.Namespace) -> int:
+    from micam.daemon import check_config
+    from acquisition.importer import ImportSpecError, load_spec
+
+    try:
+        document = tomllib.loads(args.file.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise UserError(f"{args.file} does not exist") from None
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise UserError(f"{args.file} is not a readable TOML file: {exc}") from None
+    if "recordings" in document:
+        try:
+            spec = load_spec(args.file)
+        except ImportSpecError as exc:
+            raise UserError(str(exc)) from None
+        print(f"import description OK: {len(spec.recordings.poses)} poses, "
+              f"{len(spec.microphones())} microphones, {spec.n_speakers} speakers; check its "
+              f"files with `micam import {args.file} --out DIR --check`")
+        return 0
+    print(check_config(args.file))
+    return 0

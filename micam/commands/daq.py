@@ -1,0 +1,101 @@
+"""`micam daq list|selftest`: the boards on the USB bus, and a short scan on each.
+
+With `--emulate`, the same commands run the real driver against emulated boards (the
+simulated 72-microphone sphere's ten boards), which is how they are tested here.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+from acquisition.contracts.errors import UserError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("daq", help="list the boards and test them",
+                       description="Data Translation boards on the USB bus.")
+    actions = p.add_subparsers(dest="daq_command", required=True, metavar="ACTION")
+    lst = actions.add_parser("list", help="boards found: model, serial, firmware state")
+    test = actions.add_parser("selftest", help="a short scan on every board: rates and levels")
+    test.add_argument("--seconds", type=float, default=0.5, help="scan length per board")
+    test.add_argument("--firmware-dir", type=Path, default=None,
+                      help="where the boards' firmware images are (else $MICAM_FIRMWARE_DIR)")
+    for action in (lst, test):
+        action.add_argument("--emulate", action="store_true",
+                            help="use emulated boards instead of the USB bus")
+    lst.set_defaults(run=run_list)
+    test.set_defaults(run=run_selftest)
+
+
+def _emulated_backend() -> Any:
+    from sim.arrays import sphere72
+    from sim.bench import AcousticBench
+    from sim.usb import EmulatedBus
+    from sim.world import World
+
+    world = World(layout=sphere72())
+    return EmulatedBus(AcousticBench(world), [(b.model, b.serial) for b in world.layout.boards]
+                       ).backend
+
+
+def _backend(args: argparse.Namespace) -> Any:
+    return _emulated_backend() if args.emulate else None
+
+
+def run_list(args: argparse.Namespace) -> int:
+    import usb.core
+
+    from daq.usb import list_boards
+
+    try:
+        boards = list_boards(_backend(args))
+    except (usb.core.NoBackendError, usb.core.USBError) as exc:
+        raise _usb_unusable(exc) from None
+    if not boards:
+        print("no Data Translation board found (check the cable, power and udev rules: "
+              "micam/data/udev/README.md, `micam install udev`)")
+        return 1
+    print(f"{'family':8s} {'model':12s} {'serial':>10s} {'firmware':9s} {'usb id':10s} location")
+    for b in boards:
+        state = "running" if b.firmware_loaded else "loader"
+        print(f"{b.family:8s} {b.model or '?':12s} {b.serial or '?':>10s} {state:9s} "
+              f"{b.usb_id:10s} {b.location}" + (f"  ({b.error})" if b.error else ""))
+    return 0
+
+
+def _usb_unusable(exc: Exception) -> UserError:
+    return UserError(
+        f"cannot scan the USB bus: {exc}. Is libusb-1.0 installed (Debian: libusb-1.0-0), "
+        "and may this user open the boards (micam/data/udev/README.md, `micam install udev`)?")
+
+
+def run_selftest(args: argparse.Namespace) -> int:
+    import usb.core
+
+    from daq import DaqError
+    from daq.usb import open_boards, selftest
+
+    if args.seconds <= 0:
+        raise UserError("--seconds must be positive")
+    try:
+        boards = open_boards(backend=_backend(args), firmware_dir=args.firmware_dir)
+    except (usb.core.NoBackendError, usb.core.USBError) as exc:
+        raise _usb_unusable(exc) from None
+    except DaqError as exc:
+        raise UserError(str(exc)) from None
+    if not boards:
+        print("no Data Translation board found")
+        return 1
+    failed = 0
+    for board in boards:
+        report = selftest(board, args.seconds)
+        board.close()
+        rms = [c.rms_v for c in report.channels]
+        status = "ok" if report.ok else f"FAILED: {report.error}"
+        print(f"{report.board}: {report.received}/{report.samples} samples at "
+              f"{report.rate_hz:.0f} S/s (achieved {report.achieved_rate_hz:.0f} S/s), "
+              f"input RMS {min(rms, default=0):.4f}-{max(rms, default=0):.4f} V: {status}")
+        failed += not report.ok
+    return 1 if failed else 0

@@ -1,0 +1,81 @@
+"""Options `micam image` and `micam evaluate-imaging` share: the correction of the channels'
+responses in the CSM (paper VI: Dougherty's eigenvalue calibration, or the responses of the
+calibration result) and a simulated microphone phase error."""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import replace
+
+from acquisition.contracts.errors import UserError
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Add --csm-calibration / --responses and --mic-phase-error-deg / -seed to a command."""
+    which = p.add_mutually_exclusive_group()
+    which.add_argument(
+        "--csm-calibration", metavar="POSE:SPEAKER", type=recording,
+        help="correct every CSM for the channels' gains and phases estimated from this "
+             "recording of one speaker (Dougherty's eigenvalue calibration, paper VI); "
+             "evaluate-imaging leaves that recording out of its statistics")
+    which.add_argument(
+        "--responses", action="store_true",
+        help="correct every CSM for the per-microphone responses of the geometry file "
+             "(result.json's microphone_responses)")
+    p.add_argument(
+        "--mic-phase-error-deg", type=float, default=0.0, metavar="DEG",
+        help="simulate microphones that differ in phase: add a per-channel phase, normal with "
+             "DEG degrees standard deviation and constant over frequency, to every recording's "
+             "spectra (default 0: none)")
+    p.add_argument("--mic-phase-error-seed", type=int, default=0, metavar="N",
+                   help="seed of the simulated phase error (default 0)")
+
+
+def recording(text: str) -> tuple[int, int]:
+    """POSE:SPEAKER -> (pose, speaker)."""
+    try:
+        pose, speaker = (int(x) for x in text.split(":"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not POSE:SPEAKER, e.g. 0:4 (speaker 4 of pose 0)") from None
+    if pose < 0 or speaker < 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: pose and speaker are numbers >= 0")
+    return pose, speaker
+
+
+def with_simulated_error(args: argparse.Namespace, settings, n_mics: int):
+    """The imaging settings with the --mic-phase-error-deg of the options, if any."""
+    from calibration.imaging.csm_calibration import simulated_phase_error
+
+    if not args.mic_phase_error_deg:
+        return settings
+    try:
+        error = simulated_phase_error(n_mics, args.mic_phase_error_deg, args.mic_phase_error_seed)
+    except ValueError as exc:
+        raise UserError(f"--mic-phase-error-deg: {exc}") from None
+    return replace(settings, simulated_error=error)
+
+
+def corrected_settings(args: argparse.Namespace, reader, geometry, settings):
+    """The imaging settings with the options' simulated error and correction, the recordings
+    to leave out of an evaluation (the calibration recording), as a set, and the geometry to
+    image with (without the microphones' own delays when the responses, which hold them,
+    correct the CSM).
+
+    Raises UserError for --responses without responses in the geometry file, and
+    ValueError/SessionError from the eigenvalue calibration (for the caller to report)."""
+    from calibration.imaging.evaluate import channel_calibration
+
+    settings = with_simulated_error(args, settings, geometry.n_mics)
+    if args.responses:
+        if geometry.responses is None:
+            raise UserError(f"--responses: {args.geometry} has no microphone_responses; "
+                            "calibrate with a version that measures them, or use "
+                            "--csm-calibration POSE:SPEAKER")
+        return (replace(settings, correction=geometry.responses), set(),
+                geometry.without_own_delays())
+    if args.csm_calibration is not None:
+        pose, speaker = args.csm_calibration
+        correction = channel_calibration(reader, geometry, pose, speaker, settings)
+        return replace(settings, correction=correction), {(pose, speaker)}, geometry
+    return settings, set(), geometry

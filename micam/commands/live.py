@@ -1,0 +1,155 @@
+"""`micam live start|stop|record|video`: the daemon's live mode, and acoustic video from it or
+from a live recording (docs/live.md)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from acquisition.daemon.cli_args import add_client_arguments
+
+from acquisition.contracts.errors import UserError
+
+
+def _add_imaging_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--geometry", required=True, type=Path, metavar="FILE",
+                   help="calibration result.json (or a simulated session's truth.json)")
+    p.add_argument("--out", required=True, type=Path,
+                   help="video file to write: .mp4 (MPEG-4) or .avi (MJPEG)")
+    p.add_argument("--band", type=float, default=4000.0, metavar="HZ",
+                   help="band centre frequency (default 4000)")
+    p.add_argument("--fraction", type=int, choices=(1, 3), default=3,
+                   help="1: octave, 3: third octave (default)")
+    p.add_argument("--depth", type=float, default=1.0, metavar="M",
+                   help="distance of the scan plane in front of the camera (default 1 m)")
+    p.add_argument("--grid", type=int, default=101, metavar="N",
+                   help="scan points across each side of the view (default 101)")
+    p.add_argument("--block", type=int, default=1024, help="Welch block length (default 1024)")
+    p.add_argument("--overlap", type=float, default=0.5, help="Welch overlap (default 0.5)")
+    p.add_argument("--window", type=float, default=0.1, metavar="S",
+                   help="CSM averaging window (default 0.1 s)")
+    p.add_argument("--clean-sc", action="store_true", help="deconvolve with CLEAN-SC")
+    p.add_argument("--range-db", type=float, default=15.0,
+                   help="dynamic range drawn, dB below each map's peak (default 15)")
+    p.add_argument("--camera", default="cam0", help="camera drawn on (default cam0)")
+    p.add_argument("--fps", type=float, default=10.0, help="video frames per second (default 10)")
+    p.add_argument("--scale", type=float, default=0.5,
+                   help="video size relative to the camera image (default 0.5)")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("live", help="live mode: the boards streaming, acoustic video",
+                       description="Enter or leave the daemon's live mode (every board scanning "
+                                   "without end, the cameras streaming, the latest seconds "
+                                   "kept), record its latest seconds, or write an acoustic "
+                                   "video of it or of a recording.")
+    actions = p.add_subparsers(dest="action", required=True, metavar="ACTION")
+    start = actions.add_parser("start", help="enter live mode (the daemon must be idle)")
+    start.add_argument("--seconds", type=float, default=10.0,
+                       help="seconds kept in the ring buffer (default 10)")
+    start.add_argument("--camera-fps", type=float, default=10.0,
+                       help="camera frames per second (default 10)")
+    start.add_argument("--camera", action="append", dest="cameras", metavar="NAME",
+                       help="a camera to stream (repeat for several; default: all)")
+    actions.add_parser("stop", help="leave live mode")
+    record = actions.add_parser("record", help="store the latest seconds (session format and "
+                                               "Acoular's HDF5 time data)")
+    record.add_argument("--seconds", type=float, default=5.0,
+                        help="seconds to store (default 5, at most the ring's)")
+    video = actions.add_parser("video", help="an acoustic video of live mode or of a recording")
+    _add_imaging_arguments(video)
+    video.add_argument("--recording", type=Path, metavar="DIR",
+                       help="a live recording (from `micam live record`) instead of live mode")
+    video.add_argument("--seconds", type=float, default=10.0,
+                       help="from live mode: seconds to film (default 10)")
+    for action in actions.choices.values():
+        add_client_arguments(action)
+        action.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from acquisition.daemon.client import client_from_args
+
+    if args.action == "video":
+        return _video(args)
+    with client_from_args(args) as client:
+        if args.action == "start":
+            status = client.request("live.start", seconds=args.seconds,
+                                    camera_fps=args.camera_fps, cameras=args.cameras)
+            print(f"live mode: {status['capacity_s']:g} s kept at "
+                  f"{status['sample_rate_hz']:g} Hz; `micam live stop` to leave it")
+        elif args.action == "stop":
+            client.request("live.stop")
+            print("live mode left")
+        else:
+            result = client.request("live.record", seconds=args.seconds)
+            print(f"recording {result['seconds']:.2f} s into {result['path']} (Acoular: "
+                  f"{result['acoular_file']}); a live_recorded event says when it is written")
+    return 0
+
+
+def _video(args: argparse.Namespace) -> int:
+    from calibration.imaging import load_geometry
+    from calibration.imaging.live import LiveSettings
+    from calibration.imaging.live_frames import VideoFile
+
+    try:
+        geometry = load_geometry(args.geometry)
+        settings = LiveSettings(band_hz=args.band, fraction=args.fraction,
+                                block_size=args.block, overlap=args.overlap,
+                                window_s=args.window, depth_m=args.depth,
+                                grid_shape=(args.grid, args.grid), camera=args.camera,
+                                clean_sc=args.clean_sc, dynamic_range_db=args.range_db,
+                                image_scale=args.scale)
+        video = VideoFile(args.out, args.fps)
+        if args.recording is not None:
+            n = _video_of_recording(args.recording, geometry, settings, args.fps, video)
+        else:
+            n = _video_of_live(args, geometry, settings, video)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    print(f"wrote {args.out}: {n} frames at {args.fps:g} fps")
+    return 0
+
+
+def _video_of_recording(path: Path, geometry, settings, fps: float, video) -> int:
+    from acquisition.live.record import read_live_recording
+    from acquisition.contracts.session import SessionError
+    from calibration.imaging.live import LiveImager
+    from micam.live_feed import mic_columns
+    from calibration.imaging.live_frames import MapFrames, caption_of
+
+    try:
+        codes, fs, first, frames, config = read_live_recording(path, settings.camera)
+    except SessionError as exc:
+        raise ValueError(str(exc)) from None
+    imager = LiveImager(geometry, settings, fs)
+    drawn = MapFrames(imager, fps, caption_of(imager))
+    for frame in frames:
+        drawn.add_frame(frame.sample, frame.image)
+    columns, scale = mic_columns(config.columns, geometry)
+    hop = drawn.hop
+    with video:
+        for start in range(0, codes.shape[0], hop):
+            for f in drawn.push(first + start, codes[start: start + hop, columns] * scale):
+                video.write(f.image)
+    return video.frames
+
+
+def _video_of_live(args: argparse.Namespace, geometry, settings, video) -> int:
+    from acquisition.daemon.client import client_from_args
+    from calibration.imaging.live import LiveImager
+    from micam.live_feed import LiveFeed
+    from calibration.imaging.live_frames import MapFrames, caption_of
+
+    with client_from_args(args) as client:
+        status = client.status()
+        if status.live is None:
+            raise ValueError("the daemon is not in live mode; `micam live start` first, or "
+                             "film a recording with --recording")
+        imager = LiveImager(geometry, settings, status.live.sample_rate_hz)
+        with LiveFeed(client, MapFrames(imager, args.fps, caption_of(imager)),
+                      geometry) as feed, video:
+            for fed in feed.frames_for(args.seconds):
+                video.write(fed.frame.image)
+    return video.frames

@@ -1,0 +1,95 @@
+"""`micam web`: the operator's page (a web application talking to the daemon over ZeroMQ)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from acquisition.daemon.cli_args import add_client_arguments
+
+DEFAULT_LISTEN = "127.0.0.1:8765"
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "web", help="serve the operator's page: cameras, levels, live calibration, control",
+        description="Serve a web page that shows and drives the daemon (docs/operator.md). It "
+                    "listens on loopback unless given --listen and a token.")
+    p.add_argument("--listen", default=DEFAULT_LISTEN, metavar="HOST:PORT",
+                   help=f"address of the page (default {DEFAULT_LISTEN}; another host than "
+                        "loopback needs --token-file)")
+    p.add_argument("--token-file", type=Path, metavar="FILE",
+                   help="a file (mode 0600) holding the token the page asks for (default "
+                        "$MICAM_WEB_TOKEN; needed off loopback)")
+    p.add_argument("--target-mm", type=float, default=0.5, metavar="MM",
+                   help="the live calibration's predicted accuracy at which the page says "
+                        "'enough poses' (default 0.5 mm)")
+    live = p.add_argument_group("live acoustic view (while the daemon is in live mode)")
+    live.add_argument("--geometry", type=Path, metavar="FILE",
+                      help="calibration result.json: draw live acoustic maps over camera 0 "
+                           "(without it the page shows no maps)")
+    live.add_argument("--band", type=float, default=4000.0, metavar="HZ",
+                      help="band centre (default 4000)")
+    live.add_argument("--fraction", type=int, choices=(1, 3), default=3,
+                      help="1: octave, 3: third octave (default)")
+    live.add_argument("--depth", type=float, default=1.0, metavar="M",
+                      help="the scan plane's distance in front of camera 0 (default 1 m)")
+    live.add_argument("--clean-sc", action="store_true", help="deconvolve with CLEAN-SC")
+    live.add_argument("--range-db", type=float, default=15.0, help="dynamic range (default 15)")
+    live.add_argument("--live-fps", type=float, default=10.0,
+                      help="maps per second drawn for the page (default 10)")
+    add_client_arguments(p)
+    p.set_defaults(run=run)
+
+
+def _live_stream(args: argparse.Namespace):  # -> LiveStream | None
+    """The page's live acoustic view of --geometry, or None."""
+    if args.geometry is None:
+        return None
+    from acquisition.daemon.client import client_from_args
+    from acquisition.contracts.errors import UserError
+    from micam.web.live_stream import LiveStream
+    from calibration.imaging import load_geometry
+    from calibration.imaging.live import LiveSettings
+
+    try:
+        settings = LiveSettings(band_hz=args.band, fraction=args.fraction, depth_m=args.depth,
+                                clean_sc=args.clean_sc, dynamic_range_db=args.range_db,
+                                image_scale=0.5)
+        geometry = load_geometry(args.geometry)
+        geometry.camera(settings.camera)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    return LiveStream(lambda: client_from_args(args), geometry, settings, args.live_fps)
+
+
+def run(args: argparse.Namespace) -> int:
+    from acquisition.contracts.errors import UserError
+
+    try:
+        import uvicorn
+
+        from micam.web.access import check_listen, read_token
+        from micam.web.app import create_app
+        from micam.web.bridge import Bridge
+    except ImportError as exc:
+        raise UserError(f"`micam web` needs the web packages ({exc.name} is missing): "
+                        "pip install 'micam[web]'") from None
+    from acquisition.daemon.client import client_from_args
+
+    host, _, port = args.listen.rpartition(":")
+    if not host or not port.isdigit():
+        raise UserError(f"--listen {args.listen}: give HOST:PORT, e.g. {DEFAULT_LISTEN}")
+    token = read_token(args.token_file)
+    check_listen(host.strip("[]"), token)
+    client = client_from_args(args)
+    try:
+        bridge = Bridge(client, target_m=args.target_mm / 1e3, live_stream=_live_stream(args))
+        app = create_app(bridge, token)
+        print(f"micam web: the page is at http://{args.listen}/ (daemon {client.control})",
+              flush=True)
+        uvicorn.run(app, host=host.strip("[]"), port=int(port), log_level="warning",
+                    ws="websockets", lifespan="on")
+    finally:
+        client.close()
+    return 0

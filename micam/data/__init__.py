@@ -1,0 +1,1 @@
+"""Files micam installs on a machine: udev rules (udev/) and systemd units (systemd/)."""

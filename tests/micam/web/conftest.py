@@ -1,0 +1,64 @@
+"""The stack the page's tests run against: a daemon on a small simulated world, a calibration
+worker and `micam web`, all as processes (readiness by handshake), once per module."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+from micam.demo_loop import Loop
+from micam.web.testing import Chromium, WebProcess, browser_missing
+
+SKIP_ENV = "MICAM_SKIP_BROWSER_TESTS"
+POSES = 8  # the world's poses; sessions ask for fewer
+
+
+@dataclass
+class Stack:
+    loop: Loop
+    web: WebProcess
+    root: Path
+
+    def restart_web(self) -> WebProcess:
+        self.web = WebProcess(self.loop.control, self.root / "web.log", port=self.web.port)
+        return self.web
+
+
+@pytest.fixture(scope="module")
+def stack(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Stack]:
+    root = tmp_path_factory.mktemp("web")
+    with Loop(root, poses=POSES, array="scatter48", mls_order=9, seed=3) as loop:
+        web = WebProcess(loop.control, root / "web.log")
+        running = Stack(loop, web, root)
+        try:
+            yield running
+        finally:
+            running.web.stop()
+
+
+@pytest.fixture
+def chromium() -> Iterator[type[Chromium]]:
+    """The Chromium class, once it is known to run here: a missing browser fails the test
+    with what to install (a skip only when $MICAM_SKIP_BROWSER_TESTS says so)."""
+    problem = browser_missing()
+    if problem is not None:
+        if os.environ.get(SKIP_ENV):
+            pytest.skip(f"browser tests disabled by ${SKIP_ENV}: {problem}")
+        pytest.fail(f"the browser tests need headless Chromium: {problem} (or set {SKIP_ENV}=1 "
+                    "to skip them)")
+    yield Chromium
+
+
+@pytest.fixture(scope="module")
+def screenshots(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Where the browser tests save their screenshots ($MICAM_SCREENSHOTS, else a temporary
+    directory, printed)."""
+    chosen = os.environ.get("MICAM_SCREENSHOTS")
+    path = Path(chosen) if chosen else tmp_path_factory.mktemp("screenshots")
+    path.mkdir(parents=True, exist_ok=True)
+    print(f"screenshots in {path}")
+    return path

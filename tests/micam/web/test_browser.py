@@ -1,0 +1,145 @@
+"""The operator's page in a real headless Chromium, against a daemon on the simulated world.
+
+One browser drives a whole session from the page alone (start, the references, six poses with
+the board found, stop, the report), checking what a person would look at on the way: the
+board found per camera, the level meters named by microphone and board, the live calibration
+updating, the hint drawn on camera 0's image. Five browsers connected at once must each see
+every event. Screenshots are saved (see the screenshots fixture).
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from selenium.webdriver.common.by import By
+
+from micam.web.testing import Chromium
+
+from .conftest import Stack
+
+REFERENCE_STEPS = 7  # six speakers and the reference microphone on its stand
+SESSION_POSES = 6
+FINAL_WAIT_S = 120.0
+
+
+def _steps(b: Chromium) -> int:
+    return int(b.js("return Number(document.getElementById('progress').dataset.steps)"))
+
+
+def _capture_from_page(b: Chromium) -> None:
+    """Click Capture and wait until the page shows one more step done."""
+    before = _steps(b)
+    b.wait("!document.getElementById('capture').disabled", what="Capture enabled")
+    b.driver.find_element(By.ID, "capture").click()
+    b.wait(f"Number(document.getElementById('progress').dataset.steps) > {before}",
+           what=f"step {before + 1} done")
+
+
+def test_five_browsers_see_every_event(stack: Stack, chromium: type[Chromium]) -> None:
+    browsers = []
+    try:
+        for _ in range(5):
+            b = chromium(width=1000, height=800)
+            browsers.append(b)
+            b.driver.get(stack.web.url + "/")
+        for b in browsers:
+            b.wait("window.micam.snapshots > 0 && document.body.dataset.state === 'idle'",
+                   what="the snapshot")
+        with stack.loop.client() as client:
+            first = client.status().last_event_seq + 1
+            client.request("session.start", poses=2)
+            for command in ("capture", "session.pause", "session.resume", "capture"):
+                time.sleep(0.3)
+                client.request(command)
+            client.wait_until(lambda s: s.last_capture is not None and s.last_capture.number
+                              >= 2, 30)
+            client.request("session.abort")
+            last = client.wait_until(lambda s: s.session is None, 30).last_event_seq
+        expected = list(range(first, last + 1))
+        for b in browsers:
+            b.wait(f"window.micam.seen.includes({last})", what=f"event {last}")
+        for n, b in enumerate(browsers):
+            seen = b.js("return window.micam.seen")
+            assert [s for s in seen if first <= s <= last] == expected, f"browser {n}"
+            assert b.js("return document.body.dataset.state") == "idle"
+        assert len(expected) > 20  # states, instructions, levels, previews, progress, ...
+    finally:
+        for b in browsers:
+            b.close()
+
+
+def test_a_whole_session_from_the_page(stack: Stack, chromium: type[Chromium],
+                                       screenshots: Path) -> None:
+    b = chromium()
+    try:
+        b.driver.get(stack.web.url + "/")
+        b.wait("document.body.dataset.state === 'idle'", what="an idle daemon")
+        b.wait("document.querySelector('[data-camera=cam0] img[src]')", what="a preview")
+        b.driver.save_screenshot(str(screenshots / "idle.png"))
+        b.driver.find_element(By.ID, "start-poses").send_keys(str(SESSION_POSES + 2))
+        b.driver.find_element(By.ID, "start").click()
+        b.wait("document.body.dataset.state === 'references'", what="the first reference step")
+
+        for _ in range(REFERENCE_STEPS):
+            _capture_from_page(b)
+        reference = b.js("return document.querySelector('.board.reference .meter') !== null")
+        assert reference, "the reference microphone has its own meter"
+
+        live_poses = set()
+        for pose in range(1, SESSION_POSES + 1):
+            _capture_from_page(b)
+            b.wait(f"document.querySelector('#progress').dataset.poses == {pose}")
+            b.wait("document.querySelector('[data-camera=cam0]').dataset.found === 'yes'",
+                   what="the board found in cam0")
+            b.wait(f"document.querySelector('[data-camera=cam0] .poses-seen').textContent"
+                   f" === '{pose} poses seen'", what=f"{pose} poses seen by cam0")
+            meters = b.js("return document.querySelectorAll('.board:not(.reference) .meter')"
+                          ".length")
+            assert meters == 48, "one meter per microphone"
+            title = b.js("return document.querySelector('.board:not(.reference) .meter')"
+                         ".getAttribute('title')")
+            assert title.startswith("mic ") and "board" in title and "SNR" in title
+            live = b.js("return document.getElementById('live-summary').dataset.poses")
+            if live:
+                live_poses.add(int(live))
+        b.wait(f"document.getElementById('live-summary').dataset.poses == {SESSION_POSES}",
+               timeout_s=90, what="the live calibration of every pose")
+        live_poses.add(SESSION_POSES)
+        assert len(live_poses) >= 2, f"the live calibration updated: {sorted(live_poses)}"
+        history = b.js("return document.querySelectorAll('#chart-accuracy .point').length")
+        assert history >= 2
+        assert b.js("return document.querySelectorAll('#view-top .mic').length") >= 40
+
+        outline = b.wait("document.getElementById('hint-outline')"
+                         " && document.getElementById('hint-outline').getAttribute('points')",
+                         what="the hint's outline on cam0")
+        points = [tuple(map(float, p.split(","))) for p in outline.split()]
+        width, height = b.js("const p = document.querySelector('[data-camera=cam0] svg')"
+                             ".viewBox.baseVal; return [p.width, p.height]")
+        assert len(points) == 4
+        assert all(0 <= x <= width and 0 <= y <= height for x, y in points), points
+        assert "Next pose:" in b.driver.find_element(By.ID, "hint-text").text
+        b.driver.save_screenshot(str(screenshots / "session.png"))
+
+        b.driver.find_element(By.ID, "stop").click()
+        b.wait("document.body.dataset.state === 'idle'", what="the session closed")
+        row = "document.querySelector('#sessions tbody tr')"
+        b.wait(f"{row} && {row}.dataset.status === 'complete'", timeout_s=20,
+               what="the session listed as complete")
+        deadline = time.monotonic() + FINAL_WAIT_S
+        while True:  # the final calibration arrives when the worker is done
+            b.js(f"{row}.querySelector('button').click()")
+            b.wait("document.getElementById('report').dataset.calibrated", what="the report")
+            if b.js("return document.getElementById('report').dataset.calibrated") == "yes":
+                break
+            assert time.monotonic() < deadline, "no final calibration in the report"
+            time.sleep(2)
+        summary = b.driver.find_element(By.ID, "report-summary").text
+        assert summary.startswith("complete") and f"{SESSION_POSES}/{SESSION_POSES + 2} poses" \
+            in summary
+        assert "48 microphones" in b.driver.find_element(By.ID, "report-result").text
+        b.js("document.getElementById('report').scrollIntoView()")
+        b.driver.save_screenshot(str(screenshots / "report.png"))
+    finally:
+        b.close()

@@ -1,0 +1,74 @@
+"""What the page shows, from the daemon's messages: names, flags, camera warnings, results."""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+
+import pytest
+
+from acquisition.contracts.protocol import (
+    CameraPoses,
+    ColumnInfo,
+    DescribeResult,
+    LevelsEvent,
+    QualityInfo,
+    RigInfo,
+)
+from micam.web.view import camera_warning, cameras_view, levels_view, live_view
+
+
+def _describe() -> DescribeResult:
+    columns = [ColumnInfo(column=0, board="A", channel=0, role="mic", mic_id=7),
+               ColumnInfo(column=1, board="A", channel=1, role="mic", mic_id=8),
+               ColumnInfo(column=2, board="B", channel=0, role="mic", mic_id=9),
+               ColumnInfo(column=3, board="R", channel=0, role="reference")]
+    return DescribeResult(
+        simulated=True, columns=columns, cameras=["cam0", "cam1"],
+        rig=RigInfo(corners_x=6, corners_y=9, square_m=0.03, speakers_m=[(0.0, 0.0, 0.0)]),
+        n_poses=20, quality=QualityInfo(clip_fraction=0.999, min_level_dbfs=-60, min_snr_db=10,
+                                        min_channel_snr_db=3),
+        camera_min_views=4, live_min_poses=4, live=True, preview_fps=2, preview_width=480)
+
+
+def test_levels_are_named_by_microphone_and_board_with_the_reference_apart() -> None:
+    event = LevelsEvent(seq=1, time_utc=datetime.now(UTC), step="pose/0001", file="s0.wav",
+                        rms_dbfs=[-20, -0.1, -85, -30], peak_dbfs=[-10, 0, -80, -25],
+                        snr_db=[30, 40, 1, 25], clipped_channels=[1], listening=[0, 1, 2],
+                        dead_channels=[2], low_snr_channels=[])
+    view = levels_view(event, _describe())
+    assert view["reference"]["name"] == "reference mic (board R ch 0)"
+    assert not view["reference"]["listening"]
+    assert [b["board"] for b in view["boards"]] == ["A", "B"]
+    assert [c["label"] for c in view["boards"][0]["channels"]] == ["7", "8"]
+    assert view["boards"][0]["channels"][1]["flags"] == ["clipped"]
+    assert view["flagged"] == {"clipped": ["mic 8 (board A ch 1)"],
+                               "dead": ["mic 9 (board B ch 0)"], "low_snr": []}
+
+
+@pytest.mark.parametrize(("seen", "done", "n", "warned"), [
+    (4, 4, 20, None),                  # enough views already
+    (0, 0, 20, None),                  # nothing taken yet: no judgement
+    (1, 10, 20, "on course"),          # 1 in 10 so far: 3 by the end, short of 4
+    (3, 10, 20, None),                 # 3 in 10: 9 by the end
+    (1, 18, 20, "cannot be calibrated"),  # even 2 more boards leave it at 3
+])
+def test_a_camera_on_course_to_stay_uncalibrated_is_warned_about(
+        seen: int, done: int, n: int, warned: str | None) -> None:
+    warning = camera_warning(seen, done, n, 4)
+    assert (warning is None) if warned is None else (warned in warning)
+
+
+def test_every_camera_is_listed_with_its_poses() -> None:
+    view = cameras_view(_describe(), [CameraPoses(camera="cam0", poses_seen=5)], 6, 20)
+    assert [(c["camera"], c["poses_seen"], c["warning"] is None) for c in view] == [
+        ("cam0", 5, True), ("cam1", 0, False)]
+
+
+def test_the_live_view_says_enough_only_at_the_target() -> None:
+    update = {"poses": 6, "microphones": [{"id": 1, "position_m": [0, 0, 1],
+                                           "std_m": [3e-4, 4e-4, 0]}],
+              "predicted_accuracy_m": 4e-4}
+    view = live_view(update, target_m=5e-4)
+    assert view["enough"] and view["microphones"][0]["uncertainty_m"] == pytest.approx(5e-4)
+    assert not live_view(update, target_m=3e-4)["enough"]
+    assert not live_view(update, target_m=None)["enough"]

@@ -1,0 +1,97 @@
+"""The one implementation of each job: rigid transforms, robust fitting helpers, atomic writes,
+and the rules the test suite keeps (no fork of the threaded pytest process)."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from acquisition.contracts.rigid import (
+    RigidTransform,
+    kabsch,
+    rotated_point_jacobian,
+    rotation_from_rotvec,
+    rotvec_from_rotation,
+)
+from acquisition.contracts.session import partial_path, sha256_file, write_atomic
+from calibration.robust import inverse_normal, robust_sigma
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def test_rotations_round_trip_and_stay_exact_near_a_half_turn() -> None:
+    rng = np.random.default_rng(0)
+    v = rng.normal(size=(20, 3))
+    unit = v / np.linalg.norm(v, axis=1)[:, None]  # angles of 1 rad: below pi, no wrap
+    assert np.allclose(rotvec_from_rotation(rotation_from_rotvec(unit)), unit, atol=1e-12)
+    near_pi = np.array([0.0, 0.0, np.pi - 1e-7])
+    R = rotation_from_rotvec(near_pi)
+    assert np.allclose(R @ R.T, np.eye(3), atol=1e-15)
+    assert np.allclose(rotvec_from_rotation(R), near_pi, atol=1e-9)
+    assert np.allclose(R, cv2.Rodrigues(near_pi)[0], atol=1e-6)  # OpenCV's convention
+
+
+def test_a_transform_composes_inverts_and_is_found_by_kabsch() -> None:
+    rng = np.random.default_rng(1)
+    T = RigidTransform.from_rotvec(np.array([0.3, -0.2, 0.5]), np.array([0.1, 0.2, 0.9]))
+    points = rng.normal(size=(12, 3))
+    assert np.allclose(T.inverse().apply(T.apply(points)), points)
+    assert np.allclose(T.compose(T.inverse()).apply(points), points)
+    R, t = kabsch(points, T.apply(points))
+    assert np.allclose(R, T.R) and np.allclose(t, T.t)
+
+
+def test_the_rotation_jacobian_matches_finite_differences() -> None:
+    rotvec, point = np.array([[0.4, -0.1, 0.7]]), np.array([[0.2, 0.3, -0.5]])
+    analytic = rotated_point_jacobian(rotvec, point)[0]
+    step = 1e-7
+    numeric = np.stack([(rotation_from_rotvec(rotvec[0] + step * e) @ point[0]
+                         - rotation_from_rotvec(rotvec[0] - step * e) @ point[0]) / (2 * step)
+                        for e in np.eye(3)], axis=1)
+    assert np.allclose(analytic, numeric, atol=1e-7)
+
+
+def test_robust_sigma_ignores_outliers_and_keeps_its_floor() -> None:
+    rng = np.random.default_rng(2)
+    r = np.concatenate([rng.normal(0, 2.0, 10_000), np.full(500, 1e3)])
+    assert robust_sigma(r) == pytest.approx(2.0, rel=0.1)  # 5 % outliers move it 6 %
+    assert np.std(r) > 100
+    assert robust_sigma(np.zeros(5), floor=1e-6) == 1e-6
+    with pytest.raises(ValueError, match="at least one residual"):
+        robust_sigma(np.array([]))
+
+
+def test_inverse_normal_inverts_badly_scaled_and_singular_matrices() -> None:
+    J = np.array([[1e3, 0.0, 1.0], [0.0, 1e-3, 1.0], [1.0, 1.0, 1.0], [2.0, 0.5, 0.1]])
+    A = J.T @ J
+    assert np.allclose(inverse_normal(A) @ A, np.eye(3), atol=1e-8)
+    singular = np.array([[1.0, 1.0], [1.0, 1.0]])
+    assert np.allclose(inverse_normal(singular), np.linalg.pinv(singular))
+
+
+def test_an_atomic_replace_drops_a_stale_partial_and_a_failed_one_leaves_none(
+        tmp_path: Path) -> None:
+    path = tmp_path / "result.json"
+    partial_path(path).write_bytes(b"left by a crash")
+    digest = write_atomic(path, lambda fh: fh.write(b"{}"), replace=True)
+    assert path.read_bytes() == b"{}" and not partial_path(path).exists()
+    assert digest == sha256_file(path)
+
+    def fail(_fh: object) -> None:
+        raise OSError("disk full")
+
+    with pytest.raises(OSError, match="disk full"):
+        write_atomic(path, fail, replace=True)
+    assert path.read_bytes() == b"{}" and not partial_path(path).exists()
+
+
+def test_no_test_forks_the_test_process() -> None:
+    """os.fork() of pytest copies its threads' locks mid-use; children come from a fork
+    server or a subprocess instead."""
+    offenders = [str(p.relative_to(REPO)) for p in (REPO / "tests").rglob("*.py")
+                 if re.search(r"\bos\.fork\(", p.read_text()) and p.name != Path(__file__).name]
+    assert offenders == []
