@@ -24,6 +24,8 @@ class Stack:
     root: Path
 
     def restart_web(self) -> WebProcess:
+        """Stop `micam web` (nothing to do if it was killed) and start it again on its port."""
+        self.web.stop()
         self.web = WebProcess(self.loop.control, self.root / "web.log", port=self.web.port)
         return self.web
 
