@@ -1,8 +1,8 @@
 """What the calibration reads from a capture session, as plain arrays.
 
 Calibration knows nothing of boards or USB: it reads the session directory through
-`acquisition.session.SessionReader` and the session's rig and array description
-(acquisition/rig_description.py). A session that `micam import` built stores the description
+`acquisition.contracts.session.SessionReader` and the session's rig and array description
+(acquisition/contracts/rig_description.py). A session that `micam import` built stores the description
 itself; a session micam's acquisition captured stores its capture configuration, from which
 the description is derived (`CaptureConfig.description`). The recordings are large (72
 channels x 19 k samples x 6 speakers per pose), so they are loaded one pose at a time

@@ -3,7 +3,7 @@
 It says which column of a recording is which microphone (or the reference microphone), the
 volts per code of each column, which output drives which speaker, the burst, the rig and the
 cameras. Calibration reads none of the hardware in it: it reads the rig and array description
-that `CaptureConfig.description` derives (acquisition/rig_description.py). Every model refuses
+that `CaptureConfig.description` derives (acquisition/contracts/rig_description.py). Every model refuses
 unknown keys (ConfigModel), so a misspelt key of a hand-written `[hardware.capture]` is an
 error.
 """
