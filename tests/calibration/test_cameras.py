@@ -1,4 +1,4 @@
-"""calibration.cameras against the truth of a small simulated session (12 poses, 3 cameras).
+"""calibration.camera_calibration against the truth of a small simulated session (12 poses, 3 cameras).
 
 Tolerances, and why: the simulated corners are found to about 0.04 px RMS, and with 13 views
 calibrateCamera's own standard deviation of the focal length is about 0.03-0.04 % and of the
