@@ -109,6 +109,8 @@ class Worker:
         self._stop = threading.Event()
         self._reports: queue.Queue[BaseModel | tuple[Done, bytes] | None] = queue.Queue()
         self._thread: threading.Thread | None = None
+        # a job offered while the last one's thread was still ending (see `_start`)
+        self._deferred: Job | None = None
         self._sock: zmq.Socket | None = None
         self._announce = False  # `ready` still to be said (sent once connected and idle)
         self.jobs_done = 0
@@ -229,7 +231,17 @@ class Worker:
     # -- jobs -----------------------------------------------------------------------------------
 
     def _start(self, job: Job) -> None:
+        """Run `job` on a thread of its own; one offered while the last job's thread is still
+        ending is run after it.
+
+        Why wait rather than refuse: the daemon counts this worker idle from its last word on
+        a job, which the job thread reports a moment before it ends. A refusal (retryable) was
+        re-offered at once, and the race repeated until the job's attempts were spent (the
+        chaos test's 20 in a row). Only a second offer while one waits is refused."""
         if self._thread is not None:
+            if self._deferred is None:
+                self._deferred = job
+                return
             self._send(Failed(job_id=job.job_id, attempt=job.attempt, retryable=True,
                               reason=f"worker {self.settings.name} is busy with another job"))
             return
@@ -294,6 +306,9 @@ class Worker:
                 self._thread.join()
                 self._thread = None
                 self.jobs_done += 1
+                if self._deferred is not None:
+                    job, self._deferred = self._deferred, None
+                    self._start(job)
             elif isinstance(report, tuple):
                 self._send(*report)
             else:
