@@ -7,6 +7,7 @@ codes, where code k means k / 32768 * range_v volts; `codes_to_volts` derives vo
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Protocol, Self, runtime_checkable
 
@@ -51,12 +52,14 @@ class Block:
         return int(self.codes.shape[0])
 
 
-class ClosesOnExit:
+class ClosesOnExit(ABC):
     """`with` for a resource that has `close()`: the end of the block closes it, whatever
-    happened inside (boards, sync groups, cameras, session writers)."""
+    happened inside (boards, sync groups, cameras, session writers). A subclass without its
+    own `close` cannot be instantiated."""
 
+    @abstractmethod
     def close(self) -> None:
-        raise NotImplementedError
+        """Release the resource."""
 
     def __enter__(self) -> Self:
         return self
