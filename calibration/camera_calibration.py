@@ -207,10 +207,6 @@ DETECTION_CACHE_SIZE = 20_000
 DetectionMemo = LruMemo[tuple[str, Checkerboard], Detection]
 """Detections by (image SHA-256, board): `DetectionMemo(DETECTION_CACHE_SIZE)`."""
 
-PROCESS_DETECTIONS: DetectionMemo = LruMemo(DETECTION_CACHE_SIZE)
-"""The memo of the callers that bring none (a script, `micam calibrate`, the tests); the worker
-owns its own."""
-
 
 def _detect(image: np.ndarray, board: Checkerboard) -> Detection:
     return detect_corners(image, board), image.shape[1::-1]
@@ -228,17 +224,19 @@ def calibrate_session(
     """Calibrate every camera of a session from all its checkerboard images.
 
     Every completed step with camera images ("pose/<nnnn>" and "refmic") is used: each is a
-    board view that constrains the intrinsics. The detections are remembered in a memo by the
-    image file's SHA-256 (session files never change once written), so that a long-running
+    board view that constrains the intrinsics. With a memo, the detections are remembered by
+    the image file's SHA-256 (session files never change once written), so that a long-running
     process (the calibration worker, whose live jobs see the same images again with a few more
-    poses each time) decodes and searches each image once.
+    poses each time) decodes and searches each image once. A remembered image is not read
+    again, so the memo's owner answers for its files (the worker verified its copies when it
+    fetched them); without a memo every image is read, and checked against the journal.
 
     Args:
         reader: the session.
         board: its checkerboard (`Checkerboard.of_rig`).
         cameras: camera names, camera 0 first.
         known: intrinsics known from elsewhere, by camera name (see `calibrate_detections`).
-        detections: the memo of detections to use and fill (None: `PROCESS_DETECTIONS`).
+        detections: the memo of detections to use and fill (None: remember nothing).
 
     Raises:
         CameraCalibrationError: camera 0 has too few views with a board.
@@ -246,8 +244,8 @@ def calibrate_session(
     files = {(camera, step): record.files[f"{camera}.png"]
              for step, record in sorted(reader.steps().items())
              for camera in cameras if f"{camera}.png" in record.files}
-    memo = detections if detections is not None else PROCESS_DETECTIONS
-    remembered = {key: memo.get((file.sha256, board)) for key, file in files.items()}
+    remembered = {key: None if detections is None else detections.get((file.sha256, board))
+                  for key, file in files.items()}
     new = [key for key, found in remembered.items() if found is None]
 
     def detect(key: tuple[str, str]) -> Detection:
@@ -258,7 +256,8 @@ def calibrate_session(
     with ThreadPoolExecutor(default_workers()) as pool:
         detected = dict(zip(new, pool.map(detect, new), strict=True))
     for key, found in detected.items():
-        memo.put((files[key].sha256, board), found)
+        if detections is not None:
+            detections.put((files[key].sha256, board), found)
     found_all = {key: remembered[key] or detected[key] for key in files}
     return calibrate_detections(found_all, cameras, board, min_views, min_shared_views, known)
 

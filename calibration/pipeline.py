@@ -55,6 +55,7 @@ from .bundle import (
 )
 from .camera_calibration import (
     CameraCalibration,
+    DETECTION_CACHE_SIZE,
     Checkerboard,
     DetectionMemo,
     calibrate_session,
@@ -110,7 +111,7 @@ from .speakers import (
     speaker_positions,
 )
 from .speed_of_sound import SpeedOfSoundFit, fit_speed_of_sound_robust
-from .times_of_flight import SessionTofs, measure_session_tofs
+from .times_of_flight import TOF_CACHE_POSES, SessionTofs, TofMemo, measure_session_tofs
 from .tof import Weighting
 
 NOMINAL_SPEED_OF_SOUND_M_S = 343.0
@@ -135,6 +136,19 @@ CONFOUND_NOTE = (
     "stated positions and tolerance, a measured air state); with none of them measured well, "
     "c is the paper's 'scaled' c (IV-G)."
 )
+
+
+@dataclass(frozen=True)
+class WorkMemo:
+    """The work a long-running caller remembers between calibrations, by the content of the
+    files it was done on: checkerboard detections per image, delays per pose.
+
+    Its owner answers for the files it remembers, which are not read again: the worker
+    verifies every file of its session copies against the journal when it fetches it. A
+    caller without one (`micam calibrate`, a script) reads and checks every file."""
+
+    detections: DetectionMemo = field(default_factory=lambda: DetectionMemo(DETECTION_CACHE_SIZE))
+    tofs: TofMemo = field(default_factory=lambda: TofMemo(TOF_CACHE_POSES))
 
 
 @dataclass(frozen=True)
@@ -184,8 +198,8 @@ class CalibrationOptions:
             neither the options nor the description give one).
         dispersion: with `responses`, take every microphone's measured dispersion (its phase
             less a delay) out of its times of flight and fit again (calibration.responses).
-        detections: the caller's memo of checkerboard detections (a worker keeps one across
-            its jobs); None: the process's (`camera_calibration.PROCESS_DETECTIONS`).
+        memo: the caller's memo of the work done per file (a worker keeps one across its
+            jobs, see `WorkMemo`); None: nothing is remembered, every file is read.
     """
 
     method: Literal["micam", "paper"] = "micam"
@@ -207,7 +221,7 @@ class CalibrationOptions:
     responses: bool = True
     air_sensor: bool = True
     dispersion: bool = True
-    detections: DetectionMemo | None = field(default=None, compare=False, repr=False)
+    memo: WorkMemo | None = field(default=None, compare=False, repr=False)
 
 
 @dataclass
@@ -284,16 +298,18 @@ def measure(path: Path, options: CalibrationOptions | None = None,
     timings: dict[str, float] = {}
     with _timed(timings, "load", on_stage):
         data = load_session(path, options.allow_interrupted)
+    memo = options.memo
     with _timed(timings, "cameras", on_stage):
         cams = calibrate_session(data.reader, Checkerboard.of_rig(data.rig),
                                  list(data.camera_names), known_intrinsics(data, options),
-                                 detections=options.detections)
+                                 detections=None if memo is None else memo.detections)
     with _timed(timings, "speakers", on_stage):
         speakers = speaker_positions(cams, data.speakers_rig_m, data.pose_steps)
         reference = _reference_position(cams, data)
     with _timed(timings, "times of flight", on_stage):
         tofs = measure_session_tofs(data, NOMINAL_SPEED_OF_SOUND_M_S, options.band_hz,
-                                    options.weighting)
+                                    options.weighting,
+                                    memo=None if memo is None else memo.tofs)
     located = [data.pose_steps.index(p.step) for p in speakers.poses]
     reference_fit, notes = _reference_fit(speakers, reference, tofs.reference_tof_s[located])
     return Measurements(data, cams, speakers, located, tofs, reference, reference_fit, timings,

@@ -8,8 +8,6 @@ batched call of `calibration.tof.estimate_delays`; poses are processed one at a 
 
 from __future__ import annotations
 
-import threading
-from collections import OrderedDict
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -17,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import fft as sfft
 
+from .memo import LruMemo
 from .session_data import SessionData
 from .tof import TofEstimate, Weighting, estimate_delays, tof_from_delay
 
@@ -26,10 +25,11 @@ MAX_RANGE_M = 6.0
 TOF_THREADS = 2
 """Poses correlated at once."""
 TOF_CACHE_POSES = 2_000
-"""Poses whose delays `measure_session_tofs` remembers (about 15 kB each for 73 channels)."""
+"""Poses whose delays a worker's `TofMemo` remembers (about 15 kB each for 73 channels)."""
 
-_estimates: OrderedDict[tuple, TofEstimate] = OrderedDict()
-_estimates_lock = threading.Lock()
+TofMemo = LruMemo[tuple, TofEstimate]
+"""A pose's delays by (its recordings' SHA-256, the references' and the settings):
+`TofMemo(TOF_CACHE_POSES)`."""
 
 
 def _recording_hashes(data: SessionData, step: str) -> tuple[str, ...]:
@@ -42,22 +42,12 @@ def _recording_hashes(data: SessionData, step: str) -> tuple[str, ...]:
     return tuple(hashes)
 
 
-def _remembered(key: tuple) -> TofEstimate | None:
-    with _estimates_lock:
-        est = _estimates.get(key)
-        if est is not None:
-            _estimates.move_to_end(key)
-        return est
-
-
-def _remember(key: tuple, est: TofEstimate) -> None:
+def _frozen(est: TofEstimate) -> TofEstimate:
+    """`est` with its arrays read-only: a memo shares them with every later reader."""
     for array in (est.delay_s, est.std_s, est.snr_db, est.peak_to_sidelobe_db, est.impulses,
                   est.impulse_first_lag):
-        array.flags.writeable = False  # shared by every later reader of the same pose
-    with _estimates_lock:
-        _estimates[key] = est
-        while len(_estimates) > TOF_CACHE_POSES:
-            _estimates.popitem(last=False)
+        array.flags.writeable = False
+    return est
 
 
 @dataclass(frozen=True)
@@ -96,17 +86,21 @@ def measure_session_tofs(
     band_hz: tuple[float, float] = (300.0, 20_000.0),
     weighting: Weighting = "compact",
     on_pose: Callable[[str], None] | None = None,
+    memo: TofMemo | None = None,
 ) -> SessionTofs:
     """Times of flight of every pose of `data`.
 
     `speed_of_sound_m_s` only converts the reference microphone's distance from the speaker
     (about 2 mm, i.e. 6 us) into time, so a value within a few m/s is exact to picoseconds.
 
-    Each pose's delays are remembered by the SHA-256 of its recordings and of the references,
-    with the settings (session files never change once written): a long-running process, such
-    as the calibration worker whose live jobs see the same poses again with a few more each
-    time, correlates every pose once. Poses are correlated two at a time on threads (numpy
-    and the FFTs release the GIL: 1.5x on two cores).
+    With a `memo`, each pose's delays are remembered by the SHA-256 of its recordings and of
+    the references, with the settings (session files never change once written): a
+    long-running process, such as the calibration worker whose live jobs see the same poses
+    again with a few more each time, correlates every pose once. A remembered pose's files are
+    not read again, so the memo's owner answers for them (the worker verified its copies when
+    it fetched them); without a memo every recording is read, and checked against the
+    journal. Poses are correlated two at a time on threads (numpy and the FFTs release the
+    GIL: 1.5x on two cores).
     """
     on_stand = data.reference_column is not None
     columns = np.append(data.mic_columns, [data.reference_column] if on_stand else [])
@@ -128,26 +122,26 @@ def measure_session_tofs(
     settings = (band_hz, weighting, window, first, n_fft, tuple(columns.tolist()),
                 _recording_hashes(data, "reference/{}"))
     keys = [(_recording_hashes(data, step), settings) for step in data.pose_steps]
-    todo = [i for i, key in enumerate(keys) if _remembered(key) is None]
+    remembered = {i: est for i, key in enumerate(keys)
+                  if memo is not None and (est := memo.get(key)) is not None}
+    todo = [i for i in range(len(keys)) if i not in remembered]
     samples = slice(first, stop)
     references = data.references(samples) if todo else None
 
     def correlate(i: int) -> TofEstimate:
         recordings = data.pose_recordings(data.pose_steps[i], columns, samples)
         assert references is not None  # read whenever something is to do
-        est = estimate_delays(recordings, references, data.fs, band=band_hz,
-                              weighting=weighting, delay_window_s=window, n_fft=n_fft)
-        _remember(keys[i], est)
+        est = _frozen(estimate_delays(recordings, references, data.fs, band=band_hz,
+                                      weighting=weighting, delay_window_s=window, n_fft=n_fft))
+        if memo is not None:
+            memo.put(keys[i], est)
         return est
 
-    fresh: dict[int, TofEstimate] = {}
     with ThreadPoolExecutor(max_workers=TOF_THREADS) as pool:
-        for i, done in zip(todo, pool.map(correlate, todo), strict=True):
-            fresh[i] = done
+        estimates = remembered | dict(zip(todo, pool.map(correlate, todo), strict=True))
     parts = []
     for i, step in enumerate(data.pose_steps):
-        est = fresh.get(i) or _remembered(keys[i])
-        assert est is not None
+        est = estimates[i]
         parts.append((tof_from_delay(est.delay_s, d_ref, speed_of_sound_m_s), est.std_s,
                       est.snr_db, est.peak_to_sidelobe_db, est.impulses,
                       est.impulse_first_lag))

@@ -14,20 +14,19 @@ from pathlib import Path
 
 from acquisition.contracts.job_messages import Job, LiveUpdate
 
-from ..camera_calibration import DetectionMemo
-from ..pipeline import CalibrationOptions, calibrate, measure, solve
+from ..pipeline import CalibrationOptions, WorkMemo, calibrate, measure, solve
 from .live import live_update
 
 
 def compute(job: Job, session: Path, joint: bool, on_stage: Callable[[str], None],
-            detections: DetectionMemo | None = None) -> bytes | LiveUpdate:
-    """Run `job` on the session copy at `session` (see the module docstring); `detections`:
-    the worker's memo of checkerboard detections, kept across its jobs."""
+            memo: WorkMemo | None = None) -> bytes | LiveUpdate:
+    """Run `job` on the session copy at `session` (see the module docstring); `memo`: the
+    worker's memo of detections and delays, kept across its jobs."""
     if job.kind == "final":
-        run = calibrate(session, CalibrationOptions(joint=joint, detections=detections),
+        run = calibrate(session, CalibrationOptions(joint=joint, memo=memo),
                         on_stage)
         return run.result.model_dump_json(indent=1).encode()
-    options = CalibrationOptions(allow_interrupted=True, joint=False, detections=detections)
+    options = CalibrationOptions(allow_interrupted=True, joint=False, memo=memo)
     m = measure(session, options, on_stage)
     on_stage("solver")
     return live_update(job.session_id, m, solve(m, options))

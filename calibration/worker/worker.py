@@ -52,8 +52,8 @@ from acquisition.contracts.job_messages import (
 )
 from acquisition.contracts.keys import secure_client
 
-from ..camera_calibration import DETECTION_CACHE_SIZE, DetectionMemo
 from .cache import DEFAULT_MAX_BYTES, ChecksumMismatch, FileCache
+from ..pipeline import WorkMemo
 from .compute import compute
 from .fetch import CHUNK_BYTES, FetchFailed, fetch_job_files
 
@@ -102,9 +102,9 @@ class Worker:
     def __init__(self, settings: WorkerSettings) -> None:
         self.settings = settings
         self.cache = FileCache(settings.cache, settings.cache_max_bytes)
-        # the checkerboard detections of the session images this worker has seen (live jobs
-        # see the same images again, a pose more each time)
-        self.detections = DetectionMemo(DETECTION_CACHE_SIZE)
+        # the detections and delays of the session files this worker has seen (live jobs see
+        # the same files again, a pose more each time); its cache verified every one of them
+        self.memo = WorkMemo()
         self._context = zmq.Context()
         self._stop = threading.Event()
         self._reports: queue.Queue[BaseModel | tuple[Done, bytes] | None] = queue.Queue()
@@ -271,7 +271,7 @@ class Worker:
                               lambda stage: report(Progress(job_id=job.job_id,
                                                             attempt=job.attempt,
                                                             stage=stage[:64])),
-                              self.detections)
+                              self.memo)
             if isinstance(out, LiveUpdate):
                 report(Live(job_id=job.job_id, attempt=job.attempt, update=out))
             else:

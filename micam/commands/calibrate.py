@@ -102,22 +102,6 @@ def _prior(args: argparse.Namespace):
     return PriorGeometry(positions, std)
 
 
-def _check_files(session: Path) -> None:
-    """Every file of the session against the journal's checksum, before any work (the
-    calibration remembers detections by checksum, so it might not read a damaged file)."""
-    from acquisition.contracts.session import SessionError, SessionReader
-
-    try:
-        problems = SessionReader(session).verify()
-    except SessionError as exc:
-        raise UserError(str(exc)) from None
-    if problems:
-        more = f" (and {len(problems) - 1} more: `micam inspect {session}`)" \
-            if len(problems) > 1 else ""
-        raise UserError(f"{session} is damaged: {problems[0]}{more}; restore the file from a "
-                        "copy of the session, nothing was calibrated")
-
-
 _AIR_FLAGS = {"temperature_c": "--temperature", "temperature_std_c": "--temperature-std",
               "relative_humidity": "--humidity", "relative_humidity_std": "--humidity-std",
               "speed_of_sound_m_s": "--known-speed-of-sound",
@@ -205,7 +189,6 @@ def run(args: argparse.Namespace) -> int:
     if args.acoular_calib is not None and (args.no_joint or args.method == "paper"):
         raise UserError("--acoular-calib needs the joint fit (it estimates the responses); "
                         "leave out --no-joint and --method paper")
-    _check_files(args.session)
     try:
         data = load_session(args.session, args.allow_interrupted)
     except ValueError as exc:

@@ -100,7 +100,7 @@ def test_a_file_that_matches_an_edited_journal_is_still_refused_clearly(
 def test_the_reader_checks_before_it_decodes(session: Path) -> None:
     path = _file(session, "pose/0000", "speaker_0.wav")
     _flip(path)
-    with pytest.raises(SessionError, match=r"damaged.*journal recorded"):
+    with pytest.raises(SessionError, match=r"checksum mismatch.*journal recorded.*damaged"):
         SessionReader(session).read_recording("pose/0000", "speaker_0.wav")
 
 

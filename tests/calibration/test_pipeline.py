@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import shutil
 import xml.etree.ElementTree as ET
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -197,26 +198,27 @@ def test_prior_from_acoular_xml_on_the_command_line(session: Path, tmp_path: Pat
 
 def test_measuring_again_reuses_each_pose_and_image(session: Path,
                                                     monkeypatch: pytest.MonkeyPatch) -> None:
-    """A long-running process (the worker's live jobs) decodes, searches and correlates every
-    file once: the second measurement of the same files reads none of them."""
+    """A long-running process with a memo (the worker's live jobs) decodes, searches and
+    correlates every file once: the second measurement of the same files reads none of them."""
     from acquisition.contracts.session import SessionReader
-    from calibration.pipeline import measure
+    from calibration.pipeline import WorkMemo, measure
 
-    first = measure(session)
+    options = CalibrationOptions(memo=WorkMemo())
+    first = measure(session, options)
 
     def refuse(*args, **kwargs):
         raise AssertionError("a file was read again")
 
     monkeypatch.setattr(SessionReader, "read_recording", refuse)
     monkeypatch.setattr(SessionReader, "read_image", refuse)
-    again = measure(session)
+    again = measure(session, options)
     np.testing.assert_array_equal(again.tofs.tof_s, first.tofs.tof_s)
     np.testing.assert_array_equal(again.tofs.reference_tof_s, first.tofs.reference_tof_s)
     # the same corners; OpenCV's camera fit itself repeats to about 1e-13 m
     np.testing.assert_allclose(again.speakers.positions_m, first.speakers.positions_m,
                                rtol=0, atol=1e-9)
     with pytest.raises(AssertionError, match="read again"):  # other settings: not remembered
-        measure(session, CalibrationOptions(band_hz=(500.0, 18_000.0)))
+        measure(session, replace(options, band_hz=(500.0, 18_000.0)))
 
 
 def test_a_subset_fit_with_c_per_pose_images_every_pose(measurements) -> None:

@@ -133,12 +133,7 @@ class SessionReader:
         if not path.is_file():
             return "missing"
         digest = sha256_file(path)
-        if digest.sha256 != file.sha256:
-            return (
-                f"checksum mismatch: {digest.bytes} bytes with sha256 {digest.sha256}, the journal "
-                f"recorded {file.bytes} bytes with sha256 {file.sha256}"
-            )
-        return None
+        return _mismatch(file, digest.bytes, digest.sha256)
 
     def _verified(self, step: str, name: str, role: FileRole) -> tuple[FileRecord, bytes]:
         """The journal's record of a file and its bytes, once they match the record."""
@@ -148,18 +143,16 @@ class SessionReader:
             data = path.read_bytes()
         except FileNotFoundError:
             raise SessionError(
-                f"{path} (step {step!r}) is missing although the journal records it; restore it "
+                f"{path} (step {step!r}): missing, although the journal records it; restore it "
                 "from a copy of the session (`micam inspect` lists every damaged file)"
             ) from None
         except OSError as exc:
             raise SessionError(f"{path} (step {step!r}) cannot be read: {exc}") from None
-        digest = hashlib.sha256(data).hexdigest()
-        if len(data) != file.bytes or digest != file.sha256:
-            raise SessionError(
-                f"{path} (step {step!r}) is damaged: {len(data)} bytes with sha256 {digest}, "
-                f"the journal recorded {file.bytes} bytes with sha256 {file.sha256}. Restore it "
-                "from a copy of the session (`micam inspect` lists every damaged file)"
-            )
+        problem = _mismatch(file, len(data), hashlib.sha256(data).hexdigest())
+        if problem:
+            raise SessionError(f"{path} (step {step!r}): {problem}; the file is damaged: restore "
+                               "it from a copy of the session (`micam inspect` lists every "
+                               "damaged file)")
         return file, data
 
     def _undecodable(self, file: FileRecord, what: str, why: object) -> SessionError:
@@ -186,3 +179,12 @@ class SessionReader:
         if file.role != role:
             raise SessionError(f"{file.path} holds role {file.role!r}, not {role!r}")
         return file
+
+
+def _mismatch(file: FileRecord, n_bytes: int, sha256: str) -> str | None:
+    """What is wrong with a file of `n_bytes` bytes and digest `sha256` that the journal
+    recorded as `file`, or None when it is the recorded one."""
+    if n_bytes == file.bytes and sha256 == file.sha256:
+        return None
+    return (f"checksum mismatch: {n_bytes} bytes with sha256 {sha256}, the journal recorded "
+            f"{file.bytes} bytes with sha256 {file.sha256}")

@@ -123,7 +123,7 @@ def test_the_worker_keeps_its_session_while_calibrating(
         return 600
 
     def compute(job: Job, session: Path, _joint: bool, _on_stage: object,
-                _detections: object = None) -> bytes:
+                _memo: object = None) -> bytes:
         seen["in_use"] = worker.cache.in_use()
         seen["files"] = sorted(p.name for p in session.rglob("*") if p.is_file())
         return b"{}"

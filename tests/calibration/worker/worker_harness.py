@@ -21,7 +21,7 @@ HOLD_S = 120.0
 _compute = worker_module.compute
 
 
-def _holding(job, session, joint, on_stage, detections=None):
+def _holding(job, session, joint, on_stage, memo=None):
     token = Path(os.environ["HOLD_TOKEN"])
     if job.kind == "final":
         try:
@@ -34,7 +34,7 @@ def _holding(job, session, joint, on_stage, detections=None):
                 s.sendto(f"HOLDING={sys.argv[sys.argv.index('--name') + 1]}".encode(),
                          os.environ["NOTIFY_SOCKET"])
             threading.Event().wait(HOLD_S)
-    return _compute(job, session, joint, on_stage, detections)
+    return _compute(job, session, joint, on_stage, memo)
 
 
 worker_module.compute = _holding
