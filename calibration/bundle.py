@@ -88,7 +88,12 @@ class BundleOptions:
         outlier_threshold: residuals (corners: the 2D error) beyond this many sigmas after
             the first pass are outliers, excluded from the second pass and reported.
         max_iterations: Levenberg-Marquardt iterations per pass.
-        tolerance: relative decrease of the cost below which a pass has converged.
+        tolerance: relative decrease of the cost below which the final pass has converged
+            (the cost is a chi-square of about one per row: 1e-8 of 1e5 rows is a step of
+            about a hundredth of the unknowns' sigmas, and the last steps shrink
+            quadratically).
+        pass_tolerance: the same for the passes before it, whose sigmas and outliers change
+            after them anyway.
         max_passes: passes at most (see `fit_bundle`).
         sigma_tolerance: relative change of every noise group's sigma below which the noise
             estimate has settled.
@@ -97,7 +102,8 @@ class BundleOptions:
     huber_k: float = 3.0
     outlier_threshold: float = 5.0
     max_iterations: int = 50
-    tolerance: float = 1e-10
+    tolerance: float = 1e-8
+    pass_tolerance: float = 1e-6
     max_passes: int = 10
     sigma_tolerance: float = 0.03
 
@@ -797,10 +803,11 @@ def fit_bundle(problem: BundleProblem, start: BundleState,
     Passes of robust Levenberg-Marquardt, the first with sigmas estimated from the start's
     residuals, each next one with the sigmas re-estimated from the previous pass's residuals
     and its outliers left out, until the sigmas change by less than `sigma_tolerance` and the
-    outliers not at all. Why more than two: the start's residuals hold the frozen camera's
-    systematic error, so the first TOF sigma is far too large (the first pass then sides with
-    the corners), and each pass gets closer to the noise. The covariance is the inverse of
-    the final normal matrix (data and priors).
+    outliers not at all; then a final pass with those sigmas and outliers, converged to
+    `tolerance` (the ones before stop at the looser `pass_tolerance`). Why more than two: the
+    start's residuals hold the frozen camera's systematic error, so the first TOF sigma is
+    far too large (the first pass then sides with the corners), and each pass gets closer to
+    the noise. The covariance is the inverse of the final normal matrix (data and priors).
 
     `start` may leave the optional unknowns None (zeros) and give one c for all poses.
 
@@ -832,9 +839,9 @@ def _fit(problem: BundleProblem, start: BundleState, options: BundleOptions) -> 
     keep = np.ones(model.n_rows, dtype=bool)
     sigma = _estimate_sigmas(model, model.evaluate(x, jacobian=False)[0], keep)
     iterations = 0
+    settling = replace(options, tolerance=options.pass_tolerance)
     for _ in range(options.max_passes):
-        fit = _Pass(model, sigma, keep, priors, options)
-        x, n = fit.run(x)
+        x, n = _Pass(model, sigma, keep, priors, settling).run(x)
         iterations += n
         residual = model.evaluate(x, jacobian=False)[0]
         new_keep = _inliers(model, residual / _estimate_sigmas(model, residual, keep),
@@ -846,6 +853,8 @@ def _fit(problem: BundleProblem, start: BundleState, options: BundleOptions) -> 
         if settled:
             break
     final = _Pass(model, sigma, keep, priors, options)
+    x, n = final.run(x)
+    iterations += n
     residual, jac = model.evaluate(x, jacobian=True)
     covariance = final.covariance(residual, jac, x)
     e = residual * final.whiten
