@@ -20,8 +20,10 @@ Frames (see DESIGN.md, "Calibration"):
 Detection is fast where it can be: on a full-size image without a board, OpenCV's classic
 detector takes seconds (adaptive thresholding of sensor noise yields many candidate quads),
 so the fast check runs first on its own (about 10 ms), then the classic detector on a
-half-size image (1-2 ms when the board is there), and the robust sector-based detector
-(findChessboardCornersSB, 0.1-0.2 s) at full size only when that fails. The corners are then
+half-size image (1-2 ms when the board is there; at quarter size it misses some), and the
+robust sector-based detector (findChessboardCornersSB, 0.1-0.4 s) at full size only when
+that fails (a caller that can tell a board cut by the image's edge, as the camera calibration
+can from the other cameras' views, skips it there). The corners are then
 refined with cornerSubPix on the full-resolution image (about 0.05 px RMS on the
 simulated images, against 0.07 px with occasional 0.5 px outliers from findChessboardCornersSB
 alone).
@@ -36,11 +38,6 @@ import numpy as np
 
 from acquisition.contracts.rig_description import RigDescription
 
-_DETECTION_TIERS = (("classic", 0.5), ("sb", 1.0))
-"""Detector and image scale of each attempt, cheapest first: the classic detector at half size
-finds the boards of the simulated sessions in 1-2 ms (at quarter size it misses some, and its
-fast check rejects boards); the sector-based detector at full size (0.1-0.2 s) is the robust
-fallback, for small and distant boards."""
 _CLASSIC_FLAGS = cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
 """The classic detector without adaptive thresholding: on the realistic lab's images (30
 poses, 3 cameras) it finds the same 49 boards in 3.7 ms per image instead of 35 ms, and where
@@ -98,45 +95,67 @@ class Checkerboard:
 
 
 def detect_corners(image: np.ndarray, board: Checkerboard) -> np.ndarray | None:
-    """The board's inner corners in rig order (X fastest), (n_corners, 2) pixels, or None.
+    """The board's inner corners in rig order (X fastest), (n_corners, 2) pixels, or None:
+    `detect_corners_quickly`, then `detect_corners_robustly` where it was unsure.
 
     Args:
         image: uint8 grey (h, w) or BGR (h, w, 3) image.
         board: the checkerboard to look for.
     """
-    grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-    corners = _find_corners(grey, board)
-    if corners is None:
-        return None
-    corners = _refine(grey, corners, board)
-    return _to_rig_order(grey, corners, board)
+    quick = detect_corners_quickly(image, board)
+    return detect_corners_robustly(image, board) if isinstance(quick, Unsure) else quick
 
 
-def _find_corners(grey: np.ndarray, board: Checkerboard) -> np.ndarray | None:
-    """Approximate corners (n, 2) in OpenCV's order at full resolution, or None.
+class Unsure:
+    """The type of `UNSURE`."""
+
+    def __repr__(self) -> str:
+        return "UNSURE"
+
+
+UNSURE = Unsure()
+"""What `detect_corners_quickly` returns when the fast check sees a board that the classic
+detector cannot find whole: a board cut by the image's edge, or one that only the robust
+detector finds (small, distant, unevenly lit)."""
+
+
+def detect_corners_quickly(image: np.ndarray, board: Checkerboard
+                           ) -> np.ndarray | None | Unsure:
+    """The corners (as `detect_corners`) from the cheap detectors alone, None when the fast
+    check sees no board, or `UNSURE`.
 
     cv2.checkChessboard (the detector's own fast check) rejects most images without a board:
-    at half size first (about 1 ms), at full size (about 9 ms) only when that fails (it
-    misses 2-4 % of the boards the detector then finds); then `_DETECTION_TIERS` are tried
-    in turn, cheapest first.
-    """
+    at half size first (about 1 ms), at full size (about 9 ms) only when that fails (it misses
+    2-4 % of the boards the detector then finds); then the classic detector at half size
+    (`_CLASSIC_FLAGS`)."""
+    grey = _grey(image)
     half = cv2.resize(grey, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
     if not (cv2.checkChessboard(half, board.pattern_size)
             or cv2.checkChessboard(grey, board.pattern_size)):
         return None
-    for detector, scale in _DETECTION_TIERS:
-        small = grey if scale == 1.0 else half if scale == 0.5 else cv2.resize(
-            grey, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
-        if detector == "classic":
-            found, corners = cv2.findChessboardCorners(
-                small, board.pattern_size, flags=_CLASSIC_FLAGS
-            )
-        else:
-            found, corners = cv2.findChessboardCornersSB(small, board.pattern_size)
-        if found:
-            # Pixel centres: full = (small + 1/2) / scale - 1/2 (INTER_AREA averages blocks).
-            return (corners.reshape(-1, 2) + 0.5) / scale - 0.5
-    return None
+    found, corners = cv2.findChessboardCorners(half, board.pattern_size, flags=_CLASSIC_FLAGS)
+    if not found:
+        return UNSURE
+    # pixel centres: full = (half + 1/2) * 2 - 1/2 (INTER_AREA averages 2 x 2 blocks)
+    return _finished(grey, (corners.reshape(-1, 2) + 0.5) * 2.0 - 0.5, board)
+
+
+def detect_corners_robustly(image: np.ndarray, board: Checkerboard) -> np.ndarray | None:
+    """The corners (as `detect_corners`) from the sector-based detector at full size
+    (findChessboardCornersSB, 0.1-0.4 s, and as long to fail on a board cut by the image's
+    edge), or None."""
+    grey = _grey(image)
+    found, corners = cv2.findChessboardCornersSB(grey, board.pattern_size)
+    return _finished(grey, corners.reshape(-1, 2), board) if found else None
+
+
+def _grey(image: np.ndarray) -> np.ndarray:
+    return image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+
+
+def _finished(grey: np.ndarray, corners: np.ndarray, board: Checkerboard) -> np.ndarray:
+    """Approximate corners (n, 2) in OpenCV's order, refined and put in rig order."""
+    return _to_rig_order(grey, _refine(grey, corners.astype(np.float64), board), board)
 
 
 def _refine(grey: np.ndarray, corners: np.ndarray, board: Checkerboard) -> np.ndarray:

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from acquisition.contracts.rig_description import KnownIntrinsics
-from calibration.camera_calibration import Checkerboard, calibrate_images, detect_corners
+from calibration.camera_calibration import calibrate_images
+from calibration.corners import Checkerboard, detect_corners
 from sim.geometry import Rig, RigidTransform, pinhole
 from sim.light import DARK_GREY, WHITE_GREY, render_rig_image
 from sim.poses import FACING_CAMERA

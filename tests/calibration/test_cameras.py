@@ -24,8 +24,8 @@ from calibration.camera_calibration import (
     Checkerboard,
     calibrate_images,
     calibrate_session,
-    detect_corners,
 )
+from calibration.corners import detect_corners
 from calibration.session_data import load_session
 
 CAMERAS = ["cam0", "cam1", "cam2"]
