@@ -490,8 +490,7 @@ def _initial_parameters(model: _Model, start: np.ndarray, options: SolverOptions
         x0[: 3 * model.s.n_mic] = start.ravel()
     else:
         ok = np.all(np.isfinite(start), axis=1)
-        R, t = kabsch(model.s.prior.positions_m[ok], start[ok])
-        x0[:3], x0[3:6] = Rotation.from_matrix(R).as_rotvec(), t
+        x0[:6] = kabsch(model.s.prior.positions_m[ok], start[ok]).params
     if model.s.fit_c:
         x0[model.offsets["c"]] = options.speed_of_sound_m_s
     return x0

@@ -41,8 +41,28 @@ def test_a_transform_composes_inverts_and_is_found_by_kabsch() -> None:
     points = rng.normal(size=(12, 3))
     assert np.allclose(T.inverse().apply(T.apply(points)), points)
     assert np.allclose(T.compose(T.inverse()).apply(points), points)
-    R, t = kabsch(points, T.apply(points))
-    assert np.allclose(R, T.R) and np.allclose(t, T.t)
+    found = kabsch(points, T.apply(points))
+    assert np.allclose(found.R, T.R) and np.allclose(found.t, T.t)
+    moved = T.apply(points)
+    assert np.allclose(T.inverse_apply(moved), points, atol=1e-15)
+    assert np.array_equal(T.inverse_apply(moved), (moved - T.t) @ T.R)
+    other = RigidTransform.from_rotvec(np.array([-0.1, 0.4, 0.2]), np.array([0.3, 0.0, -0.2]))
+    both = T.inverse_compose(other)
+    assert np.allclose(both.R, T.inverse().compose(other).R, atol=1e-15)
+    assert np.allclose(both.apply(points), T.inverse_apply(other.apply(points)), atol=1e-15)
+
+
+def test_a_transform_keeps_the_rotation_vector_it_was_made_from() -> None:
+    """Near a half turn r and r (1 - 2 pi / |r|) are one rotation; the fitted one comes back,
+    bit for bit, so a covariance of (rotvec, t) stays the covariance of `params`."""
+    beyond = np.array([0.0, 0.0, np.pi + 1e-3])  # a fit may step past a half turn
+    T = RigidTransform.from_rotvec(beyond, np.array([0.1, 0.2, 0.9]))
+    assert np.array_equal(T.rotvec, beyond)
+    assert np.array_equal(T.params, [0.0, 0.0, np.pi + 1e-3, 0.1, 0.2, 0.9])
+    from_matrix = RigidTransform(T.R, T.t).rotvec  # angle in [0, pi]: the other branch
+    assert np.linalg.norm(from_matrix) < np.pi
+    assert np.allclose(rotation_from_rotvec(from_matrix), T.R, atol=1e-15)
+    assert T.compose(RigidTransform.identity()).rotvec[2] < 0  # a new transform: R's vector
 
 
 def test_the_rotation_jacobian_matches_finite_differences() -> None:
