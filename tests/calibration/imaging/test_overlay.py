@@ -17,7 +17,7 @@ from .helpers import C, point_source_csm, sphere_bench
 
 def view_of(model: CameraModel) -> CameraView:
     return CameraView(model.name, model.width, model.height, model.K, model.dist,
-                      model.from_cam0)
+                      model.cam0_to_cam)
 
 
 @pytest.fixture(scope="module")
