@@ -3,6 +3,7 @@ and the rules the test suite keeps (no fork of the threaded pytest process)."""
 
 from __future__ import annotations
 
+import ast
 import re
 from pathlib import Path
 
@@ -63,6 +64,46 @@ def test_a_transform_keeps_the_rotation_vector_it_was_made_from() -> None:
     assert np.linalg.norm(from_matrix) < np.pi
     assert np.allclose(rotation_from_rotvec(from_matrix), T.R, atol=1e-15)
     assert T.compose(RigidTransform.identity()).rotvec[2] < 0  # a new transform: R's vector
+
+
+ROTATION_FIELDS = {"R", "rotation", "rotation_matrix", "rvec", "rotvec"}
+TRANSLATION_FIELDS = {"t", "tvec", "t_m", "translation", "translation_m"}
+NOT_A_TRANSFORM_TYPE = {
+    ("acquisition/contracts/rigid.py", "RigidTransform"): "the one type",
+    ("calibration/result.py", "TransformResult"): "result.json's form of one (the schema)",
+    ("calibration/solver.py", "RigSources"): "the solver's batched (n_pose, 3) unknowns",
+}
+
+
+def transform_like_classes(source: str) -> list[str]:
+    """Classes of `source` with both a rotation field and a translation field among their
+    annotated class attributes (dataclasses, NamedTuples, pydantic models)."""
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.ClassDef):
+            fields = {s.target.id for s in node.body
+                      if isinstance(s, ast.AnnAssign) and isinstance(s.target, ast.Name)}
+            if fields & ROTATION_FIELDS and fields & TRANSLATION_FIELDS:
+                found.append(node.name)
+    return found
+
+
+def test_a_record_with_its_own_rotation_and_translation_is_found() -> None:
+    assert transform_like_classes(
+        "@dataclass\nclass Pose:\n    rvec: np.ndarray\n    tvec: np.ndarray\n"
+        "class Ok:\n    rig_to_cam: RigidTransform\n    t: float\n") == ["Pose"]
+
+
+def test_no_type_but_rigid_transform_holds_a_rotation_and_a_translation() -> None:
+    """#18 found five types for one rigid transform; records hold a RigidTransform in a field
+    named for its direction (`cam0_to_cam`, `rig_to_cam0`) instead of their own R and t."""
+    found = {(str(path.relative_to(REPO)), name)
+             for top in ("acquisition", "calibration", "daq", "micam", "sim", "benchmarks",
+                         "tests")
+             for path in sorted((REPO / top).rglob("*.py"))
+             for name in transform_like_classes(path.read_text())}
+    assert found - NOT_A_TRANSFORM_TYPE.keys() == set()
+    assert NOT_A_TRANSFORM_TYPE.keys() <= found  # the exceptions still exist as named
 
 
 def test_the_rotation_jacobian_matches_finite_differences() -> None:
