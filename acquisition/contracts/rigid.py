@@ -41,7 +41,8 @@ class RigidTransform:
     it bit for bit and on its branch (near a half turn r and r (1 - 2 pi / |r|) are the same
     rotation), so a fitted parameter vector survives the round trip and a covariance of
     (rotvec, t) stays the covariance of the transform's own parameters. Otherwise `rotvec` is
-    computed from R (angle in [0, pi]).
+    computed from R (angle in [0, pi]). `given_rotvec` is that vector; only `from_rotvec`
+    sets it.
     """
 
     R: np.ndarray
@@ -74,10 +75,8 @@ class RigidTransform:
         return np.asarray(points) @ self.R.T + self.t
 
     def inverse_apply(self, points: np.ndarray) -> np.ndarray:
-        """Points (..., 3) of the `to` frame into the `from` frame: R^T (x - t).
-
-        The same as `inverse().apply(points)` to rounding, without forming the inverse (and
-        bit for bit what the callers computed before the transform had one type)."""
+        """Points (..., 3) of the `to` frame into the `from` frame: R^T (x - t), which is
+        `inverse().apply(points)` to rounding without forming the inverse."""
         return (np.asarray(points) - self.t) @ self.R
 
     def compose(self, inner: RigidTransform) -> RigidTransform:
