@@ -62,7 +62,7 @@ from scipy import sparse
 from scipy.linalg import cho_factor, cho_solve
 from scipy.spatial.transform import Rotation
 
-from acquisition.contracts.rigid import rotated_point_jacobian
+from acquisition.contracts.rigid import RigidTransform, rotated_point_jacobian, rotation_from_rotvec
 
 from ._blas import single_threaded_blas
 from .camera_calibration import CameraCalibration, CameraIntrinsics, Extrinsics, Pose
@@ -473,8 +473,8 @@ class _Model:
             k = p.view_pose[views]
             Y = np.einsum("vab,cb->vca", R_pose[k], board) + s.poses[k, None, 3:]
             if i > 0:
-                rvec_i, t_i = s.extrinsics[i - 1, :3], s.extrinsics[i - 1, 3:]
-                X = Y @ Rotation.from_rotvec(rvec_i).as_matrix().T + t_i
+                X = RigidTransform.from_rotvec(s.extrinsics[i - 1, :3],
+                                               s.extrinsics[i - 1, 3:]).apply(Y)
             else:
                 X = Y
             K = np.array([[s.intrinsics[i, 0], 0, s.intrinsics[i, 2]],
@@ -947,8 +947,8 @@ def camera_start(cams: CameraCalibration) -> tuple[np.ndarray, np.ndarray]:
     names = list(cams.intrinsics)
     intrinsics = np.array([[*_focal_centre(cams.intrinsics[n].K), *cams.intrinsics[n].dist]
                            for n in names])  # fmt: skip
-    extrinsics = np.array([[*Rotation.from_matrix(cams.cam_from_cam0[n].R).as_rotvec(),
-                            *cams.cam_from_cam0[n].t] for n in names[1:]]).reshape(-1, 6)
+    extrinsics = np.array([cams.cam_from_cam0[n].cam0_to_cam.params
+                           for n in names[1:]]).reshape(-1, 6)
     return intrinsics, extrinsics
 
 
@@ -988,9 +988,10 @@ def refined_cameras(cams: CameraCalibration, solution: BundleSolution) -> Camera
         if i == 0:
             extrinsics[name] = old_ext
         else:
-            R = Rotation.from_rotvec(state.extrinsics[i - 1, :3]).as_matrix()
-            extrinsics[name] = Extrinsics(R, state.extrinsics[i - 1, 3:].copy(), rms,
-                                          old_ext.n_shared_views, old_ext.via)
+            # made from R, not from_rotvec: result.json writes the rotation vector of R
+            cam0_to_cam = RigidTransform(rotation_from_rotvec(state.extrinsics[i - 1, :3]),
+                                         state.extrinsics[i - 1, 3:].copy())
+            extrinsics[name] = Extrinsics(cam0_to_cam, rms, old_ext.n_shared_views, old_ext.via)
     return CameraCalibration(cams.board, intrinsics, extrinsics, cams.views, cams.missed,
                              cams.uncalibrated)
 
@@ -998,4 +999,5 @@ def refined_cameras(cams: CameraCalibration, solution: BundleSolution) -> Camera
 def pose_estimate(solution: BundleSolution, index: int) -> Pose:
     """Board pose `index` (rig -> camera 0) of the joint fit with its 6x6 covariance."""
     p = solution.state.poses[index]
-    return Pose(p[:3].copy(), p[3:].copy(), solution.marginal("poses", index, 6).copy())
+    return Pose(RigidTransform.from_rotvec(p[:3], p[3:].copy()),
+                solution.marginal("poses", index, 6).copy())

@@ -6,7 +6,7 @@ equation 4) with one board pose per image, give every pose a covariance, and fin
 camera's transform from the camera-0 frame from the views it shares with other cameras.
 
 The board and its corner detection (frames, orders, the detectors) are calibration.corners;
-a board pose (rvec, tvec) maps rig coordinates into the camera's: x_cam = R(rvec) x_rig + t.
+a board pose maps rig coordinates into the camera's: x_cam = R(rvec) x_rig + t.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 
 from acquisition.contracts.rig_description import KnownIntrinsics
-from acquisition.contracts.rigid import RigidTransform, rotation_from_rotvec
+from acquisition.contracts.rigid import RigidTransform
 from acquisition.contracts.session import SessionReader
 
 from ._cores import default_workers
@@ -65,25 +65,21 @@ class CameraCalibrationError(ValueError):
 
 @dataclass(frozen=True)
 class Pose:
-    """A rigid transform x_to = R(rvec) x_from + tvec with the covariance of its parameters.
+    """A fitted rigid transform and the covariance of its parameters; the field that holds
+    it names the direction (`BoardView.rig_to_cam`, `RigPoseInCam0.rig_to_cam0`).
+
+    The covariance is not part of `RigidTransform`: composing or inverting a transform does
+    not carry it (that needs the Jacobians, see `speakers._to_cam0`), and most transforms
+    have none.
 
     Attributes:
-        rvec: (3,) rotation vector, radians (OpenCV's Rodrigues convention).
-        tvec: (3,) translation, metres.
-        cov: (6, 6) covariance of (rvec, tvec) in rad^2, rad m, m^2.
+        transform: x_to = R x_from + t, made from the fitted rotation vector
+            (`RigidTransform.from_rotvec`, which keeps it bit for bit and on its branch).
+        cov: (6, 6) covariance of `transform.params` = (rotvec, t) in rad^2, rad m, m^2.
     """
 
-    rvec: np.ndarray
-    tvec: np.ndarray
+    transform: RigidTransform
     cov: np.ndarray
-
-    @property
-    def R(self) -> np.ndarray:
-        return rotation_from_rotvec(self.rvec)
-
-    def apply(self, points: np.ndarray) -> np.ndarray:
-        """Transform points of shape (..., 3)."""
-        return np.asarray(points) @ self.R.T + self.tvec
 
 
 @dataclass(frozen=True)
@@ -138,25 +134,19 @@ class CameraIntrinsics:
 
 @dataclass(frozen=True)
 class Extrinsics:
-    """A camera's transform from the camera-0 frame: x_cam = R x_cam0 + t.
+    """A camera's transform from the camera-0 frame and how it was fitted.
 
     Attributes:
-        R: (3, 3) rotation.
-        t: (3,) translation, metres.
+        cam0_to_cam: x_cam = R x_cam0 + t, metres.
         rms_px: RMS reprojection error of the shared views used to fit it (0 for camera 0).
         n_shared_views: board views the fit used (0 for camera 0).
         via: the camera it was fitted against (itself for camera 0).
     """
 
-    R: np.ndarray
-    t: np.ndarray
+    cam0_to_cam: RigidTransform
     rms_px: float
     n_shared_views: int
     via: str
-
-    def inverse_apply(self, points: np.ndarray) -> np.ndarray:
-        """Points (..., 3) from this camera's frame into the camera-0 frame."""
-        return (np.asarray(points) - self.t) @ self.R
 
 
 @dataclass(frozen=True)
@@ -299,9 +289,9 @@ def _runs_off_the_image(
                                       other.K, other.dist)
         if not ok:
             continue
-        to_other = _from_cam0(rough, others[0])
-        rig_to_cam = _from_cam0(rough, camera).compose(to_other.inverse()).compose(
-            RigidTransform.from_rotvec(rvec.ravel(), tvec.ravel()))
+        to_other = rough.cam_from_cam0[others[0]].cam0_to_cam
+        rig_to_cam = rough.cam_from_cam0[camera].cam0_to_cam.compose(
+            to_other.inverse_compose(RigidTransform.from_rotvec(rvec.ravel(), tvec.ravel())))
         in_cam = rig_to_cam.apply(obj)
         mine = rough.intrinsics[camera]
         px, _ = cv2.projectPoints(in_cam, np.zeros(3), np.zeros(3), mine.K, mine.dist)
@@ -311,12 +301,6 @@ def _runs_off_the_image(
         if np.any(in_cam[:, 2] <= 0) or outside.any():
             cut.add((camera, step))
     return cut
-
-
-def _from_cam0(cams: CameraCalibration, camera: str) -> RigidTransform:
-    """A calibrated camera's transform from the camera-0 frame."""
-    e = cams.cam_from_cam0[camera]
-    return RigidTransform(e.R, e.t)
 
 
 def calibrate_images(
@@ -476,7 +460,7 @@ def _calibrate_camera(
             fits = _fits_with(K, dist, corners, steps, board)
     pose_covs = _pose_covariances(fits, intrinsics_cov)
     views = [
-        BoardView(camera, s, corners[s], Pose(f.rvec, f.tvec, cov), f.rms_px)
+        BoardView(camera, s, corners[s], Pose(f.rig_to_cam, cov), f.rms_px)
         for s, f, cov in zip(steps, fits, pose_covs, strict=True)
     ]
     rms = float(np.sqrt(np.mean([f.rms_px**2 for f in fits])))
@@ -520,15 +504,14 @@ class _ViewFit:
     """One view's pose and the Jacobians of its reprojection at the fitted parameters.
 
     Attributes:
-        rvec, tvec: the pose (rig to camera).
+        rig_to_cam: the pose, made from the fitted rotation vector.
         J_pose: (2 n, 6) derivatives of the pixel coordinates by (rvec, tvec).
         J_intr: (2 n, 9) derivatives by (fx, fy, cx, cy, k1, k2, p1, p2, k3).
         s2: residual variance per pixel coordinate, px^2 (sum of squares / (2 n - 6)).
         rms_px: RMS reprojection error per corner, pixels.
     """
 
-    rvec: np.ndarray
-    tvec: np.ndarray
+    rig_to_cam: RigidTransform
     J_pose: np.ndarray
     J_intr: np.ndarray
     s2: float
@@ -548,8 +531,7 @@ def _view_fit(
     residual = corners - projected.reshape(-1, 2)
     sq = float(np.sum(residual**2))
     return _ViewFit(
-        rvec=rvec,
-        tvec=tvec,
+        rig_to_cam=RigidTransform.from_rotvec(rvec, tvec),
         J_pose=jac[:, :6],
         J_intr=jac[:, 6:15],
         s2=sq / (residual.size - 6),
@@ -607,7 +589,7 @@ def _link_cameras(
     """
     cameras = list(intrinsics)
     reference = cameras[0]
-    linked = {reference: Extrinsics(np.eye(3), np.zeros(3), 0.0, 0, reference)}
+    linked = {reference: Extrinsics(RigidTransform.identity(), 0.0, 0, reference)}
     queue = deque([reference])
     while queue:
         known = queue.popleft()
@@ -617,9 +599,10 @@ def _link_cameras(
             shared = _shared_steps(views, known, camera)
             if len(shared) < min_shared_views:
                 continue
-            R, t, rms = _stereo(intrinsics[known], intrinsics[camera], views, shared, board)
-            base = linked[known]
-            linked[camera] = Extrinsics(R @ base.R, R @ base.t + t, rms, len(shared), known)
+            known_to_cam, rms = _stereo(intrinsics[known], intrinsics[camera], views, shared,
+                                        board)
+            cam0_to_cam = known_to_cam.compose(linked[known].cam0_to_cam)
+            linked[camera] = Extrinsics(cam0_to_cam, rms, len(shared), known)
             queue.append(camera)
     return {c: linked[c] for c in cameras if c in linked}
 
@@ -635,8 +618,9 @@ def _stereo(
     views: dict[tuple[str, str], BoardView],
     steps: list[str],
     board: Checkerboard,
-) -> tuple[np.ndarray, np.ndarray, float]:
-    """R, t (x_second = R x_first + t) and RMS error from stereoCalibrate, intrinsics fixed.
+) -> tuple[RigidTransform, float]:
+    """The transform x_second = R x_first + t and its RMS error (pixels) from
+    stereoCalibrate, intrinsics fixed.
 
     Fitting the transform to the corners of both images of every shared view weighs each
     view by how well it constrains the transform, unlike averaging per-view pose differences.
@@ -657,4 +641,4 @@ def _stereo(
             flags=cv2.CALIB_FIX_INTRINSIC,
             criteria=_CALIB_CRITERIA,
         )
-    return R, t.ravel(), float(rms)
+    return RigidTransform(R, t.ravel()), float(rms)

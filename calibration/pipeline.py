@@ -35,9 +35,9 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from acquisition.contracts.rig_description import KnownIntrinsics
+from acquisition.contracts.rigid import RigidTransform
 
 from .bundle import (
     FIXED,
@@ -498,8 +498,8 @@ def _rig_sources(data: SessionData, speakers: SpeakerPositions, pose_idx: np.nda
     poses = [speakers.poses[i] for i in pose_idx]
     return RigSources(
         rig_points_m=data.speakers_rig_m,
-        rotvec=np.array([p.rig_to_cam0.rvec for p in poses]),
-        translation_m=np.array([p.rig_to_cam0.tvec for p in poses]),
+        rotvec=np.array([p.rig_to_cam0.transform.rotvec for p in poses]),
+        translation_m=np.array([p.rig_to_cam0.transform.t for p in poses]),
         pose_of_source=np.repeat(np.arange(len(poses)), len(spk_idx)),
         speaker_of_source=np.tile(spk_idx, len(poses)),
         pose_covariance=np.array([p.rig_to_cam0.cov for p in poses]),
@@ -668,7 +668,7 @@ def fit_joint(m: Measurements, frozen: MicrophoneSolution, options: CalibrationO
     intrinsics, extrinsics = camera_start(m.cameras)
     start = BundleState(
         intrinsics=intrinsics, extrinsics=extrinsics,
-        poses=np.array([[*p.rig_to_cam0.rvec, *p.rig_to_cam0.tvec] for p in board_poses]),
+        poses=np.array([p.rig_to_cam0.transform.params for p in board_poses]),
         microphones_m=frozen.positions_m[solved], reference_m=reference,
         speeds_of_sound_m_s=np.array([frozen.speed_of_sound_m_s]), latencies_s=latencies,
         speaker_offsets_m=priors.speaker_offset_mean_m.copy(),
@@ -885,8 +885,8 @@ def joint_flights(m: Measurements, bundle: BundleSolution, frozen: MicrophoneSol
     points = m.data.speakers_rig_m + s.speaker_offsets_m
 
     def geometry(k: int) -> tuple[np.ndarray, np.ndarray, float]:
-        R = Rotation.from_rotvec(s.poses[k, :3]).as_matrix()
-        return points @ R.T + s.poses[k, 3:], R[:, 2], bundle.speed_of_sound_at(k)
+        rig_to_cam0 = RigidTransform.from_rotvec(s.poses[k, :3], s.poses[k, 3:])
+        return rig_to_cam0.apply(points), rig_to_cam0.R[:, 2], bundle.speed_of_sound_at(k)
 
     return _flights(m, s.microphones_m, solved, _mic_latency(m.data, s.latencies_s, solved),
                     pose_indices, geometry, s.off_axis_m)
@@ -900,8 +900,8 @@ def frozen_flights(m: Measurements, frozen: MicrophoneSolution,
     latency = np.broadcast_to(frozen.latency_s, (len(boards),))[board_of_mic][solved]
 
     def geometry(k: int) -> tuple[np.ndarray, np.ndarray, float]:
-        R = Rotation.from_rotvec(m.speakers.poses[k].rig_to_cam0.rvec).as_matrix()
-        return m.speakers.positions_m[k], R[:, 2], frozen.speed_of_sound_m_s
+        normal = m.speakers.poses[k].rig_to_cam0.transform.R[:, 2]
+        return m.speakers.positions_m[k], normal, frozen.speed_of_sound_m_s
 
     return _flights(m, frozen.positions_m[solved], solved, latency, pose_indices, geometry)
 
@@ -977,8 +977,8 @@ def _camera_result(cams: CameraCalibration, name: str) -> CameraResult:
     return CameraResult(
         name=name, width=intr.width, height=intr.height, K=intr.K.tolist(),
         dist=intr.dist.ravel().tolist(),
-        from_cam0=TransformResult(rotvec=_vec(Rotation.from_matrix(ext.R).as_rotvec()),
-                                  t_m=_vec(ext.t)),
+        from_cam0=TransformResult(rotvec=_vec(ext.cam0_to_cam.rotvec),
+                                  t_m=_vec(ext.cam0_to_cam.t)),
         reprojection_rms_px=float(intr.rms_px), images_used=int(intr.n_views),
         images_without_board=missed, intrinsics_std=intr.std.tolist())
 
@@ -987,8 +987,8 @@ def _pose_result(data: SessionData, speakers: SpeakerPositions, i: int) -> PoseR
     pose = speakers.poses[i]
     return PoseResult(
         index=int(pose.step.split("/")[1]), step=pose.step, camera=pose.camera,
-        rig_to_cam0=TransformResult(rotvec=_vec(pose.rig_to_cam0.rvec),
-                                    t_m=_vec(pose.rig_to_cam0.tvec)),
+        rig_to_cam0=TransformResult(rotvec=_vec(pose.rig_to_cam0.transform.rotvec),
+                                    t_m=_vec(pose.rig_to_cam0.transform.t)),
         speakers_m=[_vec(p) for p in speakers.positions_m[i]],
         speakers_std_m=[_vec(np.sqrt(np.diag(c))) for c in speakers.cov_m2[i]],
         reprojection_rms_px=float(pose.rms_px))

@@ -18,7 +18,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from acquisition.contracts.rigid import kabsch, rotation_from_rotvec
+from acquisition.contracts.rigid import RigidTransform, kabsch
 
 from .figures.geometry import ArrayPicture, CameraMark, geometry_figure
 from .figures.residuals import (
@@ -73,10 +73,9 @@ def write_report(run: CalibrationRun, directory: Path, truth: dict | None = None
 
 
 def _camera_mark(name: str, rotvec, t_m, calibrated: bool) -> CameraMark:
-    """A camera at x_cam = R x_cam0 + t: centre -R^T t, optical axis R^T z."""
-    R = rotation_from_rotvec(rotvec)
-    return CameraMark(name, -R.T @ np.asarray(t_m, dtype=np.float64), R.T @ [0.0, 0.0, 1.0],
-                      calibrated)
+    """A camera at x_cam = R x_cam0 + t: its centre and optical axis (z) in camera 0."""
+    cam_to_cam0 = RigidTransform.from_rotvec(rotvec, t_m).inverse()
+    return CameraMark(name, cam_to_cam0.t, cam_to_cam0.R[:, 2], calibrated)
 
 
 def array_picture(result: CalibrationResult, truth: dict | None = None,
@@ -102,8 +101,8 @@ def array_picture(result: CalibrationResult, truth: dict | None = None,
         reference, label = np.array([by_id[i] for i in ids], dtype=np.float64), "simulated truth"
     elif prior_m is not None:
         ok = np.all(np.isfinite(estimate), axis=1)
-        R, t = kabsch(prior_m[ok], estimate[ok])
-        reference, label = prior_m @ R.T + t, "prior (rigidly fitted)"
+        reference = kabsch(prior_m[ok], estimate[ok]).apply(prior_m)
+        label = "prior (rigidly fitted)"
     if covariance_m2 is None:
         covariance_m2 = np.array([np.diag(np.square(m.std_m)) for m in result.microphones])
     calibrated = {c.name for c in result.cameras}
@@ -171,8 +170,8 @@ def _reprojection_residual(run: CalibrationRun, key: tuple[str, str]) -> np.ndar
     """Detected minus projected corners (n, 2) of one camera-only board view."""
     cams = run.measurements.cameras
     view, intr = cams.views[key], cams.intrinsics[key[0]]
-    projected, _ = cv2.projectPoints(cams.board.object_points(), view.rig_to_cam.rvec,
-                                     view.rig_to_cam.tvec, intr.K, intr.dist)
+    projected, _ = cv2.projectPoints(cams.board.object_points(), view.rig_to_cam.transform.rotvec,
+                                     view.rig_to_cam.transform.t, intr.K, intr.dist)
     return view.corners_px - projected.reshape(-1, 2)
 
 

@@ -35,7 +35,7 @@ from scipy import sparse
 from scipy.optimize import OptimizeResult, least_squares
 from scipy.spatial.transform import Rotation
 
-from acquisition.contracts.rigid import kabsch, rotated_point_jacobian
+from acquisition.contracts.rigid import RigidTransform, kabsch, rotated_point_jacobian
 
 from .multilateration import multilaterate
 from .robust import inverse_normal, robust_sigma
@@ -288,7 +288,7 @@ class _Model:
             return self.part("mic", x).reshape(-1, 3), [(self.offsets["mic"] + own, eye)]
         omega, trans = self.part("mic", x)[:3], self.part("mic", x)[3:]
         geometry = self.s.prior.positions_m
-        positions = Rotation.from_rotvec(omega).apply(geometry) + trans
+        positions = RigidTransform.from_rotvec(omega, trans).apply(geometry)
         rot_block = rotated_point_jacobian(np.broadcast_to(omega, geometry.shape), geometry)
         rigid_cols = np.broadcast_to(self.offsets["mic"] + np.arange(6), (n_mic, 6))
         blocks = [(rigid_cols, np.concatenate([rot_block, eye], axis=2))]
@@ -490,8 +490,7 @@ def _initial_parameters(model: _Model, start: np.ndarray, options: SolverOptions
         x0[: 3 * model.s.n_mic] = start.ravel()
     else:
         ok = np.all(np.isfinite(start), axis=1)
-        R, t = kabsch(model.s.prior.positions_m[ok], start[ok])
-        x0[:3], x0[3:6] = Rotation.from_matrix(R).as_rotvec(), t
+        x0[:6] = kabsch(model.s.prior.positions_m[ok], start[ok]).params
     if model.s.fit_c:
         x0[model.offsets["c"]] = options.speed_of_sound_m_s
     return x0

@@ -20,11 +20,10 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy.spatial.transform import Rotation
 
-from acquisition.contracts.rigid import rotation_from_rotvec
+from acquisition.contracts.rigid import RigidTransform
 
-from .camera_calibration import CameraCalibration, Extrinsics, Pose
+from .camera_calibration import CameraCalibration, Pose
 
 _STEP_RAD_OR_M = 1e-6
 """Central-difference step for the pose parameters (radians and metres): small against the
@@ -42,8 +41,8 @@ class RigPoseInCam0:
     Attributes:
         step: the session step ("pose/0003", "refmic").
         camera: the camera whose image located the rig.
-        rig_to_cam0: x_cam0 = R(rvec) x_rig + tvec, with the (6, 6) covariance of
-            (rvec, tvec) in the camera-0 frame.
+        rig_to_cam0: x_cam0 = R x_rig + t, with the (6, 6) covariance of its
+            (rotvec, t) in the camera-0 frame.
         rms_px: RMS reprojection error of that image, pixels.
     """
 
@@ -57,11 +56,11 @@ class RigPoseInCam0:
         covariances, m^2 (paper equation 10)."""
         points = np.asarray(points_rig_m, dtype=np.float64).reshape(-1, 3)
         pose = self.rig_to_cam0
-        params = np.concatenate([pose.rvec, pose.tvec])
-        cov = _propagate(lambda p: _transform(p, points).ravel(), params, pose.cov)
+        cov = _propagate(lambda p: _transform(p).apply(points).ravel(), pose.transform.params,
+                         pose.cov)
         n = len(points)
         blocks = cov.reshape(n, 3, n, 3)[np.arange(n), :, np.arange(n), :]
-        return pose.apply(points), blocks
+        return pose.transform.apply(points), blocks
 
 
 @dataclass(frozen=True)
@@ -116,7 +115,7 @@ def rig_pose_in_cam0(calibration: CameraCalibration, step: str) -> RigPoseInCam0
     pose = (
         view.rig_to_cam
         if view.camera == reference
-        else _to_cam0(view.rig_to_cam, calibration.cam_from_cam0[view.camera])
+        else _to_cam0(view.rig_to_cam, calibration.cam_from_cam0[view.camera].cam0_to_cam)
     )
     return RigPoseInCam0(step, view.camera, pose, view.rms_px)
 
@@ -177,28 +176,26 @@ def reference_microphone_position(
     return ReferenceMicrophonePosition(position[0], cov[0], pose)
 
 
-def _to_cam0(rig_to_cam: Pose, cam_from_cam0: Extrinsics) -> Pose:
+def _to_cam0(rig_to_cam: Pose, cam0_to_cam: RigidTransform) -> Pose:
     """A board pose in another camera's frame carried into the camera-0 frame, with its
     covariance.
 
-    x_cam0 = A^-1 (R x_rig + t) with A = cam_from_cam0, so R0 = A_R^T R, t0 = A_R^T (t - A_t).
+    x_cam0 = A^-1 (R x_rig + t) with A = cam0_to_cam, so R0 = A_R^T R, t0 = A_R^T (t - A_t).
     The rotation vector of R0 comes from scipy (quaternion-based): cv2.Rodrigues loses about
     half the digits of the axis within 1e-5 rad of a half turn, where boards facing the
     camera are.
     """
-    params = np.concatenate([rig_to_cam.rvec, rig_to_cam.tvec])
+    params = rig_to_cam.transform.params
 
     def compose(p: np.ndarray) -> np.ndarray:
-        R = cam_from_cam0.R.T @ rotation_from_rotvec(p[:3])
-        rvec = Rotation.from_matrix(R).as_rotvec()
-        return np.concatenate([rvec, cam_from_cam0.inverse_apply(p[3:])])
+        return cam0_to_cam.inverse_compose(_transform(p)).params
 
     composed = compose(params)
     # Keep every perturbed rotation vector on the branch of the composed one: near a half
     # turn (a board facing the camera is one) Rodrigues may return the equivalent vector of
     # angle theta - 2 pi, which would wreck the differences.
     cov = _propagate(lambda p: _same_branch(compose(p), composed), params, rig_to_cam.cov)
-    return Pose(composed[:3], composed[3:], cov)
+    return Pose(_transform(composed), cov)
 
 
 def _same_branch(params: np.ndarray, reference: np.ndarray) -> np.ndarray:
@@ -213,9 +210,9 @@ def _same_branch(params: np.ndarray, reference: np.ndarray) -> np.ndarray:
     return params
 
 
-def _transform(params: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Points (n, 3) mapped by the pose params = (rvec, tvec): R(rvec) x + tvec."""
-    return points @ rotation_from_rotvec(params[:3]).T + params[3:]
+def _transform(params: np.ndarray) -> RigidTransform:
+    """The transform of pose parameters (rotvec, t), radians and metres."""
+    return RigidTransform.from_rotvec(params[:3], params[3:])
 
 
 def _propagate(f: Callable[[np.ndarray], np.ndarray], x: np.ndarray, cov: np.ndarray) -> np.ndarray:

@@ -99,7 +99,7 @@ def _camera_on_sphere(name: str, centre: np.ndarray, radius: float, azimuth_deg:
     y_axis = np.array([0.0, 1.0, 0.0])
     x_axis = np.cross(y_axis, z_axis)
     R = np.stack([x_axis, y_axis, z_axis])  # rows: camera axes in the camera-0 frame
-    return pinhole(name, from_cam0=RigidTransform(R, -R @ position))
+    return pinhole(name, cam0_to_cam=RigidTransform(R, -R @ position))
 
 
 def _wire(n_mics: int, input_boards: list[BoardSpec], models_inputs: dict[str, int],

@@ -33,7 +33,7 @@ class CameraModel:
         width, height: image size in pixels.
         K: 3x3 intrinsic matrix (focal lengths and principal point in pixels).
         dist: distortion coefficients (k1, k2, p1, p2, k3), OpenCV order.
-        from_cam0: the transform from the camera-0 frame into this camera's frame.
+        cam0_to_cam: the transform from the camera-0 frame into this camera's frame.
     """
 
     name: str
@@ -41,17 +41,17 @@ class CameraModel:
     height: int
     K: np.ndarray
     dist: np.ndarray
-    from_cam0: RigidTransform = field(default_factory=RigidTransform.identity)
+    cam0_to_cam: RigidTransform = field(default_factory=RigidTransform.identity)
 
     def project(self, points_cam0: np.ndarray) -> np.ndarray:
         """Pixel coordinates (N, 2) of points (N, 3) given in the camera-0 frame."""
-        pts = self.from_cam0.apply(np.asarray(points_cam0, dtype=np.float64).reshape(-1, 3))
+        pts = self.cam0_to_cam.apply(np.asarray(points_cam0, dtype=np.float64).reshape(-1, 3))
         px, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), self.K, self.dist)
         return px.reshape(-1, 2)
 
     def in_front(self, points_cam0: np.ndarray) -> np.ndarray:
         """Boolean mask of points that lie in front of the camera (positive depth)."""
-        pts = self.from_cam0.apply(np.asarray(points_cam0, dtype=np.float64).reshape(-1, 3))
+        pts = self.cam0_to_cam.apply(np.asarray(points_cam0, dtype=np.float64).reshape(-1, 3))
         return pts[:, 2] > 1e-3
 
     def to_json(self) -> dict:
@@ -61,7 +61,7 @@ class CameraModel:
             "height": self.height,
             "K": self.K.tolist(),
             "dist": self.dist.tolist(),
-            "from_cam0": self.from_cam0.to_json(),
+            "from_cam0": self.cam0_to_cam.to_json(),
         }
 
 
@@ -71,7 +71,7 @@ def pinhole(
     height: int = 960,
     focal_px: float = 1000.0,
     dist: tuple[float, float, float, float, float] = (-0.08, 0.05, 0.0005, -0.0003, 0.0),
-    from_cam0: RigidTransform | None = None,
+    cam0_to_cam: RigidTransform | None = None,
 ) -> CameraModel:
     """A camera with square pixels, its principal point near the image centre."""
     K = np.array(
@@ -83,7 +83,7 @@ def pinhole(
         height=height,
         K=K,
         dist=np.array(dist, dtype=np.float64),
-        from_cam0=from_cam0 or RigidTransform.identity(),
+        cam0_to_cam=cam0_to_cam or RigidTransform.identity(),
     )
 
 

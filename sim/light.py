@@ -97,7 +97,7 @@ def render_rig_image(
     """Grey image (uint8, camera.height x camera.width) of the rig seen by `camera`.
 
     Args:
-        camera: intrinsics, distortion and pose (camera.from_cam0) of the camera.
+        camera: intrinsics, distortion and pose (camera.cam0_to_cam) of the camera.
         rig: the calibration rig (pattern, plate, speakers).
         rig_to_cam0: pose of the rig, x_cam0 = R x_rig + t; None renders the empty background.
         rng: source of the sensor noise.
@@ -112,7 +112,7 @@ def render_rig_image(
     if rig_to_cam0 is None:
         image = background
     else:
-        rig_to_cam = camera.from_cam0.compose(rig_to_cam0)
+        rig_to_cam = camera.cam0_to_cam.compose(rig_to_cam0)
         hits = _board_hits(_pixel_rays(camera), rig_to_cam)
         plate = _interval_coverage(hits.X, hits.w_x, rig.plate_m[0], rig.plate_m[1])
         plate *= _interval_coverage(hits.Y, hits.w_y, rig.plate_m[2], rig.plate_m[3])

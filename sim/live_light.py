@@ -60,7 +60,7 @@ def render_scene_image(model: CameraModel, sources_m: np.ndarray, rng: np.random
     points = np.asarray(sources_m, dtype=np.float64).reshape(-1, 3)
     in_front = model.in_front(points)
     if np.any(in_front):
-        depth = model.from_cam0.apply(points[in_front])[:, 2]
+        depth = model.cam0_to_cam.apply(points[in_front])[:, 2]
         for (u, v), z in zip(model.project(points[in_front]), depth, strict=True):
             radius = max(2, round(model.K[0, 0] * SPEAKER_RADIUS_M / z))
             centre = (round(u * 16), round(v * 16))  # 4 fractional bits: sub-pixel centres

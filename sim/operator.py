@@ -21,7 +21,7 @@ def reference_stand_position(camera: CameraModel, depth_m: float = 0.8) -> np.nd
     board facing the camera, the checkerboard extends up and to the right, into the view.
     """
     ray = np.linalg.inv(camera.K) @ np.array([-20.0, camera.height + 20.0, 1.0])
-    return camera.from_cam0.inverse().apply(depth_m * ray / ray[2])
+    return camera.cam0_to_cam.inverse().apply(depth_m * ray / ray[2])
 
 
 _SETUP_CODE = {InstructionKind.REFERENCE_AT_SPEAKER: 1, InstructionKind.REFERENCE_ON_STAND: 2,

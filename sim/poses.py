@@ -53,7 +53,7 @@ def sample_pose(
         u = rng.uniform(0.2, 0.8) * camera.width
         v = rng.uniform(0.2, 0.8) * camera.height
         ray = K_inv @ np.array([u, v, 1.0])
-        centre_cam = camera.from_cam0.inverse().apply(d * ray / np.linalg.norm(ray))
+        centre_cam = camera.cam0_to_cam.inverse().apply(d * ray / np.linalg.norm(ray))
         roll_angle = np.radians(rng.uniform(-max_roll_deg, max_roll_deg))
         roll = rotation_from_rotvec(np.array([0.0, 0.0, roll_angle]))
         axis_angle = rng.uniform(0, 2 * np.pi)

@@ -3,6 +3,7 @@ and the rules the test suite keeps (no fork of the threaded pytest process)."""
 
 from __future__ import annotations
 
+import ast
 import re
 from pathlib import Path
 
@@ -41,8 +42,68 @@ def test_a_transform_composes_inverts_and_is_found_by_kabsch() -> None:
     points = rng.normal(size=(12, 3))
     assert np.allclose(T.inverse().apply(T.apply(points)), points)
     assert np.allclose(T.compose(T.inverse()).apply(points), points)
-    R, t = kabsch(points, T.apply(points))
-    assert np.allclose(R, T.R) and np.allclose(t, T.t)
+    found = kabsch(points, T.apply(points))
+    assert np.allclose(found.R, T.R) and np.allclose(found.t, T.t)
+    moved = T.apply(points)
+    assert np.allclose(T.inverse_apply(moved), points, atol=1e-15)
+    assert np.array_equal(T.inverse_apply(moved), (moved - T.t) @ T.R)
+    other = RigidTransform.from_rotvec(np.array([-0.1, 0.4, 0.2]), np.array([0.3, 0.0, -0.2]))
+    both = T.inverse_compose(other)
+    assert np.allclose(both.R, T.inverse().compose(other).R, atol=1e-15)
+    assert np.allclose(both.apply(points), T.inverse_apply(other.apply(points)), atol=1e-15)
+
+
+def test_a_transform_keeps_the_rotation_vector_it_was_made_from() -> None:
+    """Near a half turn r and r (1 - 2 pi / |r|) are one rotation; the fitted one comes back,
+    bit for bit, so a covariance of (rotvec, t) stays the covariance of `params`."""
+    beyond = np.array([0.0, 0.0, np.pi + 1e-3])  # a fit may step past a half turn
+    T = RigidTransform.from_rotvec(beyond, np.array([0.1, 0.2, 0.9]))
+    assert np.array_equal(T.rotvec, beyond)
+    assert np.array_equal(T.params, [0.0, 0.0, np.pi + 1e-3, 0.1, 0.2, 0.9])
+    from_matrix = RigidTransform(T.R, T.t).rotvec  # angle in [0, pi]: the other branch
+    assert np.linalg.norm(from_matrix) < np.pi
+    assert np.allclose(rotation_from_rotvec(from_matrix), T.R, atol=1e-15)
+    assert T.compose(RigidTransform.identity()).rotvec[2] < 0  # a new transform: R's vector
+
+
+ROTATION_FIELDS = {"R", "rotation", "rotation_matrix", "rvec", "rotvec"}
+TRANSLATION_FIELDS = {"t", "tvec", "t_m", "translation", "translation_m"}
+NOT_A_TRANSFORM_TYPE = {
+    ("acquisition/contracts/rigid.py", "RigidTransform"): "the one type",
+    ("calibration/result.py", "TransformResult"): "result.json's form of one (the schema)",
+    ("calibration/solver.py", "RigSources"): "the solver's batched (n_pose, 3) unknowns",
+}
+
+
+def transform_like_classes(source: str) -> list[str]:
+    """Classes of `source` with both a rotation field and a translation field among their
+    annotated class attributes (dataclasses, NamedTuples, pydantic models)."""
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.ClassDef):
+            fields = {s.target.id for s in node.body
+                      if isinstance(s, ast.AnnAssign) and isinstance(s.target, ast.Name)}
+            if fields & ROTATION_FIELDS and fields & TRANSLATION_FIELDS:
+                found.append(node.name)
+    return found
+
+
+def test_a_record_with_its_own_rotation_and_translation_is_found() -> None:
+    assert transform_like_classes(
+        "@dataclass\nclass Pose:\n    rvec: np.ndarray\n    tvec: np.ndarray\n"
+        "class Ok:\n    rig_to_cam: RigidTransform\n    t: float\n") == ["Pose"]
+
+
+def test_no_type_but_rigid_transform_holds_a_rotation_and_a_translation() -> None:
+    """#18 found five types for one rigid transform; records hold a RigidTransform in a field
+    named for its direction (`cam0_to_cam`, `rig_to_cam0`) instead of their own R and t."""
+    found = {(str(path.relative_to(REPO)), name)
+             for top in ("acquisition", "calibration", "daq", "micam", "sim", "benchmarks",
+                         "tests")
+             for path in sorted((REPO / top).rglob("*.py"))
+             for name in transform_like_classes(path.read_text())}
+    assert found - NOT_A_TRANSFORM_TYPE.keys() == set()
+    assert NOT_A_TRANSFORM_TYPE.keys() <= found  # the exceptions still exist as named
 
 
 def test_the_rotation_jacobian_matches_finite_differences() -> None:

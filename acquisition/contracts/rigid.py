@@ -8,7 +8,7 @@ once: x_to = R x_from + t, R = exp([rotvec]x) (OpenCV's Rodrigues convention), m
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -31,10 +31,23 @@ def rotvec_from_rotation(R: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class RigidTransform:
-    """x_to = R @ x_from + t (R a rotation matrix, t in metres)."""
+    """x_to = R @ x_from + t (R a rotation matrix, t in metres): the one transform type.
+
+    The records that hold a transform (a camera's from camera 0, a board pose, a camera view
+    of imaging) keep one of these in a field named for its direction (`cam0_to_cam`,
+    `rig_to_cam0`) and apply, invert and compose it only through these methods.
+
+    A transform made by `from_rotvec` keeps the rotation vector it was given: `rotvec` returns
+    it bit for bit and on its branch (near a half turn r and r (1 - 2 pi / |r|) are the same
+    rotation), so a fitted parameter vector survives the round trip and a covariance of
+    (rotvec, t) stays the covariance of the transform's own parameters. Otherwise `rotvec` is
+    computed from R (angle in [0, pi]). `given_rotvec` is that vector; only `from_rotvec`
+    sets it.
+    """
 
     R: np.ndarray
     t: np.ndarray
+    given_rotvec: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     @staticmethod
     def identity() -> RigidTransform:
@@ -42,19 +55,39 @@ class RigidTransform:
 
     @staticmethod
     def from_rotvec(rotvec: np.ndarray, t: np.ndarray) -> RigidTransform:
-        return RigidTransform(rotation_from_rotvec(rotvec), np.asarray(t, dtype=np.float64))
+        """The transform of a rotation vector (radians) and a translation (3,), metres."""
+        rotvec = np.array(rotvec, dtype=np.float64)
+        return RigidTransform(rotation_from_rotvec(rotvec), np.asarray(t, dtype=np.float64),
+                              rotvec)
 
     @property
     def rotvec(self) -> np.ndarray:
-        return rotvec_from_rotation(self.R)
+        """(3,) rotation vector, radians: the one given to `from_rotvec`, or R's."""
+        return self.given_rotvec if self.given_rotvec is not None else rotvec_from_rotation(self.R)
+
+    @property
+    def params(self) -> np.ndarray:
+        """(6,) (rotvec, t): the parameters a covariance of the transform is written in."""
+        return np.concatenate([self.rotvec, self.t])
 
     def apply(self, points: np.ndarray) -> np.ndarray:
         """Transform points of shape (..., 3)."""
         return np.asarray(points) @ self.R.T + self.t
 
+    def inverse_apply(self, points: np.ndarray) -> np.ndarray:
+        """Points (..., 3) of the `to` frame into the `from` frame: R^T (x - t), which is
+        `inverse().apply(points)` to rounding without forming the inverse."""
+        return (np.asarray(points) - self.t) @ self.R
+
     def compose(self, inner: RigidTransform) -> RigidTransform:
         """The transform that applies `inner` first, then self."""
         return RigidTransform(self.R @ inner.R, self.R @ inner.t + self.t)
+
+    def inverse_compose(self, inner: RigidTransform) -> RigidTransform:
+        """The transform that applies `inner` first, then the inverse of self:
+        (R^T R_inner, R^T (t_inner - t)), `inverse().compose(inner)` to rounding without
+        forming the inverse (a board pose seen by one camera carried into camera 0's frame)."""
+        return RigidTransform(self.R.T @ inner.R, self.inverse_apply(inner.t))
 
     def inverse(self) -> RigidTransform:
         return RigidTransform(self.R.T, -self.R.T @ self.t)
@@ -95,10 +128,11 @@ def rotated_point_jacobian(rotvec: np.ndarray, points: np.ndarray) -> np.ndarray
     return -rotation_from_rotvec(rotvec) @ skew(points) @ right_jacobian(rotvec)
 
 
-def kabsch(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rotation R and translation t minimising sum |R a_i + t - b_i|^2 (points (n, 3))."""
+def kabsch(a: np.ndarray, b: np.ndarray) -> RigidTransform:
+    """The transform (R, t) minimising sum |R a_i + t - b_i|^2 (points (n, 3)): a's frame to
+    b's."""
     ca, cb = a.mean(axis=0), b.mean(axis=0)
     u, _, vt = np.linalg.svd((a - ca).T @ (b - cb))
     d = np.sign(np.linalg.det(vt.T @ u.T))
     R = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
-    return R, cb - R @ ca
+    return RigidTransform(R, cb - R @ ca)

@@ -122,7 +122,7 @@ def pattern_centre_rig(capture: dict) -> np.ndarray:
 def pose_distance(pose: BoardPose, capture: dict) -> float:
     """Distance (m) of the rig's pattern centre from camera 0 at a pose: the distance
     `micam simulate --distance` draws."""
-    return float(np.linalg.norm(pose.R @ pattern_centre_rig(capture) + pose.t))
+    return float(np.linalg.norm(pose.rig_to_cam0.apply(pattern_centre_rig(capture))))
 
 
 def rig_grid(pose: BoardPose, rig_speakers_m: np.ndarray, spacing_m: float, margin_m: float,
@@ -133,7 +133,7 @@ def rig_grid(pose: BoardPose, rig_speakers_m: np.ndarray, spacing_m: float, marg
     shift = spacing_m * np.asarray(shift_cells, dtype=np.float64)
     lo = rig[:, :2].min(axis=0) - margin_m - shift
     hi = rig[:, :2].max(axis=0) + margin_m
-    return PlaneGrid.on_rig(pose.R, pose.t, (lo[0], hi[0]), (lo[1], hi[1]),
+    return PlaneGrid.on_rig(pose.rig_to_cam0, (lo[0], hi[0]), (lo[1], hi[1]),
                             float(rig[:, 2].mean()), spacing_m)
 
 

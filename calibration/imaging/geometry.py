@@ -29,7 +29,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from acquisition.contracts.rigid import rotation_from_rotvec
+from acquisition.contracts.rigid import RigidTransform
 
 from .csm_calibration import ChannelResponses, responses_from_document
 
@@ -39,19 +39,19 @@ MAX_LATENCY_S = 0.01
 
 @dataclass(frozen=True)
 class CameraView:
-    """A calibrated camera: x_cam = R x_cam0 + t, then OpenCV's pinhole and distortion."""
+    """A calibrated camera: `cam0_to_cam` (x_cam = R x_cam0 + t, metres), then OpenCV's
+    pinhole (K, pixels) and distortion (k1, k2, p1, p2, k3)."""
 
     name: str
     width: int
     height: int
     K: np.ndarray
     dist: np.ndarray
-    R: np.ndarray
-    t: np.ndarray
+    cam0_to_cam: RigidTransform
 
     def to_camera(self, points_cam0: np.ndarray) -> np.ndarray:
         """Points (N, 3) of the camera-0 frame in this camera's frame."""
-        return np.asarray(points_cam0, dtype=np.float64).reshape(-1, 3) @ self.R.T + self.t
+        return self.cam0_to_cam.apply(np.asarray(points_cam0, dtype=np.float64).reshape(-1, 3))
 
     def project(self, points_cam0: np.ndarray) -> np.ndarray:
         """Pixel coordinates (N, 2) of points (N, 3) of the camera-0 frame, with distortion."""
@@ -62,11 +62,11 @@ class CameraView:
 
 @dataclass(frozen=True)
 class BoardPose:
-    """A rig pose: x_cam0 = R x_rig + t, and the speakers' positions (n, 3) in camera 0."""
+    """A rig pose: `rig_to_cam0` (x_cam0 = R x_rig + t, metres), and the speakers'
+    positions (n, 3) in camera 0, metres."""
 
     index: int
-    R: np.ndarray
-    t: np.ndarray
+    rig_to_cam0: RigidTransform
     speakers_m: np.ndarray
 
 
@@ -130,12 +130,10 @@ def geometry_from_dict(doc: dict, source: str = "geometry") -> ArrayGeometry:
             CameraView(name=str(cam["name"]), width=int(cam["width"]), height=int(cam["height"]),
                        K=np.array(cam["K"], dtype=np.float64),
                        dist=np.array(cam["dist"], dtype=np.float64),
-                       R=rotation_from_rotvec(cam["from_cam0"]["rotvec"]),
-                       t=np.array(cam["from_cam0"]["t_m"], dtype=np.float64))
+                       cam0_to_cam=_transform(cam["from_cam0"]))
             for cam in doc.get("cameras", []))
         poses = {
-            int(p["index"]): BoardPose(int(p["index"]), rotation_from_rotvec(p["rig_to_cam0"]["rotvec"]),
-                                       np.array(p["rig_to_cam0"]["t_m"], dtype=np.float64),
+            int(p["index"]): BoardPose(int(p["index"]), _transform(p["rig_to_cam0"]),
                                        np.array(p["speakers_m"], dtype=np.float64))
             for p in doc.get("poses", [])}
         # truth.json: "board_latencies_s" (absolute); result.json: "latency_s" (relative to the
@@ -158,6 +156,11 @@ def geometry_from_dict(doc: dict, source: str = "geometry") -> ArrayGeometry:
     return ArrayGeometry(ids, positions, c, cameras, poses, latencies,
                          responses_from_document(doc, ids, source),
                          own if np.any(own) else None)
+
+
+def _transform(doc: dict) -> RigidTransform:
+    """A document's {"rotvec": [3] radians, "t_m": [3] metres}."""
+    return RigidTransform.from_rotvec(doc["rotvec"], np.array(doc["t_m"], dtype=np.float64))
 
 
 def load_geometry(path: Path) -> ArrayGeometry:

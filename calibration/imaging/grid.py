@@ -14,6 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from acquisition.contracts.rigid import RigidTransform
+
 
 def _axis(n_points: int, lo: float, hi: float, spacing: float) -> np.ndarray:
     if n_points < 1:
@@ -73,15 +75,13 @@ class PlaneGrid:
                                   np.array([0.0, 1.0, 0.0]), x_range, y_range, spacing_m)
 
     @staticmethod
-    def on_rig(rig_to_frame_R: np.ndarray, rig_to_frame_t: np.ndarray,
-               x_range: tuple[float, float], y_range: tuple[float, float], z_rig_m: float,
-               spacing_m: float) -> PlaneGrid:
+    def on_rig(rig_to_frame: RigidTransform, x_range: tuple[float, float],
+               y_range: tuple[float, float], z_rig_m: float, spacing_m: float) -> PlaneGrid:
         """The plane Z = z_rig_m of the rig (board) frame, seen through a board pose
         x_frame = R x_rig + t (paper VI-A: z_rig_m = -2.5 mm passes through the speakers)."""
-        R = np.asarray(rig_to_frame_R, float)
-        t = np.asarray(rig_to_frame_t, float).reshape(3)
-        return PlaneGrid.on_plane(R @ np.array([0.0, 0.0, z_rig_m]) + t, R[:, 0], R[:, 1],
-                                  x_range, y_range, spacing_m)
+        R = rig_to_frame.R
+        return PlaneGrid.on_plane(rig_to_frame.apply(np.array([0.0, 0.0, z_rig_m])),
+                                  R[:, 0], R[:, 1], x_range, y_range, spacing_m)
 
     @property
     def shape(self) -> tuple[int, int]:

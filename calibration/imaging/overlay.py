@@ -33,8 +33,9 @@ def _rays_on_plane(camera: CameraView, pixels: np.ndarray, origin_m: np.ndarray,
     camera (N,). Pixels are undistorted with the camera's intrinsics and distortion."""
     rays = cv2.undistortPoints(pixels.reshape(-1, 1, 2).astype(np.float64), camera.K,
                                camera.dist).reshape(-1, 2)
-    centre = -camera.R.T @ camera.t
-    direction = np.column_stack([rays, np.ones(len(rays))]) @ camera.R  # rows: R^T d
+    cam_to_cam0 = camera.cam0_to_cam.inverse()
+    centre = cam_to_cam0.t
+    direction = np.column_stack([rays, np.ones(len(rays))]) @ cam_to_cam0.R.T  # rows: R^T d
     denom = direction @ normal
     with np.errstate(divide="ignore", invalid="ignore"):
         s = ((origin_m - centre) @ normal) / denom
@@ -105,11 +106,12 @@ def field_of_view_grid(camera: CameraView, pose: BoardPose, z_rig_m: float, spac
                         np.column_stack([edge * (w - 1), np.full_like(edge, h - 1)]),
                         np.column_stack([np.zeros_like(edge), edge * (h - 1)]),
                         np.column_stack([np.full_like(edge, w - 1), edge * (h - 1)])])
-    origin = pose.R @ np.array([0.0, 0.0, z_rig_m]) + pose.t
-    points, hit = _rays_on_plane(camera, border, origin, pose.R[:, 2])
+    rig_to_cam0 = pose.rig_to_cam0
+    origin = rig_to_cam0.apply(np.array([0.0, 0.0, z_rig_m]))
+    points, hit = _rays_on_plane(camera, border, origin, rig_to_cam0.R[:, 2])
     if hit.sum() < 3:
         raise ValueError(f"{camera.name} does not see the rig plane of pose {pose.index}")
-    rig_xy = ((points[hit] - pose.t) @ pose.R)[:, :2]
+    rig_xy = rig_to_cam0.inverse_apply(points[hit])[:, :2]
     if not hit.all():  # part of the border looks past the plane's horizon
         rig_xy = np.vstack([rig_xy, [[-MAX_VIEW_EXTENT_M] * 2, [MAX_VIEW_EXTENT_M] * 2]])
     lo = np.maximum(rig_xy.min(axis=0), -MAX_VIEW_EXTENT_M)
@@ -119,7 +121,7 @@ def field_of_view_grid(camera: CameraView, pose: BoardPose, z_rig_m: float, spac
     k = max_points - 1
     spacing = max(spacing_m, float((lu + lv + np.sqrt((lu + lv) ** 2 + 4 * k * lu * lv))
                                    / (2 * k)) * (1 + 1e-9))
-    return PlaneGrid.on_rig(pose.R, pose.t, (lo[0], hi[0]), (lo[1], hi[1]), z_rig_m, spacing)
+    return PlaneGrid.on_rig(rig_to_cam0, (lo[0], hi[0]), (lo[1], hi[1]), z_rig_m, spacing)
 
 
 def clean_sources(result: CleanScResult, grid: PlaneGrid) -> tuple[np.ndarray, np.ndarray]:

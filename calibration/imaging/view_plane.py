@@ -37,7 +37,7 @@ def depth_plane_grid(camera: CameraView, depth_m: float, shape: tuple[int, int] 
                         np.column_stack([np.full_like(edge, w - 1), edge * (h - 1)])])
     rays = cv2.undistortPoints(border.reshape(-1, 1, 2), camera.K, camera.dist).reshape(-1, 2)
     lo, hi = rays.min(axis=0) * depth_m, rays.max(axis=0) * depth_m
-    # camera frame -> camera-0 frame: x0 = R^T (x - t)
-    origin = camera.R.T @ (np.array([0.0, 0.0, depth_m]) - camera.t)
-    return PlaneGrid(origin, camera.R[0].copy(), camera.R[1].copy(),
+    cam0_to_cam = camera.cam0_to_cam
+    origin = cam0_to_cam.inverse_apply(np.array([0.0, 0.0, depth_m]))
+    return PlaneGrid(origin, cam0_to_cam.R[0].copy(), cam0_to_cam.R[1].copy(),
                      np.linspace(lo[0], hi[0], n_u), np.linspace(lo[1], hi[1], n_v))

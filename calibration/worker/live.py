@@ -31,6 +31,7 @@ from acquisition.contracts.job_messages import (
     PoseSuggestion,
     PoseTaken,
 )
+from acquisition.contracts.rigid import RigidTransform
 
 from ..crlb import expected_error_norm, mic_position_crlb
 from ..pipeline import Measurements
@@ -126,10 +127,11 @@ def _best_pose(m: Measurements,
             a, e = np.radians(az), np.radians(el)
             direction = np.array([np.sin(a) * np.cos(e), -np.sin(e), np.cos(a) * np.cos(e)])
             # Rig facing the camera: its normal along -direction (any roll will do here).
-            facing = Rotation.align_vectors([-direction], [[0.0, 0.0, 1.0]])[0]
+            facing = Rotation.align_vectors([-direction], [[0.0, 0.0, 1.0]])[0].as_matrix()
             for d in distances:
-                speakers = d * direction + facing.apply(rig)
-                board = _pixels(m, d * direction + facing.apply(outline))
+                rig_to_cam0 = RigidTransform(facing, d * direction)  # rig centroid at d
+                speakers = rig_to_cam0.apply(rig)
+                board = _pixels(m, rig_to_cam0.apply(outline))
                 if not all(0 <= u <= camera.width and 0 <= v <= camera.height
                            for u, v in board):
                     continue  # the board would leave camera 0's view

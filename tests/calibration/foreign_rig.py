@@ -24,6 +24,7 @@ import scipy.signal
 import soundfile as sf
 
 from acquisition.contracts.air import speed_of_sound as air_speed_of_sound
+from acquisition.contracts.rigid import RigidTransform
 
 FS = 48_000
 MLS_ORDER = 11
@@ -65,7 +66,7 @@ class ForeignWorld:
     mics_m: np.ndarray
     gains: np.ndarray
     latencies_s: np.ndarray
-    poses: list[tuple[np.ndarray, np.ndarray]]  # rig -> camera 0: (R, t)
+    poses: list[RigidTransform]  # rig -> camera 0
     speed_of_sound_m_s: float
     seed: int
 
@@ -103,7 +104,7 @@ def make_world(seed: int = 5, n_poses: int = 6) -> ForeignWorld:
         R = _rotation(tilt) @ FACING
         depth = 0.55 + 0.3 * k / max(n_poses - 1, 1)
         target = np.array([0.04 * np.cos(1.3 * k), 0.03 * np.sin(1.7 * k), depth])
-        poses.append((R, target - R @ centre))
+        poses.append(RigidTransform(R, target - R @ centre))
     return ForeignWorld(mics, gains, latencies, poses, speed_of_sound(TEMPERATURE_C), seed)
 
 
@@ -141,7 +142,7 @@ def write_folder(world: ForeignWorld, folder: Path) -> Path:
 
     Returns the TOML file's path.
     """
-    from sim.geometry import Rig, RigidTransform, pinhole
+    from sim.geometry import Rig, pinhole
     from sim.light import render_rig_image
 
     rng = np.random.default_rng([world.seed, 2])
@@ -158,10 +159,9 @@ def write_folder(world: ForeignWorld, folder: Path) -> Path:
         return x + rng.normal(0.0, noise, x.shape)
 
     (folder / "reference").mkdir(exist_ok=True)
-    R0, t0 = world.poses[0]
     for k in range(len(SPEAKERS_M)):
-        speaker = R0 @ SPEAKERS_M[k] + t0
-        x = record(speaker)  # the array hears it too; column 0 holds the reference instead
+        # the array hears it too; column 0 holds the reference instead
+        x = record(world.poses[0].apply(SPEAKERS_M[k]))
         d = REFERENCE_DISTANCES_M[k]
         ref = _delayed(drive, np.array([d / c + world.latencies_s[0]]), np.array([level / d]))
         ref_rms = float(np.sqrt(np.mean(ref**2)))
@@ -171,16 +171,16 @@ def write_folder(world: ForeignWorld, folder: Path) -> Path:
 
     camera = pinhole("cam0")
     rig = Rig(origin_square="light")
-    for i, (R, t) in enumerate(world.poses):
+    for i, pose in enumerate(world.poses):
         pose_dir = folder / f"pose_{i:02d}"
         pose_dir.mkdir(exist_ok=True)
-        image = render_rig_image(camera, rig, RigidTransform(R, t),
+        image = render_rig_image(camera, rig, pose,
                                  np.random.default_rng([world.seed, 3, i]))
         import cv2
 
         cv2.imwrite(str(pose_dir / "camera.png"), image)
         for k in range(len(SPEAKERS_M)):
-            x = record(R @ SPEAKERS_M[k] + t)
+            x = record(pose.apply(SPEAKERS_M[k]))
             sf.write(pose_dir / f"speaker{k}.wav", np.clip(x / 2.0, -1, 1), FS,
                      subtype="PCM_24")
     toml = folder / "import.toml"
@@ -252,7 +252,7 @@ def same_world_natively(world: ForeignWorld, session: Path) -> dict:
     from sim.boards import SimulatedBoard
     from sim.cameras import SimulatedCamera
     from sim.capture import capture_config_for
-    from sim.geometry import Rig, RigidTransform, pinhole
+    from sim.geometry import Rig, pinhole
     from sim.operator import SimulatedOperator, reference_stand_position
     from sim.world import World
 
@@ -273,10 +273,9 @@ def same_world_natively(world: ForeignWorld, session: Path) -> dict:
                       relative_humidity=HUMIDITY, sample_rate_hz=FS, seed=world.seed)
     bench = AcousticBench(sim_world)
     cameras = [SimulatedCamera(camera, sim_world, 0)]
-    poses = [RigidTransform(R, t) for R, t in world.poses]
-    operator = SimulatedOperator(sim_world, poses, reference_stand_position(camera, 0.6))
+    operator = SimulatedOperator(sim_world, world.poses, reference_stand_position(camera, 0.6))
     config = capture_config_for(
-        layout, rig, len(poses), FS,
+        layout, rig, len(world.poses), FS,
         BurstConfig(mls_order=MLS_ORDER, pre_samples=SILENCE_BEFORE,
                     post_samples=SILENCE_AFTER + EXTRA_RECORDED), cameras)
     writer = SessionWriter.create(session, capture=config.model_dump(mode="json"))

@@ -104,8 +104,8 @@ def test_board_poses_match_truth_with_consistent_covariance(
     _, truth = session
     for (camera, step), view in calibration.views.items():
         R, t = _true_pose_in_camera(truth, camera, step)
-        assert _angle_deg(view.rig_to_cam.R, R) < 0.2, (camera, step)
-        error = view.rig_to_cam.tvec - t
+        assert _angle_deg(view.rig_to_cam.transform.R, R) < 0.2, (camera, step)
+        error = view.rig_to_cam.transform.t - t
         assert np.linalg.norm(error) < 1e-3, (camera, step, error)
         std = np.sqrt(np.diag(view.rig_to_cam.cov)[3:])
         assert np.all(np.abs(error) < 5 * std), (camera, step, error, std)
@@ -169,8 +169,8 @@ def test_stereo_transforms_match_truth(calibration: CameraCalibration, session) 
         ext = calibration.cam_from_cam0[name]
         true = _true_camera(truth, name)["from_cam0"]
         assert ext.n_shared_views >= 2
-        assert _angle_deg(ext.R, _rotation(true["rotvec"])) < 0.5
-        assert np.linalg.norm(ext.t - np.array(true["t_m"])) < 2e-3
+        assert _angle_deg(ext.cam0_to_cam.R, _rotation(true["rotvec"])) < 0.5
+        assert np.linalg.norm(ext.cam0_to_cam.t - np.array(true["t_m"])) < 2e-3
         assert ext.rms_px < 0.1
 
 
@@ -202,4 +202,5 @@ def test_a_calibration_is_reproducible_to_the_last_bit(
         assert np.array_equal(first.K, again.intrinsics[name].K), name
         assert np.array_equal(first.dist, again.intrinsics[name].dist), name
     for name, first in calibration.cam_from_cam0.items():
-        assert np.array_equal(first.R, again.cam_from_cam0[name].R), name
+        assert np.array_equal(first.cam0_to_cam.R,
+                              again.cam_from_cam0[name].cam0_to_cam.R), name

@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 import pytest
 
+from acquisition.contracts.rigid import RigidTransform
 from acquisition.contracts.session import SessionReader
 from calibration.camera_calibration import (
     CameraCalibration,
@@ -113,9 +114,11 @@ def test_covariance_is_frame_covariant_through_extrinsics(setup: Setup) -> None:
     """
     view = setup.calibration.views[("cam0", "pose/0000")]
     R_a = cv2.Rodrigues(np.array([0.1, 0.5, -0.2]))[0]
-    ext = Extrinsics(R_a, np.array([0.07, 0.01, -0.02]), 0.0, 2, "cam0")
+    cam0_to_camx = RigidTransform(R_a, np.array([0.07, 0.01, -0.02]))
+    ext = Extrinsics(cam0_to_camx, 0.0, 2, "cam0")
     rvec = cv2.Rodrigues(R_a @ np.diag([1.0, -1.0, -1.0]))[0].ravel()
-    pose = Pose(rvec, np.array([-0.1, 0.05, 0.8]), view.rig_to_cam.cov)
+    pose = Pose(RigidTransform.from_rotvec(rvec, np.array([-0.1, 0.05, 0.8])),
+                view.rig_to_cam.cov)
     calibration = dataclasses.replace(
         setup.calibration,
         intrinsics={**setup.calibration.intrinsics, "camX": setup.calibration.intrinsics["cam0"]},
@@ -124,10 +127,10 @@ def test_covariance_is_frame_covariant_through_extrinsics(setup: Setup) -> None:
     )
     carried = rig_pose_in_cam0(calibration, "x")
     assert carried is not None and carried.camera == "camX"
-    assert np.isclose(np.linalg.norm(carried.rig_to_cam0.rvec), np.pi)
+    assert np.isclose(np.linalg.norm(carried.rig_to_cam0.transform.rotvec), np.pi)
     p_cam, c_cam = RigPoseInCam0("x", "camX", pose, 0.0).locate(setup.speakers_rig_m)
     p_0, c_0 = carried.locate(setup.speakers_rig_m)
-    np.testing.assert_allclose(p_0, ext.inverse_apply(p_cam), atol=1e-12)
+    np.testing.assert_allclose(p_0, cam0_to_camx.inverse_apply(p_cam), atol=1e-12)
     expected = np.einsum("ji,sjk,kl->sil", R_a, c_cam, R_a)
     np.testing.assert_allclose(c_0, expected, rtol=1e-4, atol=1e-16)
 
@@ -136,7 +139,7 @@ def test_point_covariance_from_rotation_and_translation() -> None:
     """At rvec = 0, R(r) x + t = x + r x x + t: cov = s_t^2 I + s_r^2 (|x|^2 I - x x^T)."""
     s_r, s_t = 1e-3, 2e-4
     cov = np.diag([s_r**2] * 3 + [s_t**2] * 3)
-    pose = RigPoseInCam0("p", "cam0", Pose(np.zeros(3), np.zeros(3), cov), 0.0)
+    pose = RigPoseInCam0("p", "cam0", Pose(RigidTransform.identity(), cov), 0.0)
     x = np.array([0.21, 0.12, -0.0025])
     _, c = pose.locate(x)
     expected = s_t**2 * np.eye(3) + s_r**2 * (x @ x * np.eye(3) - np.outer(x, x))

@@ -78,13 +78,13 @@ def test_detected_corners_match_true_projection(
 
 
 def test_corners_match_for_a_moved_camera_with_strong_distortion() -> None:
-    """Distortion and camera pose are handled as cv2.projectPoints and from_cam0 define them."""
+    """Distortion and camera pose are handled as cv2.projectPoints and cam0_to_cam define them."""
     rig = Rig()
     camera = pinhole(
         "cam1",
         focal_px=700.0,
         dist=(-0.3, 0.1, 0.002, -0.001, 0.0),
-        from_cam0=RigidTransform(rotation_from_rotvec([0.0, 0.1, 0.0]), np.array([-0.2, 0, 0])),
+        cam0_to_cam=RigidTransform(rotation_from_rotvec([0.0, 0.1, 0.0]), np.array([-0.2, 0, 0])),
     )
     pose = _pose(rig, np.array([0.2, -0.3, 0.2]), np.array([0.2, 0.15, 0.6]), FACING_CAMERA)
     image = render_rig_image(camera, rig, pose, np.random.default_rng(6))

@@ -155,5 +155,4 @@ def world_truth_of(geometry: ArrayGeometry) -> dict:
             "speed_of_sound_m_s": geometry.speed_of_sound_m_s,
             "cameras": [{"name": c.name, "width": c.width, "height": c.height,
                          "K": c.K.tolist(), "dist": c.dist.tolist(),
-                         "from_cam0": {"rotvec": cv2.Rodrigues(c.R)[0].ravel().tolist(),
-                                       "t_m": c.t.tolist()}} for c in geometry.cameras]}
+                         "from_cam0": c.cam0_to_cam.to_json()} for c in geometry.cameras]}

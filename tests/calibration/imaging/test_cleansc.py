@@ -67,7 +67,7 @@ def test_simulated_uncorrelated_speakers_positions_and_levels() -> None:
     rec = record_uncorrelated_noise(bench, speakers, 0.5, seed=11,
                                     drive_rms_v=10 ** (levels_db / 20))
     world = bench.world
-    pose = BoardPose(0, world.rig_pose.R, world.rig_pose.t, world.speaker_positions())
+    pose = BoardPose(0, world.rig_pose, world.speaker_positions())
     grid = rig_grid(pose, world.rig.speakers_m, 0.006, 0.05)
     fs = rec.sample_rate_hz
     spectra = cross_spectra(rec.signals_v, fs, band_bins(10_000.0, 12, 4096, fs))

@@ -17,14 +17,14 @@ from .helpers import C, point_source_csm, sphere_bench
 
 def view_of(model: CameraModel) -> CameraView:
     return CameraView(model.name, model.width, model.height, model.K, model.dist,
-                      model.from_cam0.R, model.from_cam0.t)
+                      model.cam0_to_cam)
 
 
 @pytest.fixture(scope="module")
 def scene():
     world = sphere_bench().world
     speakers = world.speaker_positions()
-    pose = BoardPose(0, world.rig_pose.R, world.rig_pose.t, speakers)
+    pose = BoardPose(0, world.rig_pose, speakers)
     grid = rig_grid(pose, world.rig.speakers_m, 0.002, 0.03)
     mics = world.layout.mic_positions_m
     steering = SteeringModel(grid.points, mics, C)
@@ -60,7 +60,7 @@ def test_pixels_off_the_grid_are_empty(scene) -> None:
 def test_field_of_view_grid_covers_the_whole_image(scene, camera: int) -> None:
     world, _, speakers, _ = scene
     model = world.layout.cameras[camera]
-    pose = BoardPose(0, world.rig_pose.R, world.rig_pose.t, speakers)
+    pose = BoardPose(0, world.rig_pose, speakers)
     grid = field_of_view_grid(view_of(model), pose, -0.0025, 0.01)
     layer = map_to_image(np.ones(grid.size), grid, view_of(model))
     assert np.isfinite(layer).mean() > 0.995  # every pixel but the last border ones
