@@ -47,6 +47,10 @@ class ColumnEntry(ConfigModel):
     role: Literal["mic", "reference"]
     mic_id: int | None = None
 
+    @property
+    def volts_per_code(self) -> float:
+        return self.range_v / CODE_FULL_SCALE
+
 
 def column_name(role: str, mic_id: int | None, board: str, channel: int) -> str:
     """How a person names a recording column: "mic 12 (board S1 ch 3)", or "reference mic
@@ -54,10 +58,6 @@ def column_name(role: str, mic_id: int | None, board: str, channel: int) -> str:
     (README, "Numbering": one number per microphone, whatever its column)."""
     what = "reference mic" if role == "reference" else f"mic {mic_id}"
     return f"{what} (board {board} ch {channel})"
-
-    @property
-    def volts_per_code(self) -> float:
-        return self.range_v / CODE_FULL_SCALE
 
 
 class SpeakerEntry(ConfigModel):
