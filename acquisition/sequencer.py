@@ -54,7 +54,8 @@ class Progress:
 
 
 def plan_steps(config: CaptureConfig) -> list[Step]:
-    """Every step of a capture with `config`, in order."""
+    """Every step of a capture with `config`, in order. A pose or speaker has one number, from
+    0, in its step id, its instruction's field and its text (README, "Numbering")."""
     steps = [
         Step(f"reference/{s.index}", Instruction(
             kind=InstructionKind.REFERENCE_AT_SPEAKER, speaker=s.index,
@@ -70,8 +71,8 @@ def plan_steps(config: CaptureConfig) -> list[Step]:
     steps += [
         Step(f"pose/{i:04d}", Instruction(
             kind=InstructionKind.RIG_AT_POSE, pose=i,
-            text=f"Hold the rig still at pose {i + 1} of {config.n_poses}, in view of the "
-                 "cameras."))
+            text=f"Hold the rig still at pose {i} (poses 0-{config.n_poses - 1}), in view of "
+                 "the cameras."))
         for i in range(config.n_poses)
     ]
     return steps

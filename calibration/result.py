@@ -205,11 +205,13 @@ class CalibrationResult(_Model):
 
 def write_acoular_xml(result: CalibrationResult, path: Path, name: str = "micam") -> None:
     """The microphone geometry as Acoular's MicGeom XML (`<MicArray><pos Name x y z/>`),
-    positions in metres in the camera-0 frame, in microphone-id order."""
+    positions in metres in the camera-0 frame, in microphone-id order. Microphone k is named
+    "Point k" (micam's one numbering, from 0); Acoular reads the positions in document order
+    and ignores the names, so its channel i is the i-th microphone by id."""
     lines = ['<?xml version="1.0" encoding="utf-8"?>', f"<MicArray name={quoteattr(name)}>"]
     for mic in sorted(result.microphones, key=lambda m: m.id):
         x, y, z = mic.position_m
-        lines.append(f'  <pos Name="Point {mic.id + 1}" x="{x:.6f}" y="{y:.6f}" z="{z:.6f}"/>')
+        lines.append(f'  <pos Name="Point {mic.id}" x="{x:.6f}" y="{y:.6f}" z="{z:.6f}"/>')
     lines.append("</MicArray>")
     path.write_text("\n".join(lines) + "\n")
 
@@ -217,7 +219,8 @@ def write_acoular_xml(result: CalibrationResult, path: Path, name: str = "micam"
 def write_acoular_calib_xml(result: CalibrationResult, path: Path,
                             name: str = "micam") -> None:
     """The microphones' relative sensitivities as Acoular's calibration XML
-    (`<Calib><pos Name factor/>`, read by `acoular.Calib(file=...)`), in microphone-id order.
+    (`<Calib><pos Name factor/>`, read by `acoular.Calib(file=...)` in document order), in
+    microphone-id order, microphone k named "Point k" as in `write_acoular_xml`.
 
     Acoular multiplies each channel by its factor, so the factor is 1 / gain, the gain being
     the median over the bands of `microphone_responses` (Acoular's calibration of time data
@@ -232,7 +235,7 @@ def write_acoular_calib_xml(result: CalibrationResult, path: Path,
     gain = {r.id: float(np.median(r.gain)) for r in result.microphone_responses.microphones}
     lines = ['<?xml version="1.0" encoding="utf-8"?>', f"<Calib name={quoteattr(name)}>"]
     for mic in sorted(result.microphones, key=lambda m: m.id):
-        lines.append(f'  <pos Name="Point {mic.id + 1}" factor="{1.0 / gain[mic.id]:.6f}"/>')
+        lines.append(f'  <pos Name="Point {mic.id}" factor="{1.0 / gain[mic.id]:.6f}"/>')
     lines.append("</Calib>")
     path.write_text("\n".join(lines) + "\n")
 
@@ -275,16 +278,17 @@ def load_prior_positions(path: Path, mic_ids: np.ndarray) -> np.ndarray:
     """Microphone positions (len(mic_ids), 3), metres, of a known geometry, in `mic_ids` order.
 
     Reads a result.json or truth.json (`microphones[].id / position_m`) or Acoular's MicGeom
-    XML (`<pos Name="Point k" x y z/>`, Point k being microphone id k - 1, as written by
+    XML (`<pos Name="Point k" x y z/>`, Point k being microphone id k, as written by
     `write_acoular_xml`). Raises ValueError naming the file and the missing microphones.
     """
     path = Path(path)
+    is_xml = path.suffix.lower() == ".xml"
     try:
-        if path.suffix.lower() == ".xml":
+        if is_xml:
             import xml.etree.ElementTree as ET
 
             points = ET.parse(path).getroot().findall("pos")
-            by_id = {int(p.get("Name", "").split()[-1]) - 1:
+            by_id = {int(p.get("Name", "").split()[-1]):
                      [float(p.get(axis, "")) for axis in "xyz"] for p in points}
         else:
             doc = json.loads(path.read_text())
@@ -294,6 +298,9 @@ def load_prior_positions(path: Path, mic_ids: np.ndarray) -> np.ndarray:
                          "a truth.json or an Acoular MicGeom XML") from None
     missing = [int(i) for i in mic_ids if int(i) not in by_id]
     if missing:
+        hint = ('; micam names microphone k "Point k", from 0: an XML counting from '
+                '"Point 1" (as Acoular\'s export_mpos and earlier micam versions write it) '
+                'needs its names lowered by 1' if is_xml else "")
         raise ValueError(f"the prior geometry {path} lacks microphones {missing[:10]}"
-                         f"{' ...' if len(missing) > 10 else ''}")
+                         f"{' ...' if len(missing) > 10 else ''}{hint}")
     return np.array([by_id[int(i)] for i in mic_ids], dtype=np.float64)

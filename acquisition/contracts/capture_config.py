@@ -52,6 +52,14 @@ class ColumnEntry(ConfigModel):
         return self.range_v / CODE_FULL_SCALE
 
 
+def column_name(role: str, mic_id: int | None, board: str, channel: int) -> str:
+    """How a person names a recording column: "mic 12 (board S1 ch 3)", or "reference mic
+    (board S4 ch 0)": the microphone by the id result.json gives it, then the board's input
+    (README, "Numbering": one number per microphone, whatever its column)."""
+    what = "reference mic" if role == "reference" else f"mic {mic_id}"
+    return f"{what} (board {board} ch {channel})"
+
+
 class SpeakerEntry(ConfigModel):
     """A rig speaker: the output that drives it and its position in the rig frame (metres)."""
 

@@ -406,8 +406,9 @@ class DescribeResult(_Message):
     quality: QualityInfo
     camera_min_views: int = Field(
         description="board views a camera needs to be calibrated (fewer: it is left out)")
-    live_min_poses: int = Field(description="the first pose after which a live calibration "
-                                            "runs (with live calibration on)")
+    live_min_poses: int = Field(description="poses completed before the first live "
+                                            "calibration runs (with live calibration on; a "
+                                            "count: 4 is after pose 3)")
     live: bool
     preview_fps: float
     preview_width: int

@@ -170,7 +170,8 @@ class WorkersConfig(ConfigModel):
         default=3, ge=1, le=20, description="leases of one job before it is given up as failed")
     live: bool = Field(default=True, description="calibrate the poses so far after each pose")
     live_min_poses: int = Field(
-        default=4, ge=1, description="the first pose after which a live calibration runs")
+        default=4, ge=1, description="poses completed before the first live calibration "
+        "runs (a count: 4 is after pose 3)")
     keep_finished_days: float = Field(
         default=7.0, gt=0,
         description="records of done and failed final jobs stay in the outbox this long; a "

@@ -41,7 +41,7 @@ def format_event(event: Event) -> str:
                 f"{event.steps_total} steps, {event.poses_done}/{event.n_poses} poses "
                 f"(done: {event.step})")
     if isinstance(event, LevelsEvent):
-        clipped = f", CLIPPED on {event.clipped_channels}" if event.clipped_channels else ""
+        clipped = f", CLIPPED on columns {event.clipped_channels}" if event.clipped_channels else ""
         return (f"  {event.step} {event.file}: rms {_span(event.rms_dbfs)} dBFS, peak max "
                 f"{max(event.peak_dbfs):.0f} dBFS, SNR {_span(event.snr_db)} dB{clipped}")
     if isinstance(event, CheckerboardEvent):

@@ -85,14 +85,17 @@ def low_snr_channels(levels: Levels, listening: Sequence[int], dead: Sequence[in
 
 
 def judge_recording(levels: Levels, listening: Sequence[int], mics: Sequence[int],
-                    check_dead: bool, config: QualityConfig) -> list[Failure]:
+                    check_dead: bool, config: QualityConfig,
+                    names: Sequence[str]) -> list[Failure]:
     """The checks a recording fails. `listening`: the columns that should hear the speaker;
-    `mics`: the microphone columns, checked for dead channels when `check_dead`."""
+    `mics`: the microphone columns, checked for dead channels when `check_dead`; `names`: how
+    the messages name each column (`capture_config.column_name`: by microphone id and board
+    input, never by column number)."""
     failures = []
     if config.clipping != "ignore" and levels.clipped:
         failures.append(Failure("clipping", config.clipping,
-                                f"clipped on channel(s) {levels.clipped}: move the rig away or "
-                                "lower the burst amplitude"))
+                                f"clipped on {_names(names, levels.clipped)}: move the rig away "
+                                "or lower the burst amplitude"))
     level = float(np.median(levels.rms_dbfs[list(listening)]))
     if config.level != "ignore" and level < config.min_level_dbfs:
         failures.append(Failure("level", config.level,
@@ -107,9 +110,13 @@ def judge_recording(levels: Levels, listening: Sequence[int], mics: Sequence[int
         dead = dead_channels(levels, mics, config)
         if check_dead and config.dead_channels != "ignore" and dead:
             failures.append(Failure("dead_channels", config.dead_channels,
-                                    f"channel(s) {dead} hear no burst (SNR below "
+                                    f"no burst heard on {_names(names, dead)} (SNR below "
                                     f"{config.min_channel_snr_db} dB): check those microphones"))
     return failures
+
+
+def _names(names: Sequence[str], columns: Sequence[int]) -> str:
+    return ", ".join(names[j] for j in columns)
 
 
 def checkerboard_corners(image: np.ndarray, corners: tuple[int, int]) -> np.ndarray | None:

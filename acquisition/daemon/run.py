@@ -23,7 +23,7 @@ import numpy as np
 from daq import DaqError
 
 from acquisition.contracts.camera import Camera, CameraError
-from acquisition.contracts.capture_config import CaptureConfig
+from acquisition.contracts.capture_config import CaptureConfig, column_name
 from acquisition.contracts.instructions import Instruction, InstructionKind
 from ..sequencer import CaptureSequencer, Progress, plan_steps
 from acquisition.contracts.session import SessionWriter
@@ -143,6 +143,7 @@ class SessionRun:
         columns = self.capture.columns
         self._mics = [j for j, c in enumerate(columns) if c.role == "mic"]
         self._reference = [j for j, c in enumerate(columns) if c.role == "reference"]
+        self._names = [column_name(c.role, c.mic_id, c.board, c.channel) for c in columns]
         self.step: str | None = None
         self.instruction: Instruction | None = None
         self.paused = False
@@ -337,7 +338,7 @@ class SessionRun:
                           dead_channels=dead,
                           low_snr_channels=low_snr_channels(levels, listening, dead, quality))
         self._apply(judge_recording(levels, listening, self._mics, check_dead=not reference,
-                                    config=quality), step)
+                                    config=quality, names=self._names), step)
         self._checkpoint()
 
     def before_end(self, step: str) -> None:

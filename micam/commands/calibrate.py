@@ -21,7 +21,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--report", type=Path, default=None,
                    help="directory for report.md and its pictures (default: beside --out)")
     p.add_argument("--acoular-xml", type=Path, default=None,
-                   help="also write the geometry in Acoular's MicGeom XML format")
+                   help="also write the geometry in Acoular's MicGeom XML format, "
+                        "microphone k as \"Point k\" in id order")
     p.add_argument("--acoular-calib", type=Path, default=None, metavar="FILE",
                    help="also write the microphones' relative sensitivities in Acoular's "
                         "calibration XML format (acoular.Calib)")
@@ -38,8 +39,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "bundle adjustment) and report the camera-frozen solution")
     p.add_argument("--prior", type=Path, default=None, metavar="FILE",
                    help="a known geometry of the array in its own frame (result.json, "
-                        "truth.json or Acoular XML): fit its rigid transform into the camera "
-                        "frame (paper IV-H)")
+                        "truth.json or Acoular XML naming microphone k \"Point k\"): fit its "
+                        "rigid transform into the camera frame (paper IV-H)")
     p.add_argument("--prior-std-mm", type=float, default=None,
                    help="let each microphone deviate from the prior by about this much "
                         "(default: the prior is rigid)")

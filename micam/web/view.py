@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from acquisition.contracts.capture_config import column_name
 from acquisition.contracts.protocol import CameraPoses, DescribeResult, LevelsEvent
 
 
@@ -20,8 +21,7 @@ def channel_name(describe: DescribeResult, column: int) -> str:
     if not 0 <= column < len(describe.columns):
         return f"column {column}"
     c = describe.columns[column]
-    what = "reference mic" if c.role == "reference" else f"mic {c.mic_id}"
-    return f"{what} (board {c.board} ch {c.channel})"
+    return column_name(c.role, c.mic_id, c.board, c.channel)
 
 
 def _value(values: list[float], j: int) -> float | None:

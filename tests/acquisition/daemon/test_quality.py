@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from acquisition.contracts.capture_config import column_name
 from acquisition.daemon.config import QualityConfig
 from acquisition.daemon.quality import (
     checkerboard_corners,
@@ -15,6 +16,9 @@ from acquisition.daemon.quality import (
 from sim.capture import SimulationOptions, build_simulated_capture
 
 PRE, BURST = 512, 2047
+NAMES = [column_name("mic", 7 - j, "A", j) for j in range(3)]
+"""Columns 0, 1, 2 record microphones 7, 6, 5: a message must name the microphone, not the
+column (README, "Numbering")."""
 
 
 def _recording(amplitudes: list[float], noise: float = 30.0, seed: int = 0) -> np.ndarray:
@@ -39,11 +43,11 @@ def test_levels_and_snr_match_the_signal() -> None:
 def test_clipping_is_caught_and_its_policy_applied() -> None:
     codes = _recording([40_000.0, 1000.0])
     failures = judge_recording(measure(codes, PRE, BURST, 0.999), listening=[1], mics=[0, 1],
-                               check_dead=True, config=QualityConfig())
+                               check_dead=True, config=QualityConfig(), names=NAMES)
     assert [(f.check, f.policy) for f in failures] == [("clipping", "retry")]
-    assert "[0]" in failures[0].message
+    assert failures[0].message.startswith("clipped on mic 7 (board A ch 0): ")
     quiet = judge_recording(measure(codes, PRE, BURST, 0.999), [1], [0, 1], True,
-                            QualityConfig(clipping="ignore"))
+                            QualityConfig(clipping="ignore"), NAMES)
     assert quiet == []
 
 
@@ -51,17 +55,18 @@ def test_low_level_low_snr_and_dead_channels() -> None:
     codes = _recording([6.0, 6.0, 0.0], noise=5.0)  # -75 dBFS, SNR 1.6 dB, and a dead one
     failures = judge_recording(measure(codes, PRE, BURST, 0.999), listening=[0, 1],
                                mics=[0, 1, 2], check_dead=True,
-                               config=QualityConfig(dead_channels="warn", min_channel_snr_db=0))
+                               config=QualityConfig(dead_channels="warn", min_channel_snr_db=0),
+                               names=NAMES)
     checks = {f.check: f for f in failures}
     assert set(checks) == {"level", "snr", "dead_channels"}
     assert checks["level"].policy == "retry" and checks["dead_channels"].policy == "warn"
-    assert "[2]" in checks["dead_channels"].message
+    assert checks["dead_channels"].message.startswith("no burst heard on mic 5 (board A ch 2) ")
 
 
 def test_good_recording_passes() -> None:
     codes = _recording([2000.0, 1500.0])
     assert judge_recording(measure(codes, PRE, BURST, 0.999), [0, 1], [0, 1], True,
-                           QualityConfig()) == []
+                           QualityConfig(), NAMES) == []
 
 
 def test_checkerboard_found_in_a_rendered_pose_and_not_in_an_empty_view() -> None:

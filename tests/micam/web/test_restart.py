@@ -11,7 +11,7 @@ from acquisition.contracts.session import SessionReader, journal_records
 
 from .conftest import Stack
 
-POSES = 4  # live calibration starts after pose 4
+POSES = 4  # live calibration starts once 4 poses are in (after pose 3)
 
 
 def _state(url: str) -> dict:
