@@ -105,3 +105,44 @@ def test_a_prior_is_weighed_against_the_images() -> None:
     fx_free, fx_prior, fx = free.K[0, 0], K_prior[0, 0], combined.K[0, 0]
     assert min(fx_free, fx_prior) < fx < max(fx_free, fx_prior)  # between the two
     assert combined.std[0] < min(free.std[0], 0.5)  # better known than either alone
+
+
+def test_the_robust_detector_skips_a_board_that_another_camera_shows_running_off_the_image(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A board cut by the image's edge passes the fast check and fails the classic detector;
+    the robust one would spend 0.1-0.4 s failing on it. Where another camera saw the whole
+    board at the same step, the cut is predicted and the robust detector is not run; where
+    no other camera saw it, it still is."""
+    import calibration.camera_calibration as stage
+    from calibration.corners import Unsure, detect_corners_quickly
+
+    rig, board = Rig(), Checkerboard(6, 9, 0.03)
+    cam1 = pinhole("cam1", cam0_to_cam=RigidTransform(  # turned: the board sits further left
+        cv2.Rodrigues(np.array([0.0, -0.3, 0.0]))[0], np.zeros(3)))
+    tilts = [(0.35, 0.1, 0.0), (-0.3, 0.2, 0.3), (0.1, -0.4, -0.2), (0.2, 0.3, 0.5),
+             (-0.2, -0.3, 0.1), (0.4, -0.1, -0.4)]
+    poses = {f"pose/{k:04d}": _pose(t, 0.7 + 0.05 * k, rig) for k, t in enumerate(tilts)}
+    side = _pose((0.1, 0.2, 0.0), 0.6, rig)  # moved left: whole in cam0, 100 px off cam1
+    poses["pose/0006"] = RigidTransform(side.R, side.t + np.array([-0.15, 0.0, 0.0]))
+    rng = np.random.default_rng(2)
+    images = {(cam.name, step): render_rig_image(cam, rig, pose, rng)
+              for step, pose in poses.items() for cam in (CAMERA, cam1)}
+    # the same cut board at a step where camera 0 saw nothing: no prediction possible
+    images[("cam0", "pose/0007")] = render_rig_image(CAMERA, rig, None, rng)
+    images[("cam1", "pose/0007")] = images[("cam1", "pose/0006")].copy()
+    cut = [("cam1", "pose/0006"), ("cam1", "pose/0007")]
+    assert all(isinstance(detect_corners_quickly(images[k], board), Unsure) for k in cut)
+    assert detect_corners(images[("cam0", "pose/0006")], board) is not None
+
+    robust_calls = []
+    robustly = stage.detect_corners_robustly
+
+    def counted(image: np.ndarray, b: Checkerboard) -> np.ndarray | None:
+        robust_calls.append(next(k for k, v in images.items() if v is image))
+        return robustly(image, b)
+
+    monkeypatch.setattr(stage, "detect_corners_robustly", counted)
+    cal = calibrate_images(images, ["cam0", "cam1"], board)
+    assert robust_calls == [("cam1", "pose/0007")]
+    assert set(cal.views) == {(c, s) for c in ("cam0", "cam1") for s in poses} - {cut[0]}
+    assert {(m.camera, m.step) for m in cal.missed} == {*cut, ("cam0", "pose/0007")}
