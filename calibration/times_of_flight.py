@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import fft as sfft
 
+from ._cores import default_workers
 from .memo import LruMemo
 from .session_data import SessionData
 from .tof import TofEstimate, Weighting, estimate_delays, tof_from_delay
@@ -22,8 +23,6 @@ from .tof import TofEstimate, Weighting, estimate_delays, tof_from_delay
 MAX_RANGE_M = 6.0
 """Longest path searched for a correlation peak; later peaks are reflections."""
 
-TOF_THREADS = 2
-"""Poses correlated at once."""
 TOF_CACHE_POSES = 2_000
 """Poses whose delays a worker's `TofMemo` remembers (about 15 kB each for 73 channels)."""
 
@@ -99,8 +98,8 @@ def measure_session_tofs(
     again with a few more each time, correlates every pose once. A remembered pose's files are
     not read again, so the memo's owner answers for them (the worker verified its copies when
     it fetched them); without a memo every recording is read, and checked against the
-    journal. Poses are correlated two at a time on threads (numpy and the FFTs release the
-    GIL: 1.5x on two cores).
+    journal. Poses are correlated at once on threads (numpy and the FFTs release the
+    GIL: 1.5x on two cores): one pose per core, each FFT on its pose's thread.
     """
     on_stand = data.reference_column is not None
     columns = np.append(data.mic_columns, [data.reference_column] if on_stand else [])
@@ -132,12 +131,13 @@ def measure_session_tofs(
         recordings = data.pose_recordings(data.pose_steps[i], columns, samples)
         assert references is not None  # read whenever something is to do
         est = _frozen(estimate_delays(recordings, references, data.fs, band=band_hz,
-                                      weighting=weighting, delay_window_s=window, n_fft=n_fft))
+                                      weighting=weighting, delay_window_s=window, n_fft=n_fft,
+                                      fft_workers=1))
         if memo is not None:
             memo.put(keys[i], est)
         return est
 
-    with ThreadPoolExecutor(max_workers=TOF_THREADS) as pool:
+    with ThreadPoolExecutor(max_workers=default_workers()) as pool:
         estimates = remembered | dict(zip(todo, pool.map(correlate, todo), strict=True))
     parts = []
     for i, step in enumerate(data.pose_steps):

@@ -123,6 +123,7 @@ def estimate_delays(
     n_fft: int | None = None,
     sidelobe_guard_s: float = 5e-4,
     first_arrival: float = 0.5,
+    fft_workers: int = -1,
 ) -> TofEstimate:
     """Delay of every array channel relative to its recording's reference, batched.
 
@@ -143,6 +144,9 @@ def estimate_delays(
         first_arrival: the delay is that of the earliest correlation peak in the window that
             reaches this fraction of the window's highest one (the direct sound arrives first;
             a reflection can be stronger); 1 takes the highest peak.
+        fft_workers: threads of each FFT (scipy.fft's `workers`; -1: every core). A caller
+            that runs several estimates at once on threads gives 1: more threads than cores
+            cost it a sixth of its time.
 
     Returns:
         TofEstimate with (n_rec, n_ch) arrays.
@@ -182,6 +186,7 @@ def estimate_delays(
             weighting,
             lags,
             first_arrival,
+            fft_workers,
         )
         for i in range(0, n_rec, chunk)
     ]
@@ -240,17 +245,18 @@ def _estimate_chunk(
     weighting: Weighting,
     lags: _Lags,
     first_arrival: float,
+    fft_workers: int,
 ) -> tuple[np.ndarray, ...]:
     """estimate_delays on a chunk of recordings; returns (delay, std, snr_db, psr_db,
     impulses, impulse_first_lag)."""
     # single precision stays single (1e-7 of rounding: a thousandth of a nanosecond of delay)
-    X = sfft.rfft(ref, n_fft, axis=-1, workers=-1)[:, None, bins]
-    Y = sfft.rfft(rec, n_fft, axis=-1, workers=-1)[..., bins]
+    X = sfft.rfft(ref, n_fft, axis=-1, workers=fft_workers)[:, None, bins]
+    Y = sfft.rfft(rec, n_fft, axis=-1, workers=fft_workers)[..., bins]
     cross = Y * np.conj(X)
     weighted = _weighted(cross, X, weighting,
                          max(1, round(_COMPACT_SMOOTHING_HZ * n_fft / fs)))
 
-    corr = _lag_correlation(weighted, bins, lags.length)
+    corr = _lag_correlation(weighted, bins, lags.length, fft_workers)
     peak = _first_arrival(corr, lags.window, first_arrival)
     psr_db = _peak_to_sidelobe_db(corr, peak, lags.guard)
 
@@ -303,13 +309,14 @@ def _weighted(cross: np.ndarray, X: np.ndarray, weighting: Weighting,
     raise ValueError(f"unknown weighting {weighting!r}; choose compact, matched or phat")
 
 
-def _lag_correlation(weighted: np.ndarray, bins: np.ndarray, length: int) -> np.ndarray:
+def _lag_correlation(weighted: np.ndarray, bins: np.ndarray, length: int,
+                     fft_workers: int) -> np.ndarray:
     """The band-limited correlation at `length` equally spaced lags around the circle (r, ch,
     length): every full-rate lag (length n_fft) or about every second one (the band's bins
     then all below the shorter circle's Nyquist bin, so that it is sampled exactly)."""
     full = np.zeros((*weighted.shape[:-1], length // 2 + 1), dtype=np.complex64)
     full[..., bins] = weighted
-    return sfft.irfft(full, length, axis=-1, workers=-1)
+    return sfft.irfft(full, length, axis=-1, workers=fft_workers)
 
 
 def _parabolic_offset(corr: np.ndarray, peak: np.ndarray) -> np.ndarray:
