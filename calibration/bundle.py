@@ -393,10 +393,49 @@ class _Triplets:
         self.cols.append(cols.ravel())
         self.vals.append(vals.ravel())
 
-    def matrix(self, n_rows: int, n_cols: int) -> sparse.csr_matrix:
-        return sparse.csr_matrix(
-            (np.concatenate(self.vals), (np.concatenate(self.rows), np.concatenate(self.cols))),
-            shape=(n_rows, n_cols))
+    def matrix(self, n_rows: int, n_cols: int, pattern: _Pattern | None = None
+               ) -> tuple[sparse.csr_matrix, _Pattern]:
+        """The CSR matrix of the entries (duplicates summed), and its pattern; `pattern`, a
+        pattern of earlier entries, is reused when the entries sit where they sat then."""
+        rows, cols = np.concatenate(self.rows), np.concatenate(self.cols)
+        if pattern is None or not pattern.fits(rows, cols, n_rows, n_cols):
+            pattern = _Pattern.of(rows, cols, n_rows, n_cols)
+        return pattern.matrix(np.concatenate(self.vals)), pattern
+
+
+@dataclass(frozen=True)
+class _Pattern:
+    """Where COO entries go in a CSR matrix: the Jacobian's entries sit in the same places at
+    every iteration, so the sorting that SciPy's COO-to-CSR conversion repeats (a third of
+    building the matrix at 140 poses) is done once.
+
+    Attributes:
+        rows, cols: (n,) the entries' positions, in the order they were added.
+        slot: (n,) each entry's index into the CSR data (entries at one position share it).
+        indices, indptr: the CSR structure; shape: (n_rows, n_cols).
+    """
+
+    rows: np.ndarray
+    cols: np.ndarray
+    slot: np.ndarray
+    indices: np.ndarray
+    indptr: np.ndarray
+    shape: tuple[int, int]
+
+    @classmethod
+    def of(cls, rows: np.ndarray, cols: np.ndarray, n_rows: int, n_cols: int) -> _Pattern:
+        keys, slot = np.unique(rows.astype(np.int64) * n_cols + cols, return_inverse=True)
+        indptr = np.searchsorted(keys // n_cols, np.arange(n_rows + 1))
+        return cls(rows, cols, slot, (keys % n_cols).astype(np.int32),
+                   indptr.astype(np.int32), (n_rows, n_cols))
+
+    def fits(self, rows: np.ndarray, cols: np.ndarray, n_rows: int, n_cols: int) -> bool:
+        return (self.shape == (n_rows, n_cols) and np.array_equal(self.rows, rows)
+                and np.array_equal(self.cols, cols))
+
+    def matrix(self, vals: np.ndarray) -> sparse.csr_matrix:
+        data = np.bincount(self.slot, weights=vals, minlength=self.indices.size)
+        return sparse.csr_matrix((data, self.indices, self.indptr), shape=self.shape)
 
 
 @dataclass(frozen=True)
@@ -429,6 +468,7 @@ class _Model:
                                         & (problem.reference_std_s > 0))
         self.n_rows = self.n_corner_rows + self.src.size + self.ref_valid.size
         self.groups = self._groups()
+        self._pattern: _Pattern | None = None  # the Jacobian's, found at its first evaluation
 
     def _groups(self) -> list[_Rows]:
         """Rows of every noise group: each camera's corners, array TOFs, reference TOFs."""
@@ -454,7 +494,9 @@ class _Model:
         sources, d_sources = self._sources(s)
         tofs = self._tofs(s, (sources, d_sources, *self._normals(s)), trip)
         residual = np.concatenate([corners, tofs])
-        jac = trip.matrix(self.n_rows, self.layout.size) if trip is not None else None
+        if trip is None:
+            return residual, None
+        jac, self._pattern = trip.matrix(self.n_rows, self.layout.size, self._pattern)
         return residual, jac
 
     def _corners(self, s: BundleState, trip: _Triplets | None) -> np.ndarray:
