@@ -36,6 +36,7 @@ from .commands import (
     worker,
 )
 from acquisition.contracts.errors import UserError
+from acquisition.daemon.systemd import StderrHandler
 
 SUBCOMMANDS = (
     simulate, import_session, inspect_session, calibrate, study, image, evaluate_imaging, daq,
@@ -104,24 +105,12 @@ def _log_level(args: argparse.Namespace) -> int:
     return int(getattr(logging, name.upper()))
 
 
-class _StderrHandler(logging.StreamHandler):
-    """Writes to whatever sys.stderr is when a record comes (not the one at set-up time)."""
-
-    @property  # type: ignore[override]
-    def stream(self) -> object:
-        return sys.stderr
-
-    @stream.setter
-    def stream(self, _value: object) -> None:
-        pass
-
-
 def _log_to_stderr(level: int) -> None:
     """The commands' log messages on stderr from `level` up (the daemon and the worker set
     up their own, journald-aware logging)."""
     root = logging.getLogger()
-    if not any(isinstance(h, _StderrHandler) for h in root.handlers):
-        handler = _StderrHandler()
+    if not any(isinstance(h, StderrHandler) for h in root.handlers):
+        handler = StderrHandler()
         handler.setFormatter(logging.Formatter("micam: %(levelname)s %(name)s: %(message)s"))
         root.addHandler(handler)
     root.setLevel(level)

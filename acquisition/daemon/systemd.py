@@ -148,6 +148,19 @@ class JournaldHandler(logging.Handler):
         super().close()
 
 
+class StderrHandler(logging.StreamHandler):
+    """Writes to whatever sys.stderr is when a record comes, not the one at set-up time (a
+    stream replaced since, as a test's captured one, may be closed by then)."""
+
+    @property  # type: ignore[override]
+    def stream(self) -> object:
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, _value: object) -> None:
+        pass
+
+
 def configure_logging(level: int = logging.INFO, identifier: str = "micam") -> None:
     """Log from `level` up: to the journal with structured fields under systemd
     ($JOURNAL_STREAM and its socket), else to stderr with times and the session and step."""
@@ -157,7 +170,7 @@ def configure_logging(level: int = logging.INFO, identifier: str = "micam") -> N
         handler = JournaldHandler(journal, identifier)
         handler.setFormatter(logging.Formatter("%(name)s: %(message)s"))
     else:
-        handler = logging.StreamHandler()
+        handler = StderrHandler()
         handler.setFormatter(logging.Formatter(
             "%(asctime)s %(levelname)s %(name)s: %(message)s%(context)s"))
     handler.addFilter(ContextFilter())

@@ -83,3 +83,28 @@ def test_outside_systemd_the_text_log_names_the_session(
         root.setLevel(level)
     err = capsys.readouterr().err
     assert "micam.daemon: hello [session s-3]" in err and "not shown" not in err
+
+
+def test_the_text_log_follows_stderr_when_it_is_replaced(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The daemon's text log writes to the stderr of the moment: a stream replaced and
+    closed since logging was set up (a test's captured one) takes no record and raises
+    nothing."""
+    import io
+    import sys
+
+    monkeypatch.delenv("JOURNAL_STREAM", raising=False)
+    root = logging.getLogger()
+    saved = root.handlers[:], root.level
+    first, second = io.StringIO(), io.StringIO()
+    try:
+        monkeypatch.setattr(sys, "stderr", first)
+        configure_logging(logging.INFO)
+        monkeypatch.setattr(sys, "stderr", second)
+        first.close()
+        monkeypatch.setattr(logging, "raiseExceptions", True)
+        logging.getLogger("micam.daemon").info("after the swap")
+    finally:
+        root.handlers[:], level = saved
+        root.setLevel(level)
+    assert "micam.daemon: after the swap" in second.getvalue()
