@@ -276,7 +276,7 @@ def _runs_off_the_image(
     try:
         rough = calibrate_detections({k: d for k, d in found.items() if k[1] in sample},
                                      cameras, board, min_views, min_shared_views, known)
-    except CameraCalibrationError:
+    except (CameraCalibrationError, cv2.error):  # too few or degenerate views: no prediction
         return set()
     obj = board.object_points()
     cut = set()
