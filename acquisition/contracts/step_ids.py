@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import operator
 import re
+from typing import SupportsIndex
 
 _POSE = "pose"
 _REFERENCE = "reference"
@@ -38,7 +39,7 @@ _POSE_RE = re.compile(rf"{_POSE}/([0-9]{{4,}})")
 _REFERENCE_RE = re.compile(rf"{_REFERENCE}/([0-9]+)")
 
 
-def _number(index: int, what: str) -> int:
+def _number(index: SupportsIndex, what: str) -> int:
     """`index` checked: a pose or speaker number is an integer from 0 (a Python or a numpy
     integer; a float raises TypeError)."""
     number = operator.index(index)
@@ -47,7 +48,7 @@ def _number(index: int, what: str) -> int:
     return number
 
 
-def pose_step(index: int) -> str:
+def pose_step(index: SupportsIndex) -> str:
     """The step id of pose `index` (from 0): pose_step(3) == "pose/0003"."""
     return f"{_POSE}/{_number(index, 'pose'):04d}"
 
@@ -66,7 +67,7 @@ def is_pose_step(step: str) -> bool:
     return pose_index(step) is not None
 
 
-def reference_step(speaker: int) -> str:
+def reference_step(speaker: SupportsIndex) -> str:
     """The step id of the reference recording of speaker `speaker` (from 0): "reference/2"."""
     return f"{_REFERENCE}/{_number(speaker, 'speaker')}"
 
