@@ -1,7 +1,15 @@
 """One spelling of step ids (#18): acquisition/contracts/step_ids.py makes and reads them, the
-session store's validators accept what it makes, and no other package module spells one."""
+session store's validators accept what it makes, no other package module spells one, and the
+report no longer loads the imaging package to read a pose number."""
 
 from __future__ import annotations
+
+import ast
+import re
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -20,6 +28,9 @@ from acquisition.contracts.step_ids import (
     reference_step,
 )
 
+REPO = Path(__file__).resolve().parents[1]
+PACKAGES = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["importlinter"][
+    "root_packages"]
 NOT_POSE_STEPS = ["pose/x", "poses/0003", "pose/3", "pose/00003", "pose/-001", "pose/",
                   "pose/0003/a", "pose/0003-a1", "pose/\u0660\u0660\u0660\u0663",
                   "reference/2", REFMIC_STEP, "", "Pose/0003"]
@@ -79,3 +90,62 @@ def test_the_store_accepts_every_id_made_here_and_files_it_where_the_docstring_s
                                        "journal.jsonl"])
 def test_a_path_no_attempt_has_gives_none(directory: str) -> None:
     assert attempt_of_dir(directory) is None
+
+
+STEP_ID_SPELLING = re.compile(r"(pose/|reference/([0-9]+$|\{|$)|refmic$)")
+"""A string constant (or the literal part of an f-string) that spells a step id: "pose/..."
+in any form, "reference/<k>", "reference/" before a placeholder, "refmic". Not
+"reference/speaker0.wav" (a file of an import directory)."""
+
+SPELLS_STEP_IDS = {
+    "acquisition/contracts/step_ids.py": "the one spelling",
+    "calibration/times_of_flight.py": "its \"reference/{}\" template of recording hashes; "
+                                      "another engineer's file in #18 (use reference_step)",
+}
+
+
+def step_id_spellings(source: str) -> list[str]:
+    """The string constants of `source`'s code that spell a step id; a docstring, or any
+    other string standing alone as a statement, and comments are no code."""
+    tree = ast.parse(source)
+    alone = {id(node.value) for node in ast.walk(tree)
+             if isinstance(node, ast.Expr) and isinstance(node.value, ast.Constant)}
+    return [node.value for node in ast.walk(tree)
+            if isinstance(node, ast.Constant) and isinstance(node.value, str)
+            and id(node) not in alone and STEP_ID_SPELLING.match(node.value)]
+
+
+def test_a_hand_spelled_step_id_is_found_and_prose_is_not() -> None:
+    code = ('"""Steps "pose/0003" and "refmic"."""\n'
+            'a = f"pose/{i:04d}"\n'
+            'b = s.startswith("pose/")\n'
+            'c = f"reference/{k}"\n'
+            'd = "refmic"\n'
+            'e = "reference/{}"\n'
+            'f = "reference/2"\n'
+            '# "pose/0001"\n'
+            'def g():\n    """A "pose/0001" step."""\n'
+            'h = ["reference/speaker0.wav", "refmic_images", "pose", "the refmic step"]\n')
+    assert sorted(step_id_spellings(code)) == ["pose/", "pose/", "reference/", "reference/2",
+                                               "reference/{}", "refmic"]
+
+
+def test_no_package_module_but_step_ids_spells_a_step_id() -> None:
+    """#18 found the step ids spelled by hand in some twenty places; each now calls
+    acquisition.contracts.step_ids (pose_step, pose_index, is_pose_step, reference_step,
+    is_reference_step, REFMIC_STEP)."""
+    found = {str(path.relative_to(REPO)): spellings
+             for top in PACKAGES for path in sorted((REPO / top).rglob("*.py"))
+             if (spellings := step_id_spellings(path.read_text()))}
+    assert {p: s for p, s in found.items() if p not in SPELLS_STEP_IDS} == {}
+    assert SPELLS_STEP_IDS.keys() <= found.keys()  # the exceptions still need to be
+
+
+def test_the_report_reads_pose_numbers_without_the_imaging_package() -> None:
+    """calibration.report imported calibration.imaging (and scipy.signal) for pose_index
+    alone: ~0.45 s of every CLI start. A fresh interpreter shows what importing it loads."""
+    loaded = subprocess.run(
+        [sys.executable, "-c", "import sys, calibration.report; print(*sorted(sys.modules))"],
+        cwd=REPO, capture_output=True, text=True, check=True).stdout.split()
+    assert "calibration.report" in loaded
+    assert [m for m in loaded if m.startswith(("calibration.imaging", "scipy.signal"))] == []
