@@ -42,6 +42,7 @@ from acquisition.contracts.rig_description import (
 )
 from acquisition.contracts.session import SessionError, SessionWriter, sha256_file
 from acquisition.contracts.session._writer import MAX_CHANNELS
+from acquisition.contracts.step_ids import REFMIC_STEP, pose_step, reference_step
 
 MAX_SPEC_BYTES = 4_000_000
 """The import TOML: a description and a list of files, far below this."""
@@ -414,13 +415,13 @@ def plan(spec: ImportSpec, base: Path) -> list[_Step]:
     mic_columns = [c for _, c, _ in spec.microphones()]
     pose_last = max([*mic_columns, spec.reference.pose_recordings_column or 0])
     steps = [
-        _Step(f"reference/{k}", ((f"speaker_{k}.wav", check_recording(
+        _Step(reference_step(k), ((f"speaker_{k}.wav", check_recording(
             base, ref, f"recordings.references[{k}]", spec,
             spec.reference.reference_recordings_column), k),), ())
         for k, ref in enumerate(rec.references)
     ]
     if rec.refmic_images:
-        steps.append(_Step("refmic", (), tuple(
+        steps.append(_Step(REFMIC_STEP, (), tuple(
             (camera, path, f"recordings.refmic_images.{camera}")
             for camera, path in rec.refmic_images.items())))
     for i, pose in enumerate(rec.poses):
@@ -433,7 +434,7 @@ def plan(spec: ImportSpec, base: Path) -> list[_Step]:
                        for camera, path in pose.images.items())
         for _, path, field in images:
             inside(base, path, field)
-        steps.append(_Step(f"pose/{i:04d}", recordings, images))
+        steps.append(_Step(pose_step(i), recordings, images))
     return steps
 
 

@@ -33,6 +33,7 @@ from acquisition.contracts.camera import Camera
 from acquisition.contracts.capture_config import CaptureConfig
 from acquisition.contracts.instructions import Instruction, InstructionKind, Operator
 from acquisition.contracts.session import StepRecorder
+from acquisition.contracts.step_ids import REFMIC_STEP, pose_step, reference_step
 from acquisition.contracts.stimulus import mls_burst
 
 
@@ -57,19 +58,19 @@ def plan_steps(config: CaptureConfig) -> list[Step]:
     """Every step of a capture with `config`, in order. A pose or speaker has one number, from
     0, in its step id, its instruction's field and its text (README, "Numbering")."""
     steps = [
-        Step(f"reference/{s.index}", Instruction(
+        Step(reference_step(s.index), Instruction(
             kind=InstructionKind.REFERENCE_AT_SPEAKER, speaker=s.index,
             text=f"Hold the reference microphone about "
                  f"{config.reference.distance_from_speaker_m * 1000:.0f} mm in front of "
                  f"speaker {s.index}."))
         for s in config.speakers
     ]
-    steps.append(Step("refmic", Instruction(
+    steps.append(Step(REFMIC_STEP, Instruction(
         kind=InstructionKind.REFERENCE_ON_STAND,
         text="Put the reference microphone on its stand just outside the camera view and touch "
              "it with the rig's reference mark, the board in view.")))
     steps += [
-        Step(f"pose/{i:04d}", Instruction(
+        Step(pose_step(i), Instruction(
             kind=InstructionKind.RIG_AT_POSE, pose=i,
             text=f"Hold the rig still at pose {i} (poses 0-{config.n_poses - 1}), in view of "
                  "the cameras."))

@@ -38,6 +38,7 @@ import numpy as np
 
 from acquisition.contracts.rig_description import KnownIntrinsics
 from acquisition.contracts.rigid import RigidTransform
+from acquisition.contracts.step_ids import REFMIC_STEP
 
 from .bundle import (
     FIXED,
@@ -451,7 +452,7 @@ def _reference_position(cams: CameraCalibration,
     """The reference microphone on its stand, when the pose recordings hold it and the
     session has its image (and the rig its reference mark); otherwise None."""
     mark = data.rig.reference_mark_m
-    if data.reference_column is None or mark is None or "refmic" not in data.reader.steps():
+    if data.reference_column is None or mark is None or REFMIC_STEP not in data.reader.steps():
         return None
     try:
         return reference_microphone_position(cams, np.array(mark))

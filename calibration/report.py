@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 
 from acquisition.contracts.rigid import RigidTransform, kabsch
+from acquisition.contracts.step_ids import pose_index, pose_step
 
 from .figures.geometry import ArrayPicture, CameraMark, geometry_figure
 from .figures.residuals import (
@@ -29,7 +30,6 @@ from .figures.residuals import (
     tof_residual_figure,
 )
 from .figures.style import save
-from .imaging.evaluate import pose_index
 from .pipeline import CalibrationRun, _bundle_steps
 from .result import CalibrationResult, compare_with_truth
 
@@ -221,7 +221,7 @@ def step_ranges(steps: list[str]) -> str:
             prev = n
             continue
         if start is not None:
-            parts.append(f"pose/{start:04d}" + (f"-{prev:04d}" if prev != start else ""))
+            parts.append(pose_step(start) + (f"-{prev:04d}" if prev != start else ""))
         start = prev = n
     return ", ".join(parts + sorted(s for s in steps if pose_index(s) is None))
 

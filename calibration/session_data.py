@@ -26,6 +26,7 @@ from acquisition.contracts.rig_description import (
     validate_description,
 )
 from acquisition.contracts.session import SessionError, SessionReader
+from acquisition.contracts.step_ids import is_pose_step, reference_step
 
 
 class CalibrationInputError(ValueError):
@@ -107,7 +108,7 @@ class SessionData:
         `samples` of each)."""
         rows = []
         for k in range(self.n_speakers):
-            codes, _ = self.reader.read_recording(f"reference/{k}", f"speaker_{k}.wav")
+            codes, _ = self.reader.read_recording(reference_step(k), f"speaker_{k}.wav")
             rows.append(codes[samples, self.reference_recording_column])
         return np.asarray(rows, dtype=np.float32)
 
@@ -184,14 +185,14 @@ def load_session(path: Path, allow_interrupted: bool = False) -> SessionData:
         )
     description = session_description(reader)
     steps = reader.steps()
-    missing = [f"reference/{k}" for k in range(description.n_speakers)
-               if f"reference/{k}" not in steps]
+    missing = [reference_step(k) for k in range(description.n_speakers)
+               if reference_step(k) not in steps]
     if missing:
         raise CalibrationInputError(
             f"session {path} lacks the reference recordings {', '.join(missing)}; times of "
             "flight cannot be measured without them"
         )
-    poses = tuple(sorted(s for s in steps if s.startswith("pose/")))
+    poses = tuple(sorted(s for s in steps if is_pose_step(s)))
     if not poses:
         raise CalibrationInputError(f"session {path} has no completed pose to calibrate from")
     _check_recordings(reader, description, poses)
@@ -216,7 +217,7 @@ def _check_recordings(reader: SessionReader, description: RigArrayDescription,
     length, with the columns the description names."""
     mic_columns = [c for _, c, _ in description.microphones()]
     pose_columns = max([*mic_columns, description.reference.pose_recordings_column or 0])
-    needs = [(f"reference/{k}", f"speaker_{k}.wav",
+    needs = [(reference_step(k), f"speaker_{k}.wav",
               description.reference.reference_recordings_column)
              for k in range(description.n_speakers)]
     needs += [(step, f"speaker_{k}.wav", pose_columns)

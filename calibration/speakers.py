@@ -22,6 +22,7 @@ import cv2
 import numpy as np
 
 from acquisition.contracts.rigid import RigidTransform
+from acquisition.contracts.step_ids import REFMIC_STEP, is_pose_step
 
 from .camera_calibration import CameraCalibration, Pose
 
@@ -139,7 +140,7 @@ def speaker_positions(
     """
     speakers = np.asarray(speakers_rig_m, dtype=np.float64).reshape(-1, 3)
     if steps is None:
-        steps = {s for _, s in calibration.views if s.startswith("pose/")}
+        steps = {s for _, s in calibration.views if is_pose_step(s)}
     poses = {step: rig_pose_in_cam0(calibration, step) for step in sorted(steps)}
     located = [p for p in poses.values() if p is not None]
     unlocated = [step for step, p in poses.items() if p is None]
@@ -158,7 +159,7 @@ def speaker_positions(
 
 
 def reference_microphone_position(
-    calibration: CameraCalibration, reference_mark_rig_m: np.ndarray, step: str = "refmic"
+    calibration: CameraCalibration, reference_mark_rig_m: np.ndarray, step: str = REFMIC_STEP
 ) -> ReferenceMicrophonePosition:
     """The reference microphone's position: the rig's reference mark in the camera-0 frame,
     from the image taken with the mark touching the microphone (paper IV-C).

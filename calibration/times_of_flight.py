@@ -15,6 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import fft as sfft
 
+from acquisition.contracts.step_ids import reference_step
+
 from ._cores import default_workers
 from .memo import LruMemo
 from .session_data import SessionData
@@ -31,14 +33,17 @@ TofMemo = LruMemo[tuple, TofEstimate]
 `TofMemo(TOF_CACHE_POSES)`."""
 
 
-def _recording_hashes(data: SessionData, step: str) -> tuple[str, ...]:
-    """SHA-256 of every speaker's recording in `step` (a format with {} for the speaker index
-    gives one step per speaker, e.g. "reference/{}")."""
-    hashes = []
+def _recording_hashes(data: SessionData, step_of: Callable[[int], str]) -> tuple[str, ...]:
+    """SHA-256 of every speaker's recording, speaker k's in step `step_of(k)` (a pose's step
+    for all, or each speaker's reference step)."""
     steps = data.reader.steps()
-    for k in range(data.n_speakers):
-        hashes.append(steps[step.format(k)].files[f"speaker_{k}.wav"].sha256)
-    return tuple(hashes)
+    return tuple(steps[step_of(k)].files[f"speaker_{k}.wav"].sha256
+                 for k in range(data.n_speakers))
+
+
+def _every_speaker_in(step: str) -> Callable[[int], str]:
+    """`step` for every speaker (a pose's recordings all belong to its step)."""
+    return lambda _speaker: step
 
 
 def _frozen(est: TofEstimate) -> TofEstimate:
@@ -119,8 +124,9 @@ def measure_session_tofs(
         first, stop = steady
         n_fft = stop - first
     settings = (band_hz, weighting, window, first, n_fft, tuple(columns.tolist()),
-                _recording_hashes(data, "reference/{}"))
-    keys = [(_recording_hashes(data, step), settings) for step in data.pose_steps]
+                _recording_hashes(data, reference_step))
+    keys = [(_recording_hashes(data, _every_speaker_in(step)), settings)
+            for step in data.pose_steps]
     remembered = {i: est for i, key in enumerate(keys)
                   if memo is not None and (est := memo.get(key)) is not None}
     todo = [i for i in range(len(keys)) if i not in remembered]

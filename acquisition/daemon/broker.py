@@ -29,6 +29,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import posixpath
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -41,6 +42,8 @@ from pydantic import BaseModel, ValidationError
 
 from acquisition.contracts.session import SessionError
 from acquisition.contracts.session import fsync_dir, partial_path, sha256_file, write_atomic
+from acquisition.contracts.session._layout import attempt_of_dir
+from acquisition.contracts.step_ids import is_pose_step
 from .config import WorkersConfig
 from acquisition.contracts.job_messages import (
     WORKER_MESSAGE,
@@ -459,9 +462,9 @@ def _pose_steps(job: JobRecord) -> set[str]:
     """The pose steps a job's files belong to ("poses/0003-a1/..." -> "pose/0003")."""
     steps = set()
     for file in job.files:
-        folder = file.path.split("/", 1)[0]
-        if folder == "poses":
-            steps.add("pose/" + file.path.split("/")[1].rsplit("-a", 1)[0])
+        attempt = attempt_of_dir(posixpath.dirname(file.path))
+        if attempt is not None and is_pose_step(attempt[0]):
+            steps.add(attempt[0])
     return steps
 
 

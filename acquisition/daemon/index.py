@@ -39,6 +39,7 @@ from acquisition.contracts.safe_names import SafeName, is_name
 from ..sequencer import plan_steps
 from acquisition.contracts.session import JOURNAL_NAME, SessionError, SessionReader
 from acquisition.contracts.session import partial_path, write_atomic
+from acquisition.contracts.step_ids import is_pose_step
 from acquisition.contracts.protocol import SessionSummary
 
 log = logging.getLogger("micam.daemon")
@@ -54,7 +55,7 @@ def summarize(session_id: str, path: Path, status: str, completed: dict[str, Any
     return SessionSummary(
         id=session_id, path=str(path), status=status, steps_done=len(completed),
         steps_total=len(plan_steps(CaptureConfig.of_session(capture, path))),
-        poses_done=sum(s.startswith("pose/") for s in completed),
+        poses_done=sum(is_pose_step(s) for s in completed),
         n_poses=capture["n_poses"], created_utc=created_utc)
 
 

@@ -11,6 +11,7 @@ import hashlib
 from pathlib import Path
 
 from acquisition.contracts.session import JOURNAL_NAME, SessionReader
+from acquisition.contracts.step_ids import is_pose_step
 from acquisition.contracts.job_messages import JobFile, JobKind, JournalPrefix
 from .outbox import JobRecord
 from acquisition.contracts.protocol import utc_now
@@ -26,7 +27,7 @@ def job_for_session(session: Path, kind: JobKind) -> JobRecord:
     journal = _journal_prefix(session)
     reader = SessionReader(session)
     steps = reader.steps()
-    poses = sum(s.startswith("pose/") for s in steps)
+    poses = sum(is_pose_step(s) for s in steps)
     files = [JobFile(path=f.path, bytes=f.bytes, sha256=f.sha256)
              for record in steps.values() for f in record.files.values()]
     job_id = f"{reader.session_id}.final" if kind == "final" \

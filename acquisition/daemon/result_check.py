@@ -21,6 +21,7 @@ from typing import Any
 
 from acquisition.contracts.capture_config import CaptureConfig
 from acquisition.contracts.session import SessionError, SessionReader
+from acquisition.contracts.step_ids import is_pose_step
 from acquisition.contracts.job_messages import LiveUpdate
 
 SPEED_OF_SOUND_RANGE_M_S = (250.0, 450.0)
@@ -56,7 +57,7 @@ class SessionFacts:
                    mic_boards={c.mic_id: c.board for c in capture.columns
                                if c.role == "mic" and c.mic_id is not None},
                    cameras=frozenset(c.name for c in capture.cameras),
-                   poses=frozenset(s for s in reader.steps() if s.startswith("pose/")))
+                   poses=frozenset(s for s in reader.steps() if is_pose_step(s)))
 
 
 def parse_result(data: bytes) -> dict[str, Any]:

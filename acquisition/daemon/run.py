@@ -28,6 +28,7 @@ from acquisition.contracts.instructions import Instruction, InstructionKind
 from ..sequencer import CaptureSequencer, Progress, plan_steps
 from acquisition.contracts.session import SessionWriter
 from acquisition.contracts.session._layout import attempt_dir
+from acquisition.contracts.step_ids import is_pose_step
 from .config import DaemonConfig
 from .hardware import Hardware
 from .previews import Previews
@@ -164,7 +165,7 @@ class SessionRun:
         """The board views and camera-0 outlines of the poses completed before this run (a
         resumed session), from their quality.json."""
         for step, attempt in self.completed().items():
-            if not step.startswith("pose/"):
+            if not is_pose_step(step):
                 continue
             try:
                 quality = json.loads((self.path / attempt_dir(step, attempt)
@@ -349,7 +350,7 @@ class SessionRun:
 
     def after_end(self, step: str) -> None:
         attempt = self._current(step)
-        if step.startswith("pose/"):
+        if is_pose_step(step):
             outline = attempt.outlines.get(self.capture.cameras[0].name)
             self._count_pose(attempt.found,
                              PoseOutline(step=step, outline=outline) if outline else None)
@@ -391,7 +392,7 @@ class SessionRun:
         done = self.completed()
         last = self.coverage[-1] if self.coverage else None
         self.host.publish(ProgressEvent, steps_done=progress.done, steps_total=progress.total,
-                          poses_done=sum(s.startswith("pose/") for s in done),
+                          poses_done=sum(is_pose_step(s) for s in done),
                           n_poses=self.capture.n_poses, step=progress.step,
                           cameras=self.cameras_seen(),
                           outline=last if last is not None and last.step == progress.step

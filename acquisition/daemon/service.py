@@ -32,6 +32,7 @@ from ..live.mode import POLL_S as LIVE_POLL_S
 from ..sequencer import plan_steps
 from acquisition.contracts.session import SessionError, SessionReader, SessionWriter
 from acquisition.contracts.session import write_atomic
+from acquisition.contracts.step_ids import is_pose_step
 from .broker import CALIBRATION_DIR, JOBS_QUEUE, RESULT_FILE, Broker
 from .config import DaemonConfig
 from .files import MAX_FETCH_BYTES, FileServer
@@ -263,9 +264,9 @@ class Daemon:
         """After a step's end is journaled: a live calibration job once enough poses are in."""
         run = self.run
         workers = self.config.workers
-        if run is None or not step.startswith("pose/") or not workers.live:
+        if run is None or not is_pose_step(step) or not workers.live:
             return
-        if sum(s.startswith("pose/") for s in run.completed()) >= workers.live_min_poses:
+        if sum(is_pose_step(s) for s in run.completed()) >= workers.live_min_poses:
             try:
                 self.broker.submit(job_for_session(run.path, "live"))
             except (SessionError, OSError, ValueError) as exc:  # a live job can wait a pose
@@ -456,12 +457,12 @@ class Daemon:
         run = self._open_run()
         done = run.completed()
         missing = [s.id for s in plan_steps(run.capture)
-                   if not s.id.startswith("pose/") and s.id not in done]
+                   if not is_pose_step(s.id) and s.id not in done]
         if missing:
             raise Refusal("wrong_state",
                           f"cannot stop: {', '.join(missing)} not recorded yet, and calibration "
                           "needs them; capture them, or `micam session abort`")
-        poses = sum(s.startswith("pose/") for s in done)
+        poses = sum(is_pose_step(s) for s in done)
         run.ending = SessionEnding("success", f"stopped by the operator after {poses} of "
                                               f"{run.capture.n_poses} poses", after_burst=False)
         return {"state": self.machine.state.value, "stopping": True}

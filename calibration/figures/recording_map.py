@@ -16,6 +16,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from acquisition.contracts.session import SessionReader
+from acquisition.contracts.step_ids import pose_step
 
 from ..imaging.beamform import beamform_csm
 from ..imaging.cleansc import CleanScOptions, clean_sc
@@ -55,7 +56,7 @@ def recording_map(reader: SessionReader, geometry: ArrayGeometry, pose: int, spe
                   formulation: Formulation | str = Formulation.TRUE_LOCATION) -> RecordingMap:
     """The maps of `speaker`'s recording at `pose` in the band around band_hz (module
     docstring). Raises ValueError (or SessionError) naming what is missing or wrong."""
-    step = f"pose/{pose:04d}"
+    step = pose_step(pose)
     board = geometry.pose(pose)
     view = geometry.camera(camera)
     if not 0 <= speaker < len(board.speakers_m):

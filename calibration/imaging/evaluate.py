@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from acquisition.contracts.session import SessionReader
+from acquisition.contracts.step_ids import pose_index, pose_step
 
 from .._cores import resolve_workers
 from .cleansc import LOCKSTEP_BINS, CleanScOptions, clean_sc_many
@@ -183,7 +184,7 @@ def channel_calibration(reader: SessionReader, geometry: ArrayGeometry, pose: in
     channels in every band of the settings, from the recording of `speaker` at `pose`, whose
     position is the geometry's (the camera's). The settings' simulated error is applied to
     the recording; their correction is not."""
-    step = f"pose/{pose:04d}"
+    step = pose_step(pose)
     name = f"speaker_{speaker}.wav"
     board = geometry.pose(pose)
     if not 0 <= speaker < len(board.speakers_m):
@@ -332,12 +333,6 @@ class Evaluation:
             "by_distance": [{"from_m": lo, "to_m": hi if np.isfinite(hi) else None,
                              **v.to_json()} for (lo, hi), v in self.by_distance().items()],
         }
-
-
-def pose_index(step: str) -> int | None:
-    """The pose number of a step id "pose/0007", or None for other steps."""
-    group, _, name = step.partition("/")
-    return int(name) if group == "pose" and name.isdigit() else None
 
 
 Recording = tuple[str, str, int]

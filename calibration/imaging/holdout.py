@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from acquisition.contracts.session import SessionReader
+from acquisition.contracts.step_ids import pose_index
 
 from ..pipeline import CalibrationOptions, CalibrationRun, calibrate_measured, measure
 from .evaluate import (
@@ -28,7 +29,6 @@ from .evaluate import (
     ImagingSettings,
     Localization,
     evaluate_session,
-    pose_index,
     session_recordings,
 )
 from .geometry import ArrayGeometry, geometry_from_dict

@@ -47,6 +47,7 @@ def run(args: argparse.Namespace) -> int:
     from acquisition.contracts.capture_config import CaptureConfig
     from acquisition.contracts.rig_description import DESCRIPTION_KIND, DescriptionError, validate_description
     from acquisition.contracts.session import SessionError, SessionReader
+    from acquisition.contracts.step_ids import REFMIC_STEP, is_pose_step, is_reference_step
 
     try:
         reader = SessionReader(args.session)
@@ -58,15 +59,15 @@ def run(args: argparse.Namespace) -> int:
     except (SessionError, DescriptionError) as exc:
         raise UserError(str(exc)) from None
     steps = reader.steps()
-    poses = [s for s in steps if s.startswith("pose/")]
-    refs = [s for s in steps if s.startswith("reference/")]
+    poses = [s for s in steps if is_pose_step(s)]
+    refs = [s for s in steps if is_reference_step(s)]
     n_files = sum(len(r.files) for r in steps.values())
     print(f"session   {reader.session_id} at {args.session}")
     print(f"status    {reader.status}")
     imported = capture.get("kind") == DESCRIPTION_KIND  # `micam import`: no hardware
     planned = "" if imported else f" of {capture['n_poses']}"
     print(f"steps     {len(refs)} reference recordings, "
-          f"{'1' if 'refmic' in steps else 'no'} reference-microphone image set, "
+          f"{'1' if REFMIC_STEP in steps else 'no'} reference-microphone image set, "
           f"{len(poses)}{planned} poses")
     if imported:
         mics = sum(len(g["columns"]) for g in capture["channels"])
