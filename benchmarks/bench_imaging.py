@@ -64,7 +64,7 @@ from calibration.imaging import (
 from calibration.imaging.csm import acoular_block_count
 from calibration.imaging.evaluate import ImagingSettings, evaluate_session
 from sim.arrays import array_layout
-from sim.bench import AcousticBench
+from sim.analog_bench import AcousticBench
 from sim.geometry import RigidTransform
 from sim.multi_source import record_uncorrelated_noise
 from sim.poses import FACING_CAMERA

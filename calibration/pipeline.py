@@ -113,7 +113,7 @@ from .speakers import (
 )
 from .speed_of_sound import SpeedOfSoundFit, fit_speed_of_sound_robust
 from .times_of_flight import TOF_CACHE_POSES, SessionTofs, TofMemo, measure_session_tofs
-from .tof import Weighting
+from .delay_estimation import Weighting
 
 NOMINAL_SPEED_OF_SOUND_M_S = 343.0
 """Start value of c when nothing better is known (about 20 degC)."""
@@ -165,7 +165,7 @@ class CalibrationOptions:
         refine_poses: fit a rigid correction per rig pose, weighted by the camera's pose
             covariance.
         band_hz: the band the times of flight are estimated in (the speaker band).
-        weighting: the correlations' spectral weighting (calibration.tof): "compact" (robust
+        weighting: the correlations' spectral weighting (calibration.delay_estimation): "compact" (robust
             to early reflections, the default), "matched" (maximum likelihood in free field)
             or "phat".
         allow_interrupted: calibrate the completed poses of an interrupted session.

@@ -2,7 +2,7 @@
 microphone on its stand (paper IV-F, IV-G).
 
 Each pose's six recordings are correlated against the speakers' reference recordings in one
-batched call of `calibration.tof.estimate_delays`; poses are processed one at a time so that a
+batched call of `calibration.delay_estimation.estimate_delays`; poses are processed one at a time so that a
 140-pose session never sits in memory whole.
 """
 
@@ -20,7 +20,7 @@ from acquisition.contracts.step_ids import reference_step
 from ._cores import default_workers
 from .memo import LruMemo
 from .session_data import SessionData
-from .tof import TofEstimate, Weighting, estimate_delays, tof_from_delay
+from .delay_estimation import TofEstimate, Weighting, estimate_delays, tof_from_delay
 
 MAX_RANGE_M = 6.0
 """Longest path searched for a correlation peak; later peaks are reflections."""
@@ -68,7 +68,7 @@ class SessionTofs:
             (NaN when the pose recordings do not hold it).
         reference_std_s: (P, S) its predicted standard deviation (NaN likewise).
         impulses: (P, S, M, n_lag) float32, every array channel's weighted correlation
-            around its direct peak (`calibration.tof.TofEstimate.impulses`).
+            around its direct peak (`calibration.delay_estimation.TofEstimate.impulses`).
         impulse_first_lag: (P, S, M) full-rate lag (samples) of impulses[..., 0].
         impulse_step: full-rate samples between the impulses' values.
     """

@@ -28,7 +28,7 @@ from daq import (
 )
 
 from .arrays import BoardSpec
-from .bench import AcousticBench
+from .analog_bench import AcousticBench
 
 
 class _State(Enum):

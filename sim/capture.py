@@ -28,12 +28,12 @@ from daq import Board, InputChannel, OutputChannel, SyncGroup, board_model
 
 from .air_sensor import SimulatedAirSensor
 from .arrays import ARRAY_KINDS, ArrayLayout, array_layout
-from .bench import AcousticBench
+from .analog_bench import AcousticBench
 from .boards import SimulatedBoard
 from .cameras import SimulatedCamera
 from .geometry import Rig, RigidTransform
 from .lab import EFFECTS, LabEffects
-from .operator import SimulatedOperator, reference_stand_position
+from .simulated_operator import SimulatedOperator, reference_stand_position
 from .poses import sample_poses
 from .setups import Setups
 from .world import NoiseModel, World

@@ -17,7 +17,7 @@ import numpy as np
 
 from daq import CODE_FULL_SCALE, InputChannel, board_model, volts_to_codes
 
-from .bench import AcousticBench
+from .analog_bench import AcousticBench
 
 
 @dataclass(frozen=True)

@@ -31,7 +31,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _emulated_backend() -> Any:
     from sim.arrays import sphere72
-    from sim.bench import AcousticBench
+    from sim.analog_bench import AcousticBench
     from sim.usb import EmulatedBus
     from sim.world import World
 

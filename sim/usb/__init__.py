@@ -17,7 +17,7 @@ from pathlib import Path
 from daq import Board
 from daq.usb import TransferTrace, open_boards, write_ihex
 from daq.usb._families import FAMILIES, LOADER_IMAGE
-from sim.bench import AnalogBench
+from sim.analog_bench import AnalogBench
 
 from ._backend import EmulatedBackend
 from ._bus import EmulatedBoard, EmulatedBus, eeprom_serial

@@ -23,7 +23,7 @@ from daq.usb._ids import (
     FX2_REQUEST_INTERNAL,
     VENDOR_OUT,
 )
-from sim.bench import AnalogBench
+from sim.analog_bench import AnalogBench
 
 from ._clock import SharedClock
 from ._descriptors import DeviceDescriptor

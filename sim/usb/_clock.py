@@ -13,7 +13,7 @@ import threading
 import time
 from collections.abc import Callable
 
-from sim.bench import AnalogBench
+from sim.analog_bench import AnalogBench
 
 
 class SharedClock:

@@ -37,7 +37,7 @@ from daq.usb._protocol import (
 )
 from daq.usb._registers import EEPROM_I2C_ADDRESS, IoOp, Reg
 from daq.usb._unpublished import ScanSettings, decode_stream, encode_stream
-from sim.bench import AnalogBench
+from sim.analog_bench import AnalogBench
 
 from ._clock import SharedClock
 from ._errors import no_device, stall, timeout

@@ -71,11 +71,11 @@ def test_a_daemon_template_drives_a_first_capture(tmp_path: Path, name: str) -> 
     from calibration.session_data import load_session
     from daq import SyncGroup
     from sim.arrays import ArrayLayout, BoardSpec, ChannelRef, fibonacci_sphere, sphere72
-    from sim.bench import AcousticBench
+    from sim.analog_bench import AcousticBench
     from sim.boards import SimulatedBoard
     from sim.cameras import SimulatedCamera
     from sim.geometry import Rig
-    from sim.operator import SimulatedOperator, reference_stand_position
+    from sim.simulated_operator import SimulatedOperator, reference_stand_position
     from sim.poses import sample_poses
     from sim.world import World
 

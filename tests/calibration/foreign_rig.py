@@ -248,12 +248,12 @@ def same_world_natively(world: ForeignWorld, session: Path) -> dict:
     from acquisition.contracts.session import SessionWriter
     from daq import SyncGroup
     from sim.arrays import ArrayLayout, BoardSpec, ChannelRef
-    from sim.bench import AcousticBench
+    from sim.analog_bench import AcousticBench
     from sim.boards import SimulatedBoard
     from sim.cameras import SimulatedCamera
     from sim.capture import capture_config_for
     from sim.geometry import Rig, pinhole
-    from sim.operator import SimulatedOperator, reference_stand_position
+    from sim.simulated_operator import SimulatedOperator, reference_stand_position
     from sim.world import World
 
     specs = ([BoardSpec("DT9836-6-2", str(36101 + b)) for b in range(3)]

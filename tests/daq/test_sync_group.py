@@ -19,7 +19,7 @@ from daq import (
     volts_to_codes,
 )
 from sim.arrays import BoardSpec, sphere72
-from sim.bench import AcousticBench
+from sim.analog_bench import AcousticBench
 from sim.boards import SimulatedBoard
 from sim.world import NoiseModel, World
 

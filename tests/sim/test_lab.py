@@ -10,7 +10,7 @@ from acquisition.contracts.air import piston_directivity, speed_of_sound
 from sim.air_sensor import SimulatedAirSensor
 from sim.arrays import planar64, sphere72
 from sim.arrivals import SpeakerState, linear_phase, transfer_functions
-from sim.bench import AcousticBench
+from sim.analog_bench import AcousticBench
 from sim.lab import EFFECTS, LabEffects, LabTruth, RoomModel
 from sim.world import World
 

@@ -8,7 +8,7 @@ from scipy.optimize import minimize_scalar
 
 from daq import InputChannel, volts_to_codes
 from sim.arrays import scatter48, sphere72
-from sim.bench import AcousticBench
+from sim.analog_bench import AcousticBench
 from sim.sound import creeping_path_length, mls_burst
 from sim.world import NoiseModel, World
 

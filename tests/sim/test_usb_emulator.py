@@ -11,7 +11,7 @@ from daq import InputChannel, OutputChannel, ScanConfig, SyncGroup, volts_to_cod
 from daq.usb._ids import EP_CMD_IN, EP_CMD_OUT, EP_MSG_IN, EP_STREAM_IN, EP_STREAM_OUT
 from daq.usb._protocol import ReadWord
 from sim.arrays import ArrayLayout, scatter48
-from sim.bench import AcousticBench
+from sim.analog_bench import AcousticBench
 from sim.boards import SimulatedBoard
 from sim.usb import EmulatedBus, LoopbackBench, eeprom_serial, emulated_boards
 from sim.world import World

@@ -8,7 +8,7 @@ import pytest
 from daq import board_model
 from sim.arrays import ARRAY_KINDS, array_layout, sphere72
 from sim.geometry import Rig
-from sim.operator import SimulatedOperator, reference_stand_position
+from sim.simulated_operator import SimulatedOperator, reference_stand_position
 from sim.poses import PoseSamplingError, in_view, rig_points, sample_poses
 from sim.world import World
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from sim.arrays import array_layout
-from sim.bench import AcousticBench
+from sim.analog_bench import AcousticBench
 from sim.geometry import RigidTransform
 from sim.poses import FACING_CAMERA
 from sim.world import World
