@@ -98,3 +98,13 @@ def test_every_test_has_a_timeout(pytestconfig: pytest.Config) -> None:
     """pytest-timeout ends a hung test with the stacks of its threads instead of hanging CI."""
     assert pytestconfig.pluginmanager.hasplugin("timeout")
     assert float(pytestconfig.getini("timeout")) > 0
+
+
+def test_no_module_is_named_like_a_standard_library_module() -> None:
+    """A module named `operator.py` or `inspect.py` reads as the standard library's in a
+    traceback and in a reader's head (issue 18 renamed the last ones)."""
+    shadowing = sorted(
+        str(path.relative_to(REPO)) for package in PACKAGES
+        for path in (REPO / package).rglob("*.py")
+        if path.stem in sys.stdlib_module_names and path.stem != "__init__")
+    assert not shadowing, f"rename these modules: {shadowing}"
