@@ -165,9 +165,9 @@ class CalibrationOptions:
         refine_poses: fit a rigid correction per rig pose, weighted by the camera's pose
             covariance.
         band_hz: the band the times of flight are estimated in (the speaker band).
-        weighting: the correlations' spectral weighting (calibration.delay_estimation): "compact" (robust
-            to early reflections, the default), "matched" (maximum likelihood in free field)
-            or "phat".
+        weighting: the correlations' spectral weighting (calibration.delay_estimation):
+            "compact" (robust to early reflections, the default), "matched" (maximum
+            likelihood in free field) or "phat".
         allow_interrupted: calibrate the completed poses of an interrupted session.
         joint: finish with the optical-acoustic bundle adjustment (method "micam" only); the
             camera-frozen solution is reported beside it.

@@ -2,8 +2,8 @@
 microphone on its stand (paper IV-F, IV-G).
 
 Each pose's six recordings are correlated against the speakers' reference recordings in one
-batched call of `calibration.delay_estimation.estimate_delays`; poses are processed one at a time so that a
-140-pose session never sits in memory whole.
+batched call of `calibration.delay_estimation.estimate_delays`; a thread per core takes one
+pose at a time, so that a 140-pose session never sits in memory whole.
 """
 
 from __future__ import annotations

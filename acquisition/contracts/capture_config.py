@@ -3,9 +3,9 @@
 It says which column of a recording is which microphone (or the reference microphone), the
 volts per code of each column, which output drives which speaker, the burst, the rig and the
 cameras. Calibration reads none of the hardware in it: it reads the rig and array description
-that `CaptureConfig.description` derives (acquisition/contracts/rig_description.py). Every model refuses
-unknown keys (ConfigModel), so a misspelt key of a hand-written `[hardware.capture]` is an
-error.
+that `CaptureConfig.description` derives (acquisition/contracts/rig_description.py). Every
+model refuses unknown keys (ConfigModel), so a misspelt key of a hand-written
+`[hardware.capture]` is an error.
 """
 
 from __future__ import annotations
@@ -87,9 +87,9 @@ class BurstConfig(ConfigModel):
     state (the direct sound and every reflection of a period arrive within it), so one period
     correlated circularly against the reference's is exactly the periodic impulse response: a
     room's reflections are clean pulses that leave the direct one alone, and the sequence's
-    flat spectrum costs no precision (calibration.delay_estimation). One period (the default, and what
-    sessions recorded before it existed hold) is a burst whose reflections bias delays by
-    tens of nanoseconds in a room."""
+    flat spectrum costs no precision (calibration.delay_estimation). One period (the default,
+    and what sessions recorded before it existed hold) is a burst whose reflections bias
+    delays by tens of nanoseconds in a room."""
 
     mls_order: int = Field(default=14, ge=4, le=20)
     amplitude_v: float = Field(default=1.0, gt=0, le=10)
