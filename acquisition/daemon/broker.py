@@ -8,6 +8,9 @@ and Majordomo patterns:
   one, and only to workers that asked (never PUSH: jobs queued to a dead worker are lost);
 - both sides heartbeat; a worker silent for `liveness` intervals is dead and its job goes back
   to pending; so does a job leased longer than `job_timeout_s`;
+- a job that a worker failed with a retryable error waits `retry_delay_s` before it is offered
+  again, twice as long after each further attempt (the fault gets time to clear instead of
+  every attempt being spent within milliseconds); `max_attempts` leases in all;
 - every lease increments the job's `attempt`, and only the current attempt's answer counts
   (fencing): a late answer of a dead or timed-out lease is acknowledged as stale and ignored;
 - results are checked against their session (result_check.py: a rogue or broken worker
@@ -363,7 +366,9 @@ class Broker:
     def _failed(self, job: JobRecord, worker: _Worker, message: Failed) -> str:
         reason = f"on worker {worker.name}: {message.reason}"
         if message.retryable:
-            self._requeue(job, reason)
+            # a transient fault (a broken fetch, a busy worker) needs time to clear: offered
+            # again at once, every attempt would be spent within milliseconds
+            self._requeue(job, reason, self.config.retry_delay_s * 2.0 ** (job.attempt - 1))
         else:
             self._give_up(job, reason)
         return ""
@@ -374,7 +379,10 @@ class Broker:
         """Give the oldest pending jobs to the longest-idle workers, one job per worker."""
         idle = sorted((w for w in self.workers.values() if w.job is None),
                       key=lambda w: w.idle_since)
-        for job, worker in zip(self.outbox.pending(), idle, strict=False):
+        now = utc_now()
+        ready = [j for j in self.outbox.pending()
+                 if j.not_before_utc is None or j.not_before_utc <= now]
+        for job, worker in zip(ready, idle, strict=False):
             try:
                 offer = Job(job_id=job.job_id, attempt=job.attempt + 1, kind=job.kind,
                             session_id=job.session_id, poses=job.poses, journal=job.journal,
@@ -384,7 +392,7 @@ class Broker:
                 continue
             try:
                 job = self.outbox.update(job, state="leased", attempt=offer.attempt,
-                                         worker=worker.name, reason="")
+                                         worker=worker.name, reason="", not_before_utc=None)
             except OSError as exc:  # a lease is sent only once it is on disk
                 log.error("cannot lease %s: %s; trying again later", job.job_id, exc)
                 self.outbox.unsaved.add(job.job_id)  # flush retries, then leases follow
@@ -394,12 +402,18 @@ class Broker:
             if self._send(worker, offer):
                 self._job_event(job, "leased", worker=worker.name)
 
-    def _requeue(self, job: JobRecord, reason: str) -> None:
-        """Take a job back; pending again, or failed once `max_attempts` leases are spent."""
+    def _requeue(self, job: JobRecord, reason: str, delay_s: float = 0.0) -> None:
+        """Take a job back; pending again (offered after `delay_s` seconds), or failed once
+        `max_attempts` leases are spent."""
         if job.attempt >= self.config.max_attempts:
             self._give_up(job, f"{reason}; gave up after {job.attempt} attempts")
             return
-        job = self.outbox.record(job, state="pending", worker=None, reason=reason)
+        not_before = None
+        if delay_s > 0:
+            not_before = utc_now() + timedelta(seconds=delay_s)
+            reason = f"{reason}; offered again in {delay_s:g} s"
+        job = self.outbox.record(job, state="pending", worker=None, reason=reason,
+                                 not_before_utc=not_before)
         self._check_outbox()
         self._job_event(job, "requeued", reason=reason)
 

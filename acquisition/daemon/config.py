@@ -168,6 +168,12 @@ class WorkersConfig(ConfigModel):
         default=3600.0, gt=0, description="a lease longer than this is taken back (a hung job)")
     max_attempts: int = Field(
         default=3, ge=1, le=20, description="leases of one job before it is given up as failed")
+    retry_delay_s: float = Field(
+        default=2.0, ge=0, le=600,
+        description="a job that a worker failed with a retryable error (a fetch that broke, a "
+                    "worker busy ending its last job) waits this long before it is offered "
+                    "again, twice as long after each further attempt (0: at once); a job taken "
+                    "back from a lost or silent worker is offered again at once")
     live: bool = Field(default=True, description="calibrate the poses so far after each pose")
     live_min_poses: int = Field(
         default=4, ge=1, description="poses completed before the first live calibration "

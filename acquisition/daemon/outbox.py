@@ -64,6 +64,7 @@ class JobRecord(BaseModel):
     updated_utc: datetime
     result_sha256: str | None = None
     reason: str = ""
+    not_before_utc: datetime | None = None  # a pending job waiting out a retry delay
 
     def allowed(self, path: str) -> int | None:
         """How many bytes of `path` a worker of this job may fetch (None: not this job's)."""

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import time
 from collections.abc import Iterator
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
@@ -264,3 +265,42 @@ def test_a_job_file_half_written_when_the_daemon_died_does_not_block_the_job(
     finally:
         worker.close()
         running.stop()
+
+
+def test_a_retryable_failure_is_offered_again_after_a_growing_delay(tmp_path: Path) -> None:
+    """A worker's retryable failure is not re-offered at once (all attempts would be spent
+    within milliseconds): after `retry_delay_s`, then twice that, and the job's record says
+    when; the last attempt's failure gives the job up."""
+    config = small_config(tmp_path, workers=WorkersConfig(live=False, max_attempts=3,
+                                                          retry_delay_s=1.0))
+    running = ThreadDaemon(config)
+    try:
+        with running.client() as client:
+            client.request("session.start", poses=1)
+            capture_all(client)
+            wait_state(client, "idle")
+        worker = _jobs(running)
+        try:
+            worker.send({"v": 2, "type": "ready", "worker": "flaky"})
+            job, _ = worker.receive("job", timeout_s=10.0)
+            for attempt, delay_s in ((1, 1.0), (2, 2.0)):
+                assert job["attempt"] == attempt
+                worker.send({"v": 2, "type": "failed", "job_id": job["job_id"],
+                             "attempt": attempt, "reason": "fetch broke", "retryable": True})
+                worker.send({"v": 2, "type": "ready", "worker": "flaky"})
+                with pytest.raises(AssertionError, match="no 'job' message"):
+                    worker.receive("job", timeout_s=0.7 * delay_s)
+                job, _ = worker.receive("job", timeout_s=delay_s + 5.0)
+            worker.send({"v": 2, "type": "failed", "job_id": job["job_id"], "attempt": 3,
+                         "reason": "fetch broke", "retryable": True})
+            with running.client() as client:
+                deadline = time.monotonic() + 10.0
+                while client.status().calibration.failed != 1:
+                    assert time.monotonic() < deadline, "the job was not given up"
+                    time.sleep(0.05)
+        finally:
+            worker.close()
+    finally:
+        running.stop()
+    record = json.loads(next((tmp_path / "sessions.outbox").glob("*.final.json")).read_text())
+    assert record["state"] == "failed" and "gave up after 3 attempts" in record["reason"]
