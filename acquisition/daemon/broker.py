@@ -380,8 +380,13 @@ class Broker:
         idle = sorted((w for w in self.workers.values() if w.job is None),
                       key=lambda w: w.idle_since)
         now = utc_now()
+        # a job file's wait is believed up to the longest one this broker sets (an edited or
+        # clock-skewed record must not hold a job back for ever)
+        longest = timedelta(seconds=self.config.retry_delay_s
+                            * 2.0 ** (self.config.max_attempts - 1))
         ready = [j for j in self.outbox.pending()
-                 if j.not_before_utc is None or j.not_before_utc <= now]
+                 if j.not_before_utc is None or j.not_before_utc <= now
+                 or j.not_before_utc > now + longest]
         for job, worker in zip(ready, idle, strict=False):
             try:
                 offer = Job(job_id=job.job_id, attempt=job.attempt + 1, kind=job.kind,

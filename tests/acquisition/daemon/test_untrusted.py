@@ -267,6 +267,25 @@ def test_a_job_file_half_written_when_the_daemon_died_does_not_block_the_job(
         running.stop()
 
 
+def test_a_job_file_waiting_longer_than_any_retry_delay_is_offered_at_once(
+        tmp_path: Path) -> None:
+    """The wait in a job file is believed only up to the longest retry delay the broker sets:
+    an edited record (or a clock set back) cannot hold a job back for years."""
+    outbox = tmp_path / "sessions.outbox"
+    outbox.mkdir()
+    record = _record(tmp_path, not_before_utc="2999-01-01T00:00:00Z")
+    (outbox / "s1.final.json").write_text(json.dumps(record))
+    running = ThreadDaemon(small_config(tmp_path))
+    worker = _jobs(running)
+    try:
+        worker.send({"v": 2, "type": "ready", "worker": "w"})
+        job, _ = worker.receive("job", timeout_s=10.0)
+        assert job["job_id"] == "s1.final" and job["attempt"] == 1
+    finally:
+        worker.close()
+        running.stop()
+
+
 def test_a_retryable_failure_is_offered_again_after_a_growing_delay(tmp_path: Path) -> None:
     """A worker's retryable failure is not re-offered at once (all attempts would be spent
     within milliseconds): after `retry_delay_s`, then twice that, and the job's record says
