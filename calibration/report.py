@@ -29,7 +29,7 @@ from .figures.residuals import (
     tof_quality_figure,
     tof_residual_figure,
 )
-from .figures.style import save
+from .figures.style import save_all
 from .pipeline import CalibrationRun, _bundle_steps
 from .result import CalibrationResult, compare_with_truth
 
@@ -61,12 +61,15 @@ def write_report(run: CalibrationRun, directory: Path, truth: dict | None = None
     directory.mkdir(parents=True, exist_ok=True)
     picture = array_picture(run.result, truth, prior_m, run.solution.covariance_m2,
                             run.measurements.cameras.uncalibrated)
-    save(geometry_figure(picture), directory / "geometry.png")
-    save(tof_residual_figure(tof_residuals(run)), directory / "residuals.png")
-    save(corner_residual_figure(corner_residuals(run)), directory / "corners.png")
-    save(tof_quality_figure(run.tofs.snr_db[run.measurements.located],
-                            run.tofs.peak_to_sidelobe_db[run.measurements.located]),
-         directory / "tof_quality.png")
+    located = run.measurements.located
+    save_all([
+        (lambda: geometry_figure(picture), directory / "geometry.png"),
+        (lambda: tof_residual_figure(tof_residuals(run)), directory / "residuals.png"),
+        (lambda: corner_residual_figure(corner_residuals(run)), directory / "corners.png"),
+        (lambda: tof_quality_figure(run.tofs.snr_db[located],
+                                    run.tofs.peak_to_sidelobe_db[located]),
+         directory / "tof_quality.png"),
+    ])
     path = directory / "report.md"
     path.write_text(_markdown(run, truth))
     return path
