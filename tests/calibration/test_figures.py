@@ -6,6 +6,7 @@ study's figure with the bound and the paper's Table II."""
 from __future__ import annotations
 
 import json
+import os
 import re
 from itertools import combinations
 from pathlib import Path
@@ -18,7 +19,9 @@ from micam.demo_loop import report as demo_report
 from calibration import report
 from calibration.figures.geometry import ArrayPicture, geometry_figure, inside_ellipsoids
 from calibration.figures.residuals import corner_residual_figure, tof_residual_figure
+from calibration.figures import style
 from calibration.figures.study import study_figure
+from calibration.figures.style import new_figure, save_all
 from calibration.pipeline import CalibrationRun, calibrate
 from tests.conftest import simulated_session
 
@@ -165,3 +168,62 @@ def test_study_figure_is_the_papers_figure_14() -> None:
     assert list(paper.get_ydata()) == [10.0, 5.5, 5.0, 4.5]
     legend = [t.get_text() for t in fig.legends[0].get_texts()]
     assert {"camera frozen", "joint fit", "bound (frozen model)"} <= set(legend)
+
+
+def _line_figure(label: str):
+    """A small figure; `label` in its title."""
+    fig = new_figure(3.0, 2.0)
+    fig.add_subplot().plot([0, 1], [1, 0], label=label)
+    fig.suptitle(label)
+    return fig
+
+
+def test_save_all_draws_every_figure_once_split_over_two_processes(tmp_path: Path) -> None:
+    """Every second figure is drawn by a forked child (its pid differs), the others here."""
+    parent = os.getpid()
+    drawn_here: list[str] = []
+
+    def make(name: str):
+        def draw():
+            if os.getpid() == parent:
+                drawn_here.append(name)
+            return _line_figure(name)
+        return draw
+
+    names = ["a", "b", "c", "d"]
+    paths = save_all([(make(n), tmp_path / f"{n}.png") for n in names])
+    assert paths == [tmp_path / f"{n}.png" for n in names]
+    assert all(p.stat().st_size > 1000 for p in paths)
+    assert drawn_here == ["b", "d"]
+
+
+def test_save_all_draws_the_childs_figures_itself_when_the_child_fails(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """A figure that cannot be drawn in the child (here: it raises there) is drawn by the
+    parent, with a warning; without fork, every figure is drawn here."""
+    parent = os.getpid()
+
+    def fails_in_child():
+        if os.getpid() != parent:
+            raise RuntimeError("no display in the child")
+        return _line_figure("x")
+
+    paths = save_all([(fails_in_child, tmp_path / "x.png"),
+                      (lambda: _line_figure("y"), tmp_path / "y.png")])
+    assert all(p.stat().st_size > 1000 for p in paths)
+    assert "drawing x.png here" in caplog.text
+
+
+def test_save_all_without_fork_draws_everything_here(tmp_path: Path,
+                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(style.multiprocessing, "get_all_start_methods", lambda: ["spawn"])
+    parent = os.getpid()
+    pids: list[int] = []
+
+    def draw():
+        pids.append(os.getpid())
+        return _line_figure("z")
+
+    save_all([(draw, tmp_path / "1.png"), (draw, tmp_path / "2.png")])
+    assert pids == [parent, parent]
+    assert (tmp_path / "1.png").is_file() and (tmp_path / "2.png").is_file()
