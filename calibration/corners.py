@@ -24,17 +24,17 @@ half-size image (1-2 ms when the board is there; at quarter size it misses some)
 robust sector-based detector (findChessboardCornersSB, 0.1-0.4 s) at full size only when
 that fails (a caller that can tell a board cut by the image's edge, as the camera calibration
 can from the other cameras' views, skips it there). The corners are then
-refined on the full-resolution image: by cornerSubPix first (against 0.07 px RMS with
-occasional 0.5 px outliers from findChessboardCornersSB alone), then by a fit of the blurred
+refined on the full-resolution image: by cornerSubPix first (findChessboardCornersSB's own
+corners are off by 0.07 px RMS, with occasional 0.5 px outliers), then by a fit of the blurred
 corner's model to the pixels around each (`_fit_corners`). cornerSubPix alone is biased by
 the way it interpolates the image's gradients ("pixel locking"): on the simulated images
 0.016-0.048 px RMS per coordinate without any noise, depending on the pose (the same on float
 or 4x-supersampled renders), a board's mean off by up to 0.05 px, and 0.026 px RMS on a
-30-view session with 2 grey levels of noise. The fit models the pixels as the camera (and
-sim.light) forms them and has no such bias: 0.0007-0.0022 px RMS on noise-free renders (the
-8-bit rounding; 0.0001 px on float ones), 0.006 px with 2 grey levels of noise (the noise
-itself), for about 4 ms per image; where it fails (see `_fit_corners`) cornerSubPix's corner
-stands.
+30-view session with 2 grey levels of noise. The fit models the pixels as sim.light forms
+them (and nearly as a camera does) and has no such bias: 0.0007-0.0022 px RMS on noise-free
+renders (the 8-bit rounding; 0.0001 px on float ones), 0.006 px with 2 grey levels of noise
+(the noise itself), for about 4 ms per image; where it fails (see `_fit_corners`)
+cornerSubPix's corner stands.
 """
 
 from __future__ import annotations
@@ -258,17 +258,19 @@ def _fit_corners(grey: np.ndarray, corners: np.ndarray, board: Checkerboard
     Y), q(d) = clip(2 d, -1, 1) is the side of a line (-1 or +1) averaged over one pixel
     across it (d in pixels), so that Q is the checkerboard's pattern around c as pixels
     integrate it, and g_sigma is a Gaussian blur of sigma pixels applied on the pixel grid
-    (taps at whole pixels, `_BLUR_TAPS` either side). That is how a camera forms the image
-    (the pixels integrate the light, the lens blurs) and exactly how sim.light renders it, so
-    the fit adds no bias of its own there, unlike estimators that interpolate the image
+    (taps at whole pixels, `_BLUR_TAPS` either side). That is exactly how sim.light renders a
+    corner (each pixel integrated across the edges, then OpenCV's GaussianBlur), so the fit
+    adds no bias of its own there, unlike estimators that interpolate the image
     (cornerSubPix's gradients; a point-symmetry or saddle-point criterion on a smoothed
     image, tried too): grey levels between pixel centres are not those of a smooth function,
     and such estimators lock onto the pixel grid by 0.002-0.05 px, depending on the corner's
     phase and on the edges' angles (worst near 45 degrees, where the pixel centres sample an
-    edge's profile every 0.7 px). Perspective keeps the edge lines straight; the simulated
-    lens's distortion bends them by at most 0.002 px over a window, at the image's corners.
-    A gradient of light across the image shifts the fit by about 0.001 px per 20 % of
-    brightness change across its width.
+    edge's profile every 0.7 px). A camera forms the image a little differently (its lens
+    blurs before the pixels integrate, over their whole square): on renders made that way
+    (4x supersampled) the fit is off by 0.006-0.007 px RMS, cornerSubPix by 0.019-0.020 px.
+    Perspective keeps the edge lines straight; the simulated lens's distortion bends them by
+    at most 0.002 px over a window, at the image's corners. A gradient of light across the
+    image shifts the fit by about 0.001 px per 20 % of brightness change across its width.
 
     The seven parameters per corner (c, the lines' angles, sigma, a and b) are fitted by
     weighted Gauss-Newton from the given corners and the grid's directions, all corners at
