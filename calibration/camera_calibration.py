@@ -259,19 +259,17 @@ outside); at 40 px every board the robust detector finds is still tried, and 35 
 failures are skipped."""
 
 
-def _out_of_view(
-    keys: list[tuple[str, str]], found: dict[tuple[str, str], Detection],
+def _runs_off_the_image(
+    unsure: list[tuple[str, str]], found: dict[tuple[str, str], Detection],
     cameras: list[str], board: Checkerboard, known: dict[str, KnownIntrinsics] | None,
     min_views: int, min_shared_views: int,
 ) -> set[tuple[str, str]]:
-    """The images (camera, step) of `keys` whose board, where another camera saw it at the
-    same step, no detector can find whole: it runs off the image by more than
-    `CUT_MARGIN_PX`, lies behind the camera, or shows the camera its back. The robust detector
-    would spend 0.1-0.4 s failing on such an image (a tenth of the images of a 140-pose
-    session of the realistic lab), the full-size check 10 ms (a third of them). Predicted
-    from a rough calibration of the cameras on `ROUGH_STEPS` steps; an image that cannot be
-    predicted (its camera or no other camera calibrated, no other camera's view of the step)
-    is not in the set."""
+    """The unsure images (camera, step) whose board, where another camera saw it at the same
+    step, runs off the image by more than `CUT_MARGIN_PX`: no detector can find it whole, and
+    the robust one would spend 0.1-0.4 s failing (a tenth of the images of a 140-pose
+    session of the realistic lab). Predicted from a rough calibration of the cameras on
+    `ROUGH_STEPS` steps; an image that cannot be predicted (its camera or no other camera
+    calibrated, no other camera's view of the step) is not in the set."""
     seen = {key: corners for key, (corners, _) in found.items() if corners is not None}
     steps = sorted({step for _, step in seen})
     sample = set(steps[::max(1, -(-len(steps) // ROUGH_STEPS))])
@@ -281,8 +279,8 @@ def _out_of_view(
     except (CameraCalibrationError, cv2.error):  # too few or degenerate views: no prediction
         return set()
     obj = board.object_points()
-    hidden = set()
-    for camera, step in keys:
+    cut = set()
+    for camera, step in unsure:
         others = [c for c in rough.intrinsics if c != camera and (c, step) in seen]
         if camera not in rough.intrinsics or not others:
             continue
@@ -295,15 +293,14 @@ def _out_of_view(
         rig_to_cam = rough.cam_from_cam0[camera].cam0_to_cam.compose(
             to_other.inverse_compose(RigidTransform.from_rotvec(rvec.ravel(), tvec.ravel())))
         in_cam = rig_to_cam.apply(obj)
-        back_side = float(rig_to_cam.R[:, 2] @ rig_to_cam.t) >= 0.0  # camera behind the face
         mine = rough.intrinsics[camera]
         px, _ = cv2.projectPoints(in_cam, np.zeros(3), np.zeros(3), mine.K, mine.dist)
         px = px.reshape(-1, 2)
         outside = ((px < -CUT_MARGIN_PX)
                    | (px > np.array([mine.width, mine.height]) - 1 + CUT_MARGIN_PX))
-        if back_side or np.any(in_cam[:, 2] <= 0) or outside.any():
-            hidden.add((camera, step))
-    return hidden
+        if np.any(in_cam[:, 2] <= 0) or outside.any():
+            cut.add((camera, step))
+    return cut
 
 
 def calibrate_images(
@@ -326,17 +323,15 @@ def _detect_all(
     known: dict[str, KnownIntrinsics] | None, min_views: int, min_shared_views: int,
 ) -> dict[tuple[str, str], Detection]:
     """The detections of the images `keys` (camera, step), each read by `read`: the quick
-    detectors at half size on every image, then, except where the board is out of view
-    (`_out_of_view`, predicted with `seen`, detections of other images already made, too),
-    the full-size check on those where the half-size one saw no board, and the robust
-    detector on those the quick ones were unsure of.
+    detectors on every image, then the robust one on those it was unsure of, except where
+    the board runs off the image (`_runs_off_the_image`, predicted with `seen`, detections of
+    other images already made, too).
 
     PNG decoding and OpenCV's search release the interpreter lock: one image per core."""
 
-    def quickly(key: tuple[str, str], full_size_check: bool = False
-                ) -> tuple[np.ndarray | None | Unsure, tuple[int, int]]:
+    def quickly(key: tuple[str, str]) -> tuple[np.ndarray | None | Unsure, tuple[int, int]]:
         image = read(key)
-        return detect_corners_quickly(image, board, full_size_check), image.shape[1::-1]
+        return detect_corners_quickly(image, board), image.shape[1::-1]
 
     def robustly(key: tuple[str, str]) -> Detection:
         image = read(key)
@@ -344,29 +339,17 @@ def _detect_all(
 
     detected: dict[tuple[str, str], Detection] = {}
     unsure: dict[tuple[str, str], tuple[int, int]] = {}
-    unseen: dict[tuple[str, str], tuple[int, int]] = {}
-
-    def sort(results: Iterator[tuple[np.ndarray | None | Unsure, tuple[int, int]]],
-             todo: list[tuple[str, str]],
-             none_to: dict[tuple[str, str], tuple[int, int]]) -> None:
-        for key, (found, size) in zip(todo, results, strict=True):
+    with ThreadPoolExecutor(default_workers()) as pool:
+        for key, (found, size) in zip(keys, pool.map(quickly, keys), strict=True):
             if isinstance(found, Unsure):
                 unsure[key] = size
-            elif found is None:
-                none_to[key] = size
             else:
                 detected[key] = (found, size)
-
-    with ThreadPoolExecutor(default_workers()) as pool:
-        sort(pool.map(quickly, keys), keys, unseen)
-        hidden = _out_of_view([*unsure, *unseen], seen | detected, cameras, board, known,
-                              min_views, min_shared_views) if unsure or unseen else set()
-        again = [key for key in unseen if key not in hidden]
-        sort(pool.map(lambda key: quickly(key, full_size_check=True), again), again, unseen)
-        robust = [key for key in unsure if key not in hidden]
+        cut = _runs_off_the_image(list(unsure), seen | detected, cameras, board, known,
+                                  min_views, min_shared_views) if unsure else set()
+        robust = [key for key in unsure if key not in cut]
         detected |= dict(zip(robust, pool.map(robustly, robust), strict=True))
-    return detected | {key: (None, size) for key, size in (unsure | unseen).items()
-                       if key not in detected}
+    return detected | {key: (None, unsure[key]) for key in cut}
 
 
 def calibrate_detections(

@@ -178,19 +178,19 @@ detector cannot find whole: a board cut by the image's edge, or one that only th
 detector finds (small, distant, unevenly lit)."""
 
 
-def detect_corners_quickly(image: np.ndarray, board: Checkerboard,
-                           full_size_check: bool = True) -> np.ndarray | None | Unsure:
+def detect_corners_quickly(image: np.ndarray, board: Checkerboard
+                           ) -> np.ndarray | None | Unsure:
     """The corners (as `detect_corners`) from the cheap detectors alone, None when the fast
     check sees no board, or `UNSURE`.
 
     cv2.checkChessboard (the detector's own fast check) rejects most images without a board:
     at half size first (about 1 ms), at full size (about 9 ms) only when that fails (it misses
-    2-4 % of the boards the detector then finds) and `full_size_check` asks for it; then the
-    classic detector at half size (`_CLASSIC_FLAGS`)."""
+    2-4 % of the boards the detector then finds); then the classic detector at half size
+    (`_CLASSIC_FLAGS`)."""
     grey = _grey(image)
     half = cv2.resize(grey, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
     if not (cv2.checkChessboard(half, board.pattern_size)
-            or (full_size_check and cv2.checkChessboard(grey, board.pattern_size))):
+            or cv2.checkChessboard(grey, board.pattern_size)):
         return None
     found, corners = cv2.findChessboardCorners(half, board.pattern_size, flags=_CLASSIC_FLAGS)
     if not found:
