@@ -25,6 +25,7 @@ from acquisition.contracts.rig_description import KnownIntrinsics
 from acquisition.contracts.rigid import RigidTransform
 from acquisition.contracts.session import SessionReader
 
+from ._blas import single_threaded_blas
 from ._cores import default_workers
 from .corners import (
     Checkerboard,
@@ -339,7 +340,9 @@ def _detect_all(
 
     detected: dict[tuple[str, str], Detection] = {}
     unsure: dict[tuple[str, str], tuple[int, int]] = {}
-    with ThreadPoolExecutor(default_workers()) as pool:
+    # one BLAS thread: the images' threads already fill the cores (the corner fit's small
+    # batched solves gain nothing from more)
+    with single_threaded_blas(), ThreadPoolExecutor(default_workers()) as pool:
         for key, (found, size) in zip(keys, pool.map(quickly, keys), strict=True):
             if isinstance(found, Unsure):
                 unsure[key] = size
