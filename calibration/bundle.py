@@ -54,6 +54,7 @@ every unknown is the inverse of the final J^T W J.
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
 import cv2
@@ -65,6 +66,7 @@ from scipy.spatial.transform import Rotation
 from acquisition.contracts.rigid import RigidTransform, rotated_point_jacobian, rotation_from_rotvec
 
 from ._blas import single_threaded_blas
+from ._cores import default_workers
 from .camera_calibration import CameraCalibration, CameraIntrinsics, Extrinsics, Pose
 from .robust import inverse_normal, robust_sigma
 
@@ -779,10 +781,12 @@ class _Pass:
         whitening squared times the Huber weights."""
         weight, _ = self.cost(residual, x)
         w = self.whiten**2 * weight
-        weighted = jac.copy()
-        weighted.data *= np.repeat(w, np.diff(jac.indptr))  # rows scaled in place: W J
         L = self.priors.L
-        A = (jac.T @ weighted + L.T @ L).toarray()
+        bounds = [int(b) for b in np.linspace(0, jac.shape[0], default_workers() + 1)]
+        with ThreadPoolExecutor(len(bounds) - 1) as pool:  # SciPy's products release the GIL
+            parts = pool.map(lambda i: _weighted_gram(jac, w, bounds[i], bounds[i + 1]),
+                             range(len(bounds) - 1))
+            A = (L.T @ L).toarray() + sum(parts)
         g = jac.T @ (w * residual) + L.T @ self.priors.residual(x)
         return A[np.ix_(self.free, self.free)], g[self.free]
 
@@ -822,6 +826,19 @@ class _Pass:
         out = np.zeros((x.size, x.size))
         out[np.ix_(self.free, self.free)] = inverse_normal(A)
         return out
+
+
+def _weighted_gram(jac: sparse.csr_matrix, w: np.ndarray, start: int, stop: int
+                   ) -> np.ndarray:
+    """J^T diag(w) J (dense) of the rows start:stop of `jac`: the normal matrix's share of
+    those rows, which a thread per core computes (J^T W J is a third of the joint fit's time at
+    140 poses)."""
+    p0, p1 = jac.indptr[start], jac.indptr[stop]
+    rows = sparse.csr_matrix((jac.data[p0:p1], jac.indices[p0:p1],
+                              jac.indptr[start:stop + 1] - p0), shape=(stop - start, jac.shape[1]))
+    weighted = rows.copy()
+    weighted.data *= np.repeat(w[start:stop], np.diff(rows.indptr))  # W J
+    return (rows.T @ weighted).toarray()
 
 
 def _solve_spd(A: np.ndarray, b: np.ndarray) -> np.ndarray:
