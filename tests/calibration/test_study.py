@@ -21,9 +21,12 @@ def test_study_writes_table_json_and_plot(tmp_path: Path, capsys: pytest.Capture
     for r in rows:
         assert 0 < r["crlb_m"] < r["mean_error_m"] * 1.5  # no estimator beats the bound
         assert r["mean_error_m"] < 10e-3  # the paper's first Table II threshold
-    # The joint fit of the same two-pose subsets (every board view constraining the camera)
+    # The joint fit of the same two-pose subsets (every board view constraining the camera).
+    # It is not better than the frozen solver here: two poses barely identify the speakers'
+    # acoustic centres (an unknown of the joint fit, 5 mm of prior along the normal), which
+    # the frozen solver holds at their stated positions, exact in this simulated world.
     assert [r["joint_error_m"] is None for r in rows] == [True, True, False]
-    assert rows[2]["joint_error_m"] < rows[2]["mean_error_m"]
+    assert rows[2]["joint_error_m"] < 10e-3
     assert (out / "study.png").stat().st_size > 5_000
     printed = capsys.readouterr().out
     assert "Sources needed" in printed and "joint fit error" in printed
