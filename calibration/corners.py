@@ -196,7 +196,8 @@ def detect_corners_quickly(image: np.ndarray, board: Checkerboard
     if not found:
         return UNSURE
     # pixel centres: full = (half + 1/2) * 2 - 1/2 (INTER_AREA averages 2 x 2 blocks)
-    return _finished(grey, (corners.reshape(-1, 2) + 0.5) * 2.0 - 0.5, board)
+    finished = _finished(grey, (corners.reshape(-1, 2) + 0.5) * 2.0 - 0.5, board)
+    return UNSURE if finished is None else finished
 
 
 def detect_corners_robustly(image: np.ndarray, board: Checkerboard) -> np.ndarray | None:
@@ -212,9 +213,11 @@ def _grey(image: np.ndarray) -> np.ndarray:
     return image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
 
 
-def _finished(grey: np.ndarray, corners: np.ndarray, board: Checkerboard) -> np.ndarray:
-    """Approximate corners (n, 2) in OpenCV's order, refined and put in rig order."""
-    return _to_rig_order(grey, _refine(grey, corners.astype(np.float64), board), board)
+def _finished(grey: np.ndarray, corners: np.ndarray, board: Checkerboard) -> np.ndarray | None:
+    """Approximate corners (n, 2) in OpenCV's order, refined and put in rig order; None when
+    the squares around the grid are not the print's outer ring (`_ring_is_printed`)."""
+    ordered = _to_rig_order(grey, _refine(grey, corners.astype(np.float64), board), board)
+    return ordered if _ring_is_printed(grey, ordered, board) else None
 
 
 def _refine(grey: np.ndarray, corners: np.ndarray, board: Checkerboard) -> np.ndarray:
@@ -495,6 +498,60 @@ def _faces_camera(grid: np.ndarray) -> bool:
     step_x = (grid[:, -1] - grid[:, 0]).sum(axis=0)
     step_y = (grid[-1, :] - grid[0, :]).sum(axis=0)
     return float(step_x[0] * step_y[1] - step_x[1] * step_y[0]) < 0.0
+
+
+RING_MIN_CONTRAST = 0.5
+"""Least alternation, as a fraction of the pattern's own, of the squares on each side of the
+ring outside the inner corners (`_ring_is_printed`)."""
+
+
+def _ring_is_printed(grey: np.ndarray, corners: np.ndarray, board: Checkerboard) -> bool:
+    """Whether the squares just outside the found grid alternate as the print's outer ring
+    does, on every side of the grid that lies inside the image.
+
+    Why: a board cut by the image's edge can show the detectors a grid of the right size that
+    is shifted by one row or column: the pattern's outer edge, where its dark squares meet the
+    white plate, looks like a row of inner corners (seen on the realistic lab: a camera's
+    board 300 px off its true corners, which the colour check cannot tell, as one shift
+    keeps the colours). Every printed pattern has a ring of squares around its inner corners
+    ((corners_x + 1) x (corners_y + 1) squares); beyond a shifted grid one side shows the plate
+    instead, whose squares do not alternate. Each side's alternation (mean of the expected
+    sign times the grey level) must reach `RING_MIN_CONTRAST` of the pattern's inner one.
+    """
+    ny, nx = board.corners_y, board.corners_x
+    grid = corners.reshape(ny, nx, 2)
+    # one more row and column of corners on every side, extrapolated (locally affine)
+    rows = np.concatenate([2 * grid[:1] - grid[1:2], grid, 2 * grid[-1:] - grid[-2:-1]], axis=0)
+    full = np.concatenate([2 * rows[:, :1] - rows[:, 1:2], rows,
+                           2 * rows[:, -1:] - rows[:, -2:-1]], axis=1)
+    centres = (full[:-1, :-1] + full[1:, :-1] + full[:-1, 1:] + full[1:, 1:]) / 4
+    h, w = grey.shape
+    inside = ((centres[..., 0] >= 0) & (centres[..., 0] <= w - 1)
+              & (centres[..., 1] >= 0) & (centres[..., 1] <= h - 1))
+    u = np.clip(np.rint(centres[..., 0]).astype(int), 0, w - 1)
+    v = np.clip(np.rint(centres[..., 1]).astype(int), 0, h - 1)
+    level = grey[v, u].astype(np.float64)
+    j, i = np.indices(level.shape) - 1  # square (i, j) of sim.light's print: the ring is -1
+    sign = np.where((i + j) % 2 == (0 if board.origin_dark else 1), -1.0, 1.0)
+    inner = (slice(1, -1), slice(1, -1))
+    inner_sign, inner_level = sign[inner].copy(), level[inner]
+    if board.marker_square is not None:
+        mi, mj = board.marker_square
+        inner_sign[mj, mi] = 0.0  # its centre shows the other colour
+    mean = float(inner_level[inner_sign != 0].mean())
+    contrast = float(np.sum(inner_sign * (inner_level - mean)) / np.count_nonzero(inner_sign))
+    if contrast <= 0:
+        return False
+    sides: list[tuple[int | slice, int | slice]] = [
+        (0, slice(None)), (-1, slice(None)), (slice(None), 0), (slice(None), -1)]
+    for side in sides:
+        seen = inside[side]
+        if seen.sum() < 2:
+            continue  # off the image: nothing to check there
+        alternation = float(np.mean(sign[side][seen] * (level[side][seen] - mean)))
+        if alternation < RING_MIN_CONTRAST * contrast:
+            return False
+    return True
 
 
 def _colour_score(grey: np.ndarray, grid: np.ndarray, board: Checkerboard) -> float:

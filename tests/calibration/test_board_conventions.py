@@ -146,3 +146,29 @@ def test_the_robust_detector_skips_a_board_that_another_camera_shows_running_off
     assert robust_calls == [("cam1", "pose/0007")]
     assert set(cal.views) == {(c, s) for c in ("cam0", "cam1") for s in poses} - {cut[0]}
     assert {(m.camera, m.step) for m in cal.missed} == {*cut, ("cam0", "pose/0007")}
+
+
+def test_a_grid_shifted_onto_the_boards_outer_edge_is_refused() -> None:
+    """A board cut by the image's right edge (the realistic lab's camera 1 at pose 19): the
+    classic detector finds a grid of the right size one column off, its left column on the
+    pattern's outer edge against the white plate, 300 px from the true corners. The squares
+    beyond that column are plate, not the print's outer ring, so the grid is refused (no
+    board found) instead of entering the calibration with every corner wrong."""
+    from calibration.corners import UNSURE, _ring_is_printed, detect_corners_quickly
+
+    rig, board = Rig(), Checkerboard(6, 9, 0.03)
+    cam1 = pinhole("cam1", cam0_to_cam=RigidTransform(
+        cv2.Rodrigues(np.array([0.0, np.pi / 6, 0.0]))[0], np.array([0.075, 0.0, -0.0201])))
+    pose = RigidTransform(cv2.Rodrigues(np.array([2.5878, 0.2217, 0.4899]))[0],
+                          np.array([-0.1573, 0.1241, 0.7830]))
+    image = render_rig_image(cam1, rig, pose, np.random.default_rng(19))
+    true = cam1.project(pose.apply(board.object_points()))
+    assert detect_corners_quickly(image, board) is UNSURE
+    assert detect_corners(image, board) is None
+    # the same check keeps a board found whole: its true corners pass it
+    whole = _pose((0.2, 0.1, 0.0), 0.7, rig)
+    image = render_rig_image(CAMERA, rig, whole, np.random.default_rng(20))
+    found = detect_corners(image, board)
+    assert found is not None and _ring_is_printed(image, found, board)
+    assert np.abs(found - CAMERA.project(whole.apply(board.object_points()))).max() < 0.1
+    assert true[:, 0].max() > cam1.width  # the first board really runs off the image
