@@ -515,8 +515,10 @@ def _ring_is_printed(grey: np.ndarray, corners: np.ndarray, board: Checkerboard)
     board 300 px off its true corners, which the colour check cannot tell, as one shift
     keeps the colours). Every printed pattern has a ring of squares around its inner corners
     ((corners_x + 1) x (corners_y + 1) squares); beyond a shifted grid one side shows the plate
-    instead, whose squares do not alternate. Each side's alternation (mean of the expected
-    sign times the grey level) must reach `RING_MIN_CONTRAST` of the pattern's inner one.
+    instead, whose squares do not alternate. Alternation is measured between neighbouring
+    squares (half the expected-sign difference of their grey levels), so that light falling
+    off across the board does not count; each side's must reach `RING_MIN_CONTRAST` of the
+    pattern's inner one.
     """
     ny, nx = board.corners_y, board.corners_x
     grid = corners.reshape(ny, nx, 2)
@@ -533,23 +535,25 @@ def _ring_is_printed(grey: np.ndarray, corners: np.ndarray, board: Checkerboard)
     level = grey[v, u].astype(np.float64)
     j, i = np.indices(level.shape) - 1  # square (i, j) of sim.light's print: the ring is -1
     sign = np.where((i + j) % 2 == (0 if board.origin_dark else 1), -1.0, 1.0)
-    inner = (slice(1, -1), slice(1, -1))
-    inner_sign, inner_level = sign[inner].copy(), level[inner]
     if board.marker_square is not None:
         mi, mj = board.marker_square
-        inner_sign[mj, mi] = 0.0  # its centre shows the other colour
-    mean = float(inner_level[inner_sign != 0].mean())
-    contrast = float(np.sum(inner_sign * (inner_level - mean)) / np.count_nonzero(inner_sign))
-    if contrast <= 0:
+        sign[mj + 1, mi + 1] = np.nan  # its centre shows the other colour: left out
+
+    def alternation(signs: np.ndarray, levels: np.ndarray, seen: np.ndarray) -> float:
+        """Mean of sign_k (level_k - level_k+1) / 2 over neighbours along the last axis."""
+        pair = seen[..., :-1] & seen[..., 1:] & np.isfinite(signs[..., :-1] + signs[..., 1:])
+        steps = signs[..., :-1] * (levels[..., :-1] - levels[..., 1:]) / 2
+        return float(steps[pair].mean()) if pair.any() else np.nan
+
+    inner = (slice(1, -1), slice(1, -1))
+    contrast = alternation(sign[inner], level[inner], inside[inner])
+    if not contrast > 0:
         return False
-    sides: list[tuple[int | slice, int | slice]] = [
-        (0, slice(None)), (-1, slice(None)), (slice(None), 0), (slice(None), -1)]
-    for side in sides:
-        seen = inside[side]
-        if seen.sum() < 2:
-            continue  # off the image: nothing to check there
-        alternation = float(np.mean(sign[side][seen] * (level[side][seen] - mean)))
-        if alternation < RING_MIN_CONTRAST * contrast:
+    sides = [(sign[0], level[0], inside[0]), (sign[-1], level[-1], inside[-1]),
+             (sign[:, 0], level[:, 0], inside[:, 0]), (sign[:, -1], level[:, -1], inside[:, -1])]
+    for signs, levels, seen in sides:
+        ring = alternation(signs, levels, seen)
+        if np.isfinite(ring) and ring < RING_MIN_CONTRAST * contrast:
             return False
     return True
 
