@@ -172,7 +172,8 @@ def test_a_grid_shifted_onto_the_boards_outer_edge_is_refused() -> None:
     assert found is not None and _ring_is_printed(image, found, board)
     assert np.abs(found - CAMERA.project(whole.apply(board.object_points()))).max() < 0.1
     assert true[:, 0].max() > cam1.width  # the first board really runs off the image
-    # nor does light falling off across the image (to a quarter from one side to the other) make it refuse one
+    # nor does light falling off across the image (to a quarter from one side to the other)
+    # make it refuse a whole board
     ramp = np.linspace(1.3, 0.3, image.shape[1])[None, :]
     dim = np.clip(image * ramp, 0, 255).astype(np.uint8)
     dimmed = detect_corners(dim, board)
