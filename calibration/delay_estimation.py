@@ -388,9 +388,10 @@ class _BandSums:
         S_2 = sum_a e_a (u_a^2 s_{a,0} + 2 u_a s_{a,1} + s_{a,2}),  e_a = exp(j u_a tau).
 
     Why: Newton's iterations need S_1 and S_2 at every step; forming the (rows, K) phasors and
-    their products with C took five passes over the band per step, this takes one (a fifth of
-    a 140-pose session's correlation time). The exponentials are exact (no recurrence); the
-    block products are in C's precision, their sum over blocks in double.
+    their products with C took five passes over the band per step, this takes one (with the
+    band taken as a view, a pose of 6 x 73 channels correlates in 0.12 s of CPU instead of
+    0.17-0.20 s). The exponentials are exact (no recurrence); the block products are in C's
+    precision, their sum over blocks in double.
     """
 
     def __init__(self, coeffs: np.ndarray, bins: np.ndarray, n_fft: int) -> None:
