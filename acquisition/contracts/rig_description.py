@@ -61,10 +61,12 @@ class RigDescription(ConfigModel):
     with these standard deviations.
     """
 
-    corners_x: int = Field(ge=2, le=100, examples=[6],
-                           description="inner corners along the rig's X axis")
-    corners_y: int = Field(ge=2, le=100, examples=[9],
-                           description="inner corners along the rig's Y axis")
+    corners_x: int = Field(ge=3, le=100, examples=[6],
+                           description="inner corners along the rig's X axis (OpenCV's "
+                                       "detectors need at least 3)")
+    corners_y: int = Field(ge=3, le=100, examples=[9],
+                           description="inner corners along the rig's Y axis (OpenCV's "
+                                       "detectors need at least 3)")
     square_m: float = Field(gt=0, le=1.0, examples=[0.03],
                             description="side of one printed square, metres")
     origin_square: Literal["dark", "light"] = Field(

@@ -63,6 +63,7 @@ REFUSALS = [
     ("rig.colour", "dark", "unknown key 'colour'"),
     ("rig.corners_x", 7, "rig.corners_x, rig.corners_y: a 7 x 9 pattern"),
     ("rig.corners_x", 9, "a square grid"),
+    ("rig.corners_x", 2, "rig.corners_x: Input should be greater than or equal to 3"),
     ("rig", {**_valid()["rig"], "corners_y": 8, "marker_square": [2, 3]},
      "rig.marker_square: square [2, 3] is the board's centre"),
     ("rig.marker_square", [5, 0], "rig.marker_square: square [5, 0] is not between"),
