@@ -180,6 +180,39 @@ def test_covariance_matches_the_errors(scene: Scene, fitted: BundleSolution) -> 
     assert 0.7 < fitted.chi2_per_dof < 1.3
 
 
+def test_covariance_counts_errors_shared_by_a_poses_speakers(scene: Scene) -> None:
+    """Errors that the six speakers of a pose share at a microphone (a reflection, the
+    speakers' directivity) are one error, not six. With 60 % of the same noise variance shared
+    that way, the microphones' reported std grows against the same noise drawn independently
+    (the inverse normal matrix alone keeps it, 0.9 times here), and it still describes their
+    errors. Measured along each microphone's middle axis: the widest is the metric scale's,
+    which c and the scale share whatever the noise."""
+    rng = np.random.default_rng(11)
+    p = scene.problem
+    tof_noise = 10 * TOF_NOISE_S  # the times of flight decide the microphones, not the cameras
+    shared = np.repeat(rng.standard_normal((p.tof_s.shape[0] // 6, p.tof_s.shape[1])), 6, axis=0)
+    alone = rng.standard_normal(p.tof_s.shape)
+    middle, d2 = [], []
+    for noise in (tof_noise * rng.standard_normal(p.tof_s.shape),
+                  tof_noise * (np.sqrt(0.4) * alone + np.sqrt(0.6) * shared)):
+        sol = fit_bundle(replace(p, tof_s=_exact_tofs(scene) + noise),
+                         frozen_camera_start(scene.truth))
+        cov = np.array([sol.marginal("microphones", m, 3) for m in range(p.tof_s.shape[1])])
+        error = sol.state.microphones_m - scene.truth.microphones_m
+        middle.append(np.sqrt(np.linalg.eigvalsh(cov)[:, 1]))
+        d2.append(np.einsum("mi,mij,mj->m", error, np.linalg.inv(cov), error))
+    assert np.median(middle[1] / middle[0]) > 1.1
+    assert 1.5 < np.mean(d2[1]) < 4.5  # 3 for a 3-D Gaussian error
+
+
+def _exact_tofs(scene: Scene) -> np.ndarray:
+    """The scene's array times of flight without noise (from its true state)."""
+    t = scene.truth
+    sources = _to_cam(t.poses, 0, PAPER_SPEAKERS_M).reshape(-1, 3)
+    flight = np.linalg.norm(t.microphones_m[None] - sources[:, None], axis=2) / C_TRUE
+    return flight + np.array(LATENCIES_S)[scene.problem.latency_column]
+
+
 def test_outliers_of_both_kinds_are_reported_and_left_out(scene: Scene,
                                                           fitted: BundleSolution) -> None:
     rng = np.random.default_rng(9)
