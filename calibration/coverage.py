@@ -4,8 +4,7 @@ The plain figure is the share of microphones whose 3-D error lies inside the 95.
 of their own covariance ("within 2 sigma"). In one session it is a poor judge: the
 microphones share the errors of the cameras, the metric scale and the rig, so their errors
 move together, and the share depends on one draw of that common motion (a shift, a turn and a
-scale of the whole array: 7 numbers), however right the covariance. A 2-sigma draw of the
-array's sideways shift alone takes a third of the microphones outside their ellipsoids.
+scale of the whole array: 7 numbers), however right the covariance.
 
 So the errors are also split into the array's common motion, a similarity transform about its
 centroid fitted to them by least squares, judged once by its chi-square under its covariance
