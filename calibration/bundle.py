@@ -849,12 +849,18 @@ class _Pass:
         The residuals of the realistic lab are heavier-tailed than the robust sigma's Gaussian
         (their mean square is about 1.15 of it) and correlated within a pose's speakers; the
         sandwich takes both from the residuals themselves. Where the model's noise is right it
-        equals A^-1 on average."""
+        equals A^-1 on average: each cluster's residuals are divided by sqrt(1 - h), h its
+        leverage (the share of its own residuals that the fit absorbs, about 4 / 30 for a
+        microphone's cluster at 30 poses), as in the CR2 estimator; without that the sandwich
+        came out 6 % narrower than A^-1 on the ideal world."""
         A, _ = self.normal_equations(residual, jac, x)
         A_inv = inverse_normal(A)
         weight, _ = self.cost(residual, x)
-        score = weight * residual * self.whiten**2  # zero for the rows left out
+        w = weight * self.whiten**2  # zero for the rows left out
         clusters = self.model.clusters()
+        free_jac = jac.tocsc()[:, self.free].tocsr()
+        leverage = np.bincount(clusters, w * _quadratic_forms(free_jac, A_inv))
+        score = w * residual / np.sqrt(1.0 - np.minimum(leverage, _MAX_LEVERAGE))[clusters]
         sums = sparse.csr_matrix((score, (clusters, np.arange(score.size))),
                                  shape=(int(clusters.max()) + 1, score.size))
         g = (sums @ jac).tocsc()[:, self.free]
@@ -863,6 +869,34 @@ class _Pass:
         out = np.zeros((x.size, x.size))
         out[np.ix_(self.free, self.free)] = A_inv @ meat @ A_inv
         return out
+
+
+_MAX_LEVERAGE = 0.9
+"""A cluster's leverage is capped here (a cluster that alone decides an unknown has h near 1,
+and its residual says nothing of that unknown's error)."""
+
+
+def _quadratic_forms(rows: sparse.csr_matrix, M: np.ndarray, chunk: int = 8192
+                     ) -> np.ndarray:
+    """(n_rows,) j^T M j for every row j of a sparse matrix, M dense symmetric: each row's
+    nonzeros against the block of M they select, in chunks of rows padded to the widest."""
+    counts = np.diff(rows.indptr)
+    width = int(counts.max(initial=0))
+    out = np.zeros(rows.shape[0])
+    if width == 0:
+        return out
+    for start in range(0, rows.shape[0], chunk):
+        stop = min(start + chunk, rows.shape[0])
+        n = counts[start:stop]
+        slot = np.arange(width) < n[:, None]  # (rows, width): which slots hold a nonzero
+        cols = np.zeros((stop - start, width), dtype=np.intp)
+        vals = np.zeros((stop - start, width))
+        lo, hi = rows.indptr[start], rows.indptr[stop]
+        cols[slot] = rows.indices[lo:hi]
+        vals[slot] = rows.data[lo:hi]
+        block = M[cols[:, :, None], cols[:, None, :]]  # (rows, width, width)
+        out[start:stop] = np.einsum("ra,rab,rb->r", vals, block, vals)
+    return out
 
 
 def _weighted_gram(jac: sparse.csr_matrix, w: np.ndarray, start: int, stop: int
