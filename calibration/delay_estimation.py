@@ -432,7 +432,7 @@ class _BandSums:
             return self.sums(tau, orders=1)
         t = np.asarray(tau, dtype=np.float64)[:, None]
         fine = np.exp(1j * self.v * t).astype(self.coeffs.dtype)  # (rows, B)
-        per_block = np.einsum("rab,rb->ra", self.coeffs, fine).astype(np.complex128)
+        per_block = np.matmul(self.coeffs, fine[:, :, None])[:, :, 0].astype(np.complex128)
         per_block *= np.exp(1j * self.u * t)
         starts = np.arange(0, per_block.shape[1], blocks)
         if starts.size > 1 and per_block.shape[1] - starts[-1] < blocks:
@@ -533,7 +533,7 @@ def _quality(
     starts = band.sub_band_starts(bins.size, _GAIN_BLOCKS)
     x_power = (X.real**2 + X.imag**2).astype(np.float64)
     ex = np.add.reduceat(x_power, starts, axis=-1)
-    ey = np.add.reduceat((Y.real**2 + Y.imag**2).astype(np.float64), starts, axis=-1)
+    ey = np.add.reduceat(Y.real**2 + Y.imag**2, starts, axis=-1, dtype=np.float64)
     ex_omega2 = np.add.reduceat(x_power * (omega * fs) ** 2, starts, axis=-1)
     tiny = np.finfo(float).tiny
     signal_b = np.maximum(r, 0.0) ** 2 / np.maximum(ex, tiny)
