@@ -525,7 +525,8 @@ def _quality(
     gain for the band counted that tilt as noise: on the simulated lab with the speakers'
     directivity the predicted std grew 18-fold from 0-10 to 50-60 degrees off the speaker's
     axis while the delays' actual error doubled, and the joint fit, weighting by it, all but
-    dropped the off-axis sources (microphones 1.6 times further off, their covariance short).
+    dropped the off-axis sources (the microphones' errors relative to the array 1.7 times
+    their reported sigma; about their sigma with a gain per sub-band).
     """
     omega = 2.0 * np.pi * bins / n_fft  # rad per sample
     band = _BandSums(cross.reshape(tau.size, -1), bins, n_fft)
