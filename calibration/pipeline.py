@@ -70,8 +70,10 @@ from .plausibility import (
     turned_rig,
 )
 from .responses import (
+    THIRD_OCTAVE_CENTRES_HZ,
     Flights,
     MicrophoneResponses,
+    dispersion_centres_hz,
     dispersion_delays,
     estimate_responses,
     evenly_spread,
@@ -375,7 +377,8 @@ def calibrate_measured(m: Measurements, options: CalibrationOptions,
             # the capsules' dispersion, measured on the camera-frozen geometry (its errors
             # are delays, which the line through the origin takes out), out of the TOFs
             m = _without_dispersion(m, _responses(
-                m, lambda k: frozen_flights(m, solution, k), solution.speed_of_sound_m_s))
+                m, lambda k: frozen_flights(m, solution, k), solution.speed_of_sound_m_s,
+                dispersion_centres_hz(options.band_hz[1])))
     with _timed(timings, "joint fit", on_stage):
         bundle = fit_joint(m, solution, options, poses)
         joint_m, joint_solution = joint_measurements(m, bundle, solution, options)
@@ -908,13 +911,15 @@ def frozen_flights(m: Measurements, frozen: MicrophoneSolution,
 
 
 def _responses(m: Measurements, flights: Callable[[list[int]], Flights],
-               speed_of_sound_m_s: float) -> MicrophoneResponses:
-    """Every microphone's response (calibration.responses) from the flights of a geometry."""
+               speed_of_sound_m_s: float,
+               centres_hz: np.ndarray = THIRD_OCTAVE_CENTRES_HZ) -> MicrophoneResponses:
+    """Every microphone's response (calibration.responses) from the flights of a geometry, in
+    the bands centred at `centres_hz`."""
     data = m.data
     chosen = evenly_spread([p.step for p in m.speakers.poses])
     return estimate_responses(m.tofs, [m.located[k] for k in chosen], flights(chosen),
                               data.fs, data.reference_distances_m, speed_of_sound_m_s,
-                              data.rig.speaker_diameter_m)
+                              data.rig.speaker_diameter_m, centres_hz)
 
 
 def _without_dispersion(m: Measurements, responses: MicrophoneResponses) -> Measurements:
