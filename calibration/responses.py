@@ -10,7 +10,8 @@ all microphones and cancels in a response relative to the array).
 
 Per source s and microphone m, the relative impulse response that the times of flight kept
 around the direct peak (the recording with the reference recording deconvolved out) is gated
-around its modelled arrival tau_sm (board latency included, the microphone's own delay not),
+around its modelled arrival tau_sm (board latency included, the microphone's own delay not;
+the gate shorter for higher bands, `GATE_CYCLES`),
 transformed, aligned to tau_sm and averaged over each third-octave band b: H_smb, times
 L_sm / d_ref (the spreading) and over D_smb, the speaker's piston directivity towards m when
 the rig states the speakers' diameter. The mean over sources (room reflections and noise
