@@ -63,6 +63,15 @@ _SINC_HALF_WIDTH = 24
 """Lags either side of the integer peak that the time-domain start (`_sinc_peak`) uses."""
 IMPULSE_HALF_WIDTH_S = 1e-3
 """Half-width of the correlation kept around every direct peak (`TofEstimate.impulses`)."""
+ECHO_SPAN_S = (1.5e-4, 2e-2)
+"""(start, end) in seconds from the direct peak of the span whose correlation energy after
+the peak (`TofEstimate.echo_energy`) is compared with that before it (`lead_energy`). It
+starts just past the compact pulse's main lobe (its first zero is 0.1 ms from the peak for
+the 0.3-20 kHz band; at 0.15 ms its energy is down to 1e-4 of the peak's, and where the lag
+grid samples it off centre the excess on one side is matched by one on the other over
+many measurements), so that a table's reflection 0.2 ms behind the direct sound counts. It
+ends at 20 ms (7 m of extra path), beyond which a reflection biases a matched-weighting
+delay by under 10 ns per unit of its amplitude."""
 _COMPACT_SMOOTHING_HZ = 40.0
 """Width of the moving average of the reference's power spectrum that "compact" divides by
 (about 7 x fs / burst length for an order-14 MLS at 96 kHz): it keeps the dips of a burst's
@@ -93,6 +102,13 @@ class TofEstimate:
         impulse_first_lag: (n_rec, n_ch) the full-rate lag (samples, signed) of impulses[..., 0].
         impulse_step: full-rate samples between the impulses' values (about 2, or 1 for a
             band reaching above a quarter of the sample rate).
+        echo_energy: (n_rec, n_ch) the correlation's energy (sum of squares over its lags)
+            over `ECHO_SPAN_S` after the direct peak: reflections, a capsule's ringing and
+            noise.
+        lead_energy: (n_rec, n_ch) the same over the span as far before the peak, where
+            nothing arrives and only noise is (with periodic bursts, the previous period's
+            late reverberation too). Pooled over a session, echo over lead energy is 1 in free
+            field with flat capsules, and far above 1 in a room (`SessionTofs.echo_ratio`).
     """
 
     delay_s: np.ndarray
@@ -102,6 +118,8 @@ class TofEstimate:
     impulses: np.ndarray
     impulse_first_lag: np.ndarray
     impulse_step: float
+    echo_energy: np.ndarray
+    lead_energy: np.ndarray
 
 
 def band_bins(n_fft: int, fs: float, band: tuple[float, float]) -> np.ndarray:
@@ -195,9 +213,10 @@ def estimate_delays(
         )
         for i in range(0, n_rec, chunk)
     ]
-    delay, std, snr, psr, impulses, first_lag = (
+    delay, std, snr, psr, impulses, first_lag, echo, lead = (
         np.concatenate(field) for field in zip(*parts, strict=True))
-    return TofEstimate(delay, std, snr, psr, impulses, first_lag, impulse_step=lags.step)
+    return TofEstimate(delay, std, snr, psr, impulses, first_lag, impulse_step=lags.step,
+                       echo_energy=echo, lead_energy=lead)
 
 
 @dataclass(frozen=True)
@@ -253,7 +272,7 @@ def _estimate_chunk(
     fft_workers: int,
 ) -> tuple[np.ndarray, ...]:
     """estimate_delays on a chunk of recordings; returns (delay, std, snr_db, psr_db,
-    impulses, impulse_first_lag)."""
+    impulses, impulse_first_lag, echo_energy, lead_energy)."""
     # single precision stays single (1e-7 of rounding: a thousandth of a nanosecond of delay)
     # a band's consecutive bins as a slice: a view of the spectrum, not a copy of it
     band = (slice(int(bins[0]), int(bins[-1]) + 1) if np.all(np.diff(bins) == 1) else bins)
@@ -277,7 +296,23 @@ def _estimate_chunk(
     around = peak[..., None] + np.arange(-half, half + 1)
     impulses = np.take_along_axis(corr, around % lags.length, axis=-1).astype(np.float32)
     signed = np.where(peak >= (lags.length + 1) // 2, peak - lags.length, peak)
-    return tau / fs, std_s, snr_db, psr_db, impulses, lags.step * (signed - half)
+    echo, lead = _echo_and_lead_energy(corr, peak, lags, fs)
+    return (tau / fs, std_s, snr_db, psr_db, impulses, lags.step * (signed - half), echo,
+            lead)
+
+
+def _echo_and_lead_energy(corr: np.ndarray, peak: np.ndarray, lags: _Lags, fs: float
+                          ) -> tuple[np.ndarray, np.ndarray]:
+    """The correlation's energy (...) over `ECHO_SPAN_S` after the peak and over the span as
+    far before it (circular; the span is cut to under half the circle, so the two never
+    overlap)."""
+    first, last = (int(round(t * fs / lags.step)) for t in ECHO_SPAN_S)
+    last = min(last, (lags.length - 1) // 2)
+    offsets = np.arange(first, last + 1)
+    after = np.take_along_axis(corr, (peak[..., None] + offsets) % lags.length, axis=-1)
+    before = np.take_along_axis(corr, (peak[..., None] - offsets) % lags.length, axis=-1)
+    return (np.einsum("...l,...l->...", after, after, dtype=np.float64),
+            np.einsum("...l,...l->...", before, before, dtype=np.float64))
 
 
 def _first_arrival(corr: np.ndarray, window: np.ndarray, fraction: float) -> np.ndarray:

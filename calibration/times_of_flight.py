@@ -50,7 +50,7 @@ def _every_speaker_in(step: str) -> Callable[[int], str]:
 def _frozen(est: TofEstimate) -> TofEstimate:
     """`est` with its arrays read-only: a memo shares them with every later reader."""
     for array in (est.delay_s, est.std_s, est.snr_db, est.peak_to_sidelobe_db, est.impulses,
-                  est.impulse_first_lag):
+                  est.impulse_first_lag, est.echo_energy, est.lead_energy):
         array.flags.writeable = False
     return est
 
@@ -72,6 +72,8 @@ class SessionTofs:
             around its direct peak (`calibration.delay_estimation.TofEstimate.impulses`).
         impulse_first_lag: (P, S, M) full-rate lag (samples) of impulses[..., 0].
         impulse_step: full-rate samples between the impulses' values.
+        echo_energy, lead_energy: (P, S, M) every array channel's correlation energy after
+            and before its direct peak (`calibration.delay_estimation.TofEstimate`).
     """
 
     tof_s: np.ndarray
@@ -83,6 +85,19 @@ class SessionTofs:
     impulses: np.ndarray
     impulse_first_lag: np.ndarray
     impulse_step: float
+    echo_energy: np.ndarray
+    lead_energy: np.ndarray
+
+    def echo_ratio(self, poses: list[int] | slice = slice(None)) -> float:
+        """The array's correlation energy after the direct sound over that before it, pooled
+        over the given poses' measurements: 1 where the recordings hold the direct sound and
+        noise alone (free field, flat capsules), far above 1 with reflections or ringing
+        capsules; NaN where there is no noise to compare with (no measurement, or silence
+        before every direct peak)."""
+        echo, lead = self.echo_energy[poses], self.lead_energy[poses]
+        kept = np.isfinite(echo) & np.isfinite(lead)  # a dead channel's NaNs say nothing
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return float(echo[kept].sum() / lead[kept].sum())
 
 
 def measure_session_tofs(
@@ -153,16 +168,18 @@ def measure_session_tofs(
         est = estimates[i]
         parts.append((tof_from_delay(est.delay_s, d_ref, speed_of_sound_m_s), est.std_s,
                       est.snr_db, est.peak_to_sidelobe_db, est.impulses,
-                      est.impulse_first_lag))
+                      est.impulse_first_lag, est.echo_energy, est.lead_energy))
         step_of_lags = est.impulse_step
         if on_pose is not None:
             on_pose(step)
-    tof, std, snr, psr, impulses, first_lag = (np.stack(p) for p in zip(*parts, strict=True))
+    tof, std, snr, psr, impulses, first_lag, echo, lead = (
+        np.stack(p) for p in zip(*parts, strict=True))
     n_mic = data.mic_columns.size
     if not on_stand:  # no reference microphone in the pose recordings: nothing measured
         missing = np.full(tof.shape[:2], np.nan)
         return SessionTofs(tof, std, snr, psr, missing, missing.copy(), impulses, first_lag,
-                           step_of_lags)
+                           step_of_lags, echo, lead)
     return SessionTofs(tof[..., :-1], std[..., :-1], snr[..., :-1], psr[..., :-1],
                        tof[..., -1], std[..., -1], impulses[:, :, :n_mic],
-                       first_lag[:, :, :n_mic], step_of_lags)
+                       first_lag[:, :, :n_mic], step_of_lags, echo[..., :n_mic],
+                       lead[..., :n_mic])
