@@ -445,12 +445,15 @@ class _Pattern:
 @dataclass(frozen=True)
 class _Rows:
     """The residual rows of one noise group: their indices and base sigma (the sigma before
-    the group's scale), and the size of a residual group (2 for a corner's pixel pair)."""
+    the group's scale), the size of a residual group (2 for a corner's pixel pair), and the
+    family of groups it belongs to (every microphone's TOFs are one family; a camera's
+    corners and the reference TOFs are each their own)."""
 
     name: str
     index: np.ndarray
     base_sigma: np.ndarray
     width: int
+    family: str
 
 
 def _corner_rows(views: np.ndarray, n_corner: int) -> np.ndarray:
@@ -480,15 +483,15 @@ class _Model:
         n_corner = p.corners_px.shape[1]
         for i, name in enumerate(p.camera_names):
             rows = _corner_rows(np.flatnonzero(p.view_camera == i), n_corner)
-            groups.append(_Rows(name, rows, np.ones(rows.size), 2))
+            groups.append(_Rows(name, rows, np.ones(rows.size), 2, name))
         start = self.n_corner_rows
         base = p.tof_std_s[self.tof_valid]
         for m in range(p.tof_s.shape[1]):  # each microphone its own noise level
             rows = np.flatnonzero(self.mic == m)
-            groups.append(_Rows(f"{GROUP_TOF} {m}", start + rows, base[rows], 1))
+            groups.append(_Rows(f"{GROUP_TOF} {m}", start + rows, base[rows], 1, GROUP_TOF))
         start += self.src.size
         groups.append(_Rows(GROUP_REFERENCE, start + np.arange(self.ref_valid.size),
-                            p.reference_std_s[self.ref_valid], 1))
+                            p.reference_std_s[self.ref_valid], 1, GROUP_REFERENCE))
         return groups
 
     def clusters(self) -> np.ndarray:
@@ -751,17 +754,32 @@ def _group_norms(e: np.ndarray, width: int) -> np.ndarray:
     return np.repeat(np.linalg.norm(e.reshape(-1, width), axis=1), width)
 
 
-def _estimate_sigmas(model: _Model, residual: np.ndarray, keep: np.ndarray) -> np.ndarray:
+def _estimate_sigmas(model: _Model, residual: np.ndarray, keep: np.ndarray,
+                     at_least_the_family: bool = False) -> np.ndarray:
     """(n_rows,) sigma of every residual: its base sigma times its group's scale, the robust
     scatter (1.4826 x median absolute value) of the group's kept residuals in base units.
     Why from the data: the corner noise depends on the blur and the board's size in the
-    image, the TOF noise on reflections and model errors that the predicted std leaves out."""
-    sigma = np.ones(model.n_rows)
+    image, the TOF noise on reflections and model errors that the predicted std leaves out.
+
+    With `at_least_the_family`, a group's scale is never below its family's (all of the
+    family's kept residuals pooled): what the outliers are judged by. A microphone's scale
+    from few sources is itself noisy (48 TOFs at 8 poses: about 12 %), and one drawn low
+    took Gaussian residuals of 3.4 and 3.8 sigmas for 5-sigma outliers in the ideal world;
+    left out, they no longer pulled on the fit and looked worse with each pass."""
+    scales = {}
     for g in model.groups:
         kept = keep[g.index]
         e = residual[g.index][kept] / g.base_sigma[kept]
-        scale = robust_sigma(e, floor=1e-12) if e.size else 1.0
-        sigma[g.index] = g.base_sigma * scale
+        scales[g.name] = (e, robust_sigma(e, floor=1e-12) if e.size else 1.0)
+    family = {}
+    if at_least_the_family:
+        for name in {g.family for g in model.groups}:
+            pooled = np.concatenate([scales[g.name][0] for g in model.groups
+                                     if g.family == name])
+            family[name] = robust_sigma(pooled, floor=1e-12) if pooled.size else 1.0
+    sigma = np.ones(model.n_rows)
+    for g in model.groups:
+        sigma[g.index] = g.base_sigma * max(scales[g.name][1], family.get(g.family, 0.0))
     return sigma
 
 
@@ -975,7 +993,7 @@ def _fit(problem: BundleProblem, start: BundleState, options: BundleOptions) -> 
         x, n = _Pass(model, sigma, keep, priors, settling).run(x)
         iterations += n
         residual = model.evaluate(x, jacobian=False)[0]
-        new_keep = _inliers(model, residual / _estimate_sigmas(model, residual, keep),
+        new_keep = _inliers(model, residual / _estimate_sigmas(model, residual, keep, True),
                             options.outlier_threshold)
         new_sigma = _estimate_sigmas(model, residual, new_keep)
         settled = (np.max(np.abs(new_sigma / sigma - 1.0)) < options.sigma_tolerance
