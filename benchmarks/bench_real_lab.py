@@ -15,7 +15,8 @@ covariance, the same for their errors relative to the array's common motion and 
 chi-square (7 degrees of freedom; calibration.coverage says why the plain share is a poor judge
 of one session), the joint fit's own bound (E|e| of its covariance: the Cramer-Rao bound of the
 model with the added unknowns, at the noise levels it estimated) and the run time of the
-whole calibration with the model on.
+whole calibration with the model on, and the weighting its times of flight took (with the
+echo ratio that chose it, calibration.pipeline.FREE_FIELD_ECHO_RATIO).
 
 Every effect row has the lab's air sensor too (a lab has one; without any absolute length
 the metric scale and c are confounded, which the "all, no air sensor" row shows).
@@ -104,6 +105,8 @@ def figures(path: Path, truth: dict, options: CalibrationOptions) -> dict:
         "within_2_sigma": round(float(np.mean(z < chi2.ppf(0.9545, 3))), 3),
         "bound_mean_error_mm": round(1e3 * float(np.mean(expected_error_norm(cov))), 4),
         "calibration_s": round(seconds, 2),
+        "weighting": run.result.tof_quality.weighting,
+        "echo_ratio": run.result.tof_quality.echo_ratio,
     }
     if run.bundle is not None and np.isfinite(error).all():
         mics = run.bundle.parameter_slices["microphones"]
@@ -143,7 +146,8 @@ def main() -> None:
                       f"| {on['speed_of_sound_error_m_s']:+.3f} | {on['within_2_sigma']:.2f} "
                       f"| {on.get('relative_within_2_sigma', np.nan):.2f} "
                       f"| {on.get('common_motion_chi2', np.nan):.1f} "
-                      f"| {on['bound_mean_error_mm']:.3f} | {on['calibration_s']:.1f} |",
+                      f"| {on['bound_mean_error_mm']:.3f} | {on['calibration_s']:.1f} "
+                      f"| {on['weighting']} ({on['echo_ratio']:.3f}) |",
                       flush=True)
     report = {"results": results, "machine": {"cpus": os.cpu_count(),
                                               "python": platform.python_version()}}
@@ -151,7 +155,7 @@ def main() -> None:
     args.out.write_text(json.dumps(report, indent=1))
     print(f"columns: row | magnitude | seed | mean error off (mm) | on (max) | c error off "
           f"(m/s) | on | within 2 sigma | relative to the common motion | common motion chi2 (7 dof) "
-          f"| bound (mm) | calibration (s)\nwritten to {args.out}")
+          f"| bound (mm) | calibration (s) | weighting (echo ratio)\nwritten to {args.out}")
 
 
 if __name__ == "__main__":

@@ -31,7 +31,7 @@ from .figures.residuals import (
 )
 from .figures.style import save_all
 from .pipeline import CalibrationRun, _bundle_steps
-from .result import CalibrationResult, compare_with_truth
+from .result import CalibrationResult, TofQuality, compare_with_truth
 
 FIGURES = ("geometry.png", "residuals.png", "corners.png", "tof_quality.png")
 
@@ -272,6 +272,7 @@ def _markdown(run: CalibrationRun, truth: dict | None) -> str:
             f"- median SNR {q.median_snr_db:.1f} dB (5th percentile {q.p05_snr_db:.1f} dB), "
             f"median peak-to-sidelobe {q.median_peak_to_sidelobe_db:.1f} dB, median predicted "
             f"std {significant(1e9 * q.median_predicted_std_s)} ns",
+            *_weighting_line(q),
             f"- residuals: RMS {significant(1e9 * r.residuals.rms_s)} ns, median |r| "
             f"{significant(1e9 * r.residuals.median_abs_s)} ns, {r.residuals.n_outliers} "
             f"outliers of {r.residuals.n_measurements + r.residuals.n_outliers}", "",
@@ -327,3 +328,13 @@ def _frozen_vs_joint(r: CalibrationResult, truth: dict | None) -> list[str]:
             f"reference times of flight {j.reference_tof_outliers}",
             f"- chi² per degree of freedom {j.chi2_per_dof:.2f}, {j.iterations} iterations"]
     return out
+
+
+def _weighting_line(q: TofQuality) -> list[str]:
+    """The weighting the times of flight were correlated with and why, for a person."""
+    if q.weighting is None:
+        return []
+    echo = ("" if q.echo_ratio is None else
+            f" (echo ratio {q.echo_ratio:.3f}: " + ("free field" if q.weighting == "matched"
+                                                    else "reflections or ringing") + ")")
+    return [f"- weighting: {q.weighting}{echo}"]

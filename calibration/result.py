@@ -89,6 +89,12 @@ class TofQuality(_Model):
     p05_snr_db: float
     median_peak_to_sidelobe_db: float
     median_predicted_std_s: float
+    weighting: Literal["compact", "matched", "phat"] | None = Field(
+        default=None, description="the correlations' spectral weighting (None: not recorded)")
+    echo_ratio: float | None = Field(
+        default=None, description="the correlations' energy after the direct sound over that "
+                                  "before it: 1 in free field with flat capsules, far above "
+                                  "with reflections")
 
 
 SpeedOfSoundFrom = Literal["reference_microphone", "known", "solved", "joint_fit"]

@@ -65,10 +65,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--intrinsics-use", choices=("fixed", "prior"), default="fixed",
                    help="use --intrinsics as given (default) or as a prior weighted by the "
                         "file's standard deviations (a micam result.json has them)")
-    p.add_argument("--weighting", choices=("compact", "matched", "phat"), default="compact",
-                   help="spectral weighting of the TOF correlations: compact (default; robust "
-                        "to early reflections), matched (maximum likelihood in free field) "
-                        "or phat (GCC-PHAT)")
+    p.add_argument("--weighting", choices=("auto", "compact", "matched", "phat"),
+                   default="auto",
+                   help="spectral weighting of the TOF correlations: auto (default: compact, "
+                        "or matched where the recordings show no reflection), compact "
+                        "(robust to early reflections), matched (maximum likelihood in free "
+                        "field) or phat (GCC-PHAT)")
     p.add_argument("--allow-interrupted", action="store_true",
                    help="calibrate the completed poses of an interrupted session")
     p.add_argument("--truth", type=Path, default=None,

@@ -222,6 +222,45 @@ def test_measuring_again_reuses_each_pose_and_image(session: Path,
         measure(session, replace(options, band_hz=(500.0, 18_000.0)))
 
 
+def test_the_matched_weighting_is_taken_only_where_the_recordings_show_free_field(
+        session: Path, tmp_path: Path) -> None:
+    """Weighting "auto": the ideal world's recordings hold the direct sound and noise alone
+    (echo ratio 1), so their times of flight are correlated with the matched weighting, the
+    maximum-likelihood one there; a room's reflections (echo ratio far above 1) keep the
+    compact one. A weighting asked for is kept."""
+    from calibration.pipeline import FREE_FIELD_ECHO_RATIO, measure
+    from micam.simulated import record_simulated_session
+    from sim.capture import SimulationOptions
+
+    free = measure(session)
+    assert free.tofs.echo_ratio() == pytest.approx(1.0, abs=FREE_FIELD_ECHO_RATIO - 1.0)
+    assert free.weighting == "matched"
+    room_path = tmp_path / "room"
+    record_simulated_session(room_path, SimulationOptions(
+        array="scatter48", poses=3, mls_order=9, seed=3, effects=("room",)))
+    room = measure(room_path)
+    assert room.tofs.echo_ratio() > 10.0
+    assert room.weighting == "compact"
+    assert measure(session, CalibrationOptions(weighting="compact")).weighting == "compact"
+
+
+def test_the_echo_ratio_skips_dead_channels_and_is_nan_without_noise() -> None:
+    """A dead channel's NaN energies leave the pooled ratio to the others; recordings with no
+    noise before their direct peaks give NaN (which "auto" reads as no free field)."""
+    from calibration.times_of_flight import SessionTofs
+
+    shape = (2, 3, 4)
+    echo, lead = np.full(shape, 3.0), np.full(shape, 2.0)
+    echo[0, 0, 0] = lead[0, 0, 0] = np.nan
+    nothing = np.zeros(shape)
+    tofs = SessionTofs(nothing, nothing, nothing, nothing, nothing[..., 0], nothing[..., 0],
+                       nothing[..., None], nothing, 2.0, echo, lead)
+    assert tofs.echo_ratio() == pytest.approx(1.5)
+    assert tofs.echo_ratio([1]) == pytest.approx(1.5)
+    silent = replace(tofs, lead_energy=np.zeros(shape))
+    assert np.isnan(replace(silent, echo_energy=np.zeros(shape)).echo_ratio())
+
+
 def test_a_subset_fit_with_c_per_pose_images_every_pose(measurements) -> None:
     """The joint fit of some poses fits c for those only; the rest (held out, or used by the
     response estimate) take the session's c instead of another pose's or an IndexError."""
