@@ -283,7 +283,7 @@ def _estimate_chunk(
     weighted = _weighted(cross, X, weighting,
                          max(1, round(_COMPACT_SMOOTHING_HZ * n_fft / fs)))
 
-    corr = _lag_correlation(weighted, bins, lags.length, fft_workers)
+    corr = _lag_correlation(weighted, band, lags.length, fft_workers)
     peak = _first_arrival(corr, lags.window, first_arrival)
     psr_db = _peak_to_sidelobe_db(corr, peak, lags.guard)
 
@@ -359,13 +359,15 @@ def _weighted(cross: np.ndarray, X: np.ndarray, weighting: Weighting,
     raise ValueError(f"unknown weighting {weighting!r}; choose compact, matched or phat")
 
 
-def _lag_correlation(weighted: np.ndarray, bins: np.ndarray, length: int,
+def _lag_correlation(weighted: np.ndarray, band: slice | np.ndarray, length: int,
                      fft_workers: int) -> np.ndarray:
     """The band-limited correlation at `length` equally spaced lags around the circle (r, ch,
     length): every full-rate lag (length n_fft) or about every second one (the band's bins
-    then all below the shorter circle's Nyquist bin, so that it is sampled exactly)."""
+    then all below the shorter circle's Nyquist bin, so that it is sampled exactly). `band`:
+    the bins of `weighted`, a slice where they are consecutive (a slice's assignment is 6x
+    faster than an index array's: 7 ms per pose of 438 channels)."""
     full = np.zeros((*weighted.shape[:-1], length // 2 + 1), dtype=np.complex64)
-    full[..., bins] = weighted
+    full[..., band] = weighted
     return sfft.irfft(full, length, axis=-1, workers=fft_workers)
 
 
