@@ -201,10 +201,18 @@ def detect_corners_quickly(image: np.ndarray, board: Checkerboard
 
 
 def detect_corners_robustly(image: np.ndarray, board: Checkerboard) -> np.ndarray | None:
-    """The corners (as `detect_corners`) from the sector-based detector at full size
-    (findChessboardCornersSB, 0.1-0.4 s, and as long to fail on a board cut by the image's
-    edge), or None."""
+    """The corners (as `detect_corners`) from the classic detector at full size, or where it
+    fails from the sector-based one (findChessboardCornersSB, 0.1-0.4 s, and as long to fail
+    on a board cut by the image's edge), or None.
+
+    The classic detector at full size finds most boards it missed at half size (of the 11
+    the sector-based one found on the realistic lab's 140 poses, 10, in 5-16 ms instead of
+    0.1-0.15 s, finished to the same corners within 3e-6 px); where it fails it costs
+    45-80 ms more."""
     grey = _grey(image)
+    found, corners = cv2.findChessboardCorners(grey, board.pattern_size, flags=_CLASSIC_FLAGS)
+    if found and (finished := _finished(grey, corners.reshape(-1, 2), board)) is not None:
+        return finished
     found, corners = cv2.findChessboardCornersSB(grey, board.pattern_size)
     return _finished(grey, corners.reshape(-1, 2), board) if found else None
 
