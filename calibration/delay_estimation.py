@@ -17,7 +17,9 @@ whose derivatives are analytic. This is the maximum-likelihood delay for white n
 W_k = 1; it is unbiased for any fractional delay and reaches the Cramer-Rao bound
 (`delay_crlb`) above the threshold SNR.
 
-Weightings W_k (`estimate_delays(weighting=...)`):
+Weightings W_k (`estimate_delays(weighting=...)`; a calibration chooses between the first
+two by the session's echo ratio, `TofEstimate.echo_energy`: calibration.pipeline's weighting
+"auto"):
 - "compact" (the default): the reference deconvolved out, W_k = hann_k / <|X_k|^2> (the
   reference's power spectrum smoothed over 40 Hz), so that the correlation is the relative
   impulse response seen through a Hann window over the band: a pulse whose sidelobes fall
