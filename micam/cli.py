@@ -4,7 +4,9 @@ Each subcommand lives in its own module (`micam/commands/…`) and registers its
 heavy imports happen only when a subcommand runs, so `micam --help` is instant.
 
 Every failure ends in one line on stderr, `micam: error: ...`, and one of the exit statuses
-below (README, "Exit status"); `--debug` shows the traceback instead.
+below (README, "Exit status"); `--debug` shows the traceback instead. Bad input is an
+`acquisition.contracts.errors.UserError` (exit 2); anything else is a bug (exit 70), whose
+traceback goes to a file in the bug log directory that the line names.
 """
 
 from __future__ import annotations
@@ -13,7 +15,11 @@ import argparse
 import logging
 import os
 import sys
+import tempfile
+import time
+import traceback
 from collections.abc import Sequence
+from pathlib import Path
 
 from .commands import (
     calibrate,
@@ -60,6 +66,10 @@ EXIT_PIPE_CLOSED = 141
 """The reader of the output went away (`micam sessions | head`), as a shell reports SIGPIPE."""
 
 LOG_LEVELS = ("debug", "info", "warning", "error")
+BUG_DIR_ENV = "MICAM_BUG_DIR"
+"""Where a bug's traceback is written (default: $XDG_STATE_HOME/micam/bugs)."""
+
+log = logging.getLogger("micam")
 
 
 def _version() -> str:
@@ -150,10 +160,32 @@ def main(argv: Sequence[str] | None = None) -> int:
     except Exception as exc:
         if debug:
             raise
+        where = _write_bug_log(exc, argv)
+        log.debug("a bug in micam", exc_info=exc)
         print(f"micam: error: {_one_line(exc)} ({type(exc).__name__}; this is a bug in micam "
-              f"{_version()}: run again with --debug for the traceback and report it)",
-              file=sys.stderr)
+              f"{_version()}: {where}, and report it)", file=sys.stderr)
         return EXIT_INTERNAL
+
+
+def _write_bug_log(exc: BaseException, argv: Sequence[str] | None) -> str:
+    """Write `exc`'s traceback (with the command line and micam's version) to a new file in
+    the bug log directory, `$MICAM_BUG_DIR`, else `$XDG_STATE_HOME/micam/bugs`, else
+    `~/.local/state/micam/bugs`; say where it is (or, if nothing can be written there, that
+    --debug shows it)."""
+    state = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
+    directory = Path(os.environ.get(BUG_DIR_ENV) or Path(state) / "micam" / "bugs")
+    stamp = time.strftime("%Y%m%dT%H%M%S", time.gmtime())
+    command = " ".join(sys.argv[:1] + list(sys.argv[1:] if argv is None else argv))
+    text = (f"micam {_version()}, Python {sys.version.split()[0]}, {stamp}Z\n$ {command}\n\n"
+            + "".join(traceback.format_exception(exc)))
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+        fd, name = tempfile.mkstemp(prefix=f"bug-{stamp}-", suffix=".txt", dir=directory)
+        with os.fdopen(fd, "w", encoding="utf-8", errors="backslashreplace") as fh:
+            fh.write(text)
+    except OSError:
+        return "run again with --debug for the traceback"
+    return f"the traceback is in {name}"
 
 
 def _one_line(exc: BaseException) -> str:

@@ -9,6 +9,19 @@ import pytest
 from sim.capture import SimulationOptions
 
 
+@pytest.fixture(autouse=True, scope="session")
+def bug_logs(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Where `micam` writes the tracebacks of its bugs during the tests (not the user's
+    ~/.local/state): $MICAM_BUG_DIR for this run, inherited by the processes tests start."""
+    import os
+
+    from micam.cli import BUG_DIR_ENV
+
+    path = tmp_path_factory.mktemp("bug-logs")
+    os.environ[BUG_DIR_ENV] = str(path)
+    return path
+
+
 @pytest.fixture
 def small_options() -> SimulationOptions:
     """A quick capture: one camera, 48 microphones, short bursts, two poses."""

@@ -61,13 +61,31 @@ def _failing(monkeypatch: pytest.MonkeyPatch, error: BaseException) -> None:
     monkeypatch.setattr(inspect_session, "run", run)
 
 
-def test_an_unexpected_error_is_one_line_with_status_70(
-        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+def test_an_unexpected_error_is_one_line_with_status_70_and_its_traceback_in_the_bug_log(
+        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str],
+        tmp_path: Path) -> None:
+    monkeypatch.setenv(cli.BUG_DIR_ENV, str(tmp_path / "bugs"))
     _failing(monkeypatch, RuntimeError("the first line\nthe second"))
     assert main(["inspect", "somewhere"]) == cli.EXIT_INTERNAL
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("micam: error: the first line; the second")
-    assert "--debug" in err and "Traceback" not in err
+    assert "Traceback" not in err and "this is a bug in micam" in err
+    [log] = (tmp_path / "bugs").iterdir()
+    assert f"the traceback is in {log}" in err
+    text = log.read_text()
+    assert "inspect somewhere" in text and "Traceback (most recent call last)" in text
+    assert "RuntimeError: the first line" in text and "raise error" in text
+
+
+def test_a_bug_log_that_cannot_be_written_points_at_debug(
+        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str],
+        tmp_path: Path) -> None:
+    (tmp_path / "file").write_text("")
+    monkeypatch.setenv(cli.BUG_DIR_ENV, str(tmp_path / "file" / "bugs"))
+    _failing(monkeypatch, RuntimeError("boom"))
+    assert main(["inspect", "somewhere"]) == cli.EXIT_INTERNAL
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "run again with --debug for the traceback" in err
 
 
 def test_debug_shows_the_traceback(monkeypatch: pytest.MonkeyPatch) -> None:
