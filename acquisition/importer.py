@@ -34,6 +34,7 @@ import soundfile as sf
 from pydantic import Field, ValidationError, model_validator
 
 from acquisition.contracts.config_model import ConfigModel
+from acquisition.contracts.errors import UserError
 from .intrinsics_file import IntrinsicsFileError, read_intrinsics
 from acquisition.contracts.rig_description import (
     CameraDescription,
@@ -52,7 +53,7 @@ HDF5_SUFFIXES = (".h5", ".hdf5", ".hdf")
 CODE_FULL_SCALE = 32767
 
 
-class ImportSpecError(ValueError):
+class ImportSpecError(UserError):
     """The import TOML or its files cannot make a session; the message says what to change."""
 
 

@@ -17,6 +17,7 @@ from typing import Literal
 import cv2
 import numpy as np
 
+from acquisition.contracts.errors import UserError
 from acquisition.contracts.rig_description import CAMERA_MODEL_COEFFICIENTS, KnownIntrinsics
 
 MAX_FILE_BYTES = 1_000_000
@@ -26,7 +27,7 @@ _MATRIX_KEYS = ("camera_matrix", "cameraMatrix", "K", "intrinsic_matrix")
 _DISTORTION_KEYS = ("distortion_coefficients", "dist_coeffs", "distCoeffs", "D")
 
 
-class IntrinsicsFileError(ValueError):
+class IntrinsicsFileError(UserError):
     """The file is not a camera calibration micam can use; the message says why."""
 
 

@@ -33,8 +33,8 @@ from .corners import (
     detect_corners_quickly,
     detect_corners_robustly,
 )
+from .errors import CalibrationInputError
 from .memo import LruMemo
-
 
 _CALIB_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 200, 1e-12)
 _OPENCV_THREADS_LOCK = threading.Lock()
@@ -60,7 +60,7 @@ MIN_SHARED_VIEWS = 2
 """Fewest views two cameras must share to fit the transform between them."""
 
 
-class CameraCalibrationError(ValueError):
+class CameraCalibrationError(CalibrationInputError):
     """The images cannot calibrate the cameras (too few views with a detectable board)."""
 
 

@@ -47,6 +47,8 @@ from numpy.lib.stride_tricks import sliding_window_view
 from scipy import fft as sfft
 from scipy.ndimage import uniform_filter1d
 
+from .errors import CalibrationInputError
+
 Weighting = Literal["compact", "matched", "phat"]
 
 # Working-set budget (elements of the largest (chunk, channel, bin) array) per batch, so
@@ -135,7 +137,7 @@ def band_bins(n_fft: int, fs: float, band: tuple[float, float]) -> np.ndarray:
     f = k * fs / n_fft
     keep = (f >= band[0]) & (f <= band[1]) & (k > 0) & (2 * k != n_fft)
     if not keep.any():
-        raise ValueError(f"band {band} Hz holds no rFFT bin for n_fft={n_fft}, fs={fs}")
+        raise CalibrationInputError(f"band {band} Hz holds no rFFT bin for n_fft={n_fft}, fs={fs}")
     return k[keep]
 
 
@@ -259,7 +261,7 @@ class _Lags:
             lo, hi = (d * fs for d in delay_window_s)
             window = (lags >= np.floor(lo) - step + 1) & (lags <= np.ceil(hi) + step - 1)
             if not window.any():
-                raise ValueError(f"delay window {delay_window_s} s holds no lag")
+                raise CalibrationInputError(f"delay window {delay_window_s} s holds no lag")
         return cls(step, length, window, int(np.ceil(sidelobe_guard_s * fs / step)))
 
 
@@ -358,7 +360,7 @@ def _weighted(cross: np.ndarray, X: np.ndarray, weighting: Weighting,
         scale = np.mean(power, axis=-1, keepdims=True)  # keeps the values' magnitude
         weight = hann * scale / np.maximum(power, tiny * scale + tiny)
         return cross * weight.astype(power.dtype)  # single precision stays single
-    raise ValueError(f"unknown weighting {weighting!r}; choose compact, matched or phat")
+    raise CalibrationInputError(f"unknown weighting {weighting!r}; choose compact, matched or phat")
 
 
 def _lag_correlation(weighted: np.ndarray, band: slice | np.ndarray, length: int,

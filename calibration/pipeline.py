@@ -55,12 +55,16 @@ from .bundle import (
     refined_cameras,
 )
 from .camera_calibration import (
-    CameraCalibration,
     DETECTION_CACHE_SIZE,
+    CameraCalibration,
     Checkerboard,
     DetectionMemo,
     calibrate_session,
 )
+from .delay_estimation import Weighting
+from .errors import CalibrationInputError
+from .multilateration import multilaterate
+from .paper_method import solve_paper_method
 from .plausibility import (
     AIR_RANGE_M_S,
     FitFigures,
@@ -94,9 +98,7 @@ from .result import (
     TofQuality,
     TransformResult,
 )
-from .multilateration import multilaterate
-from .paper_method import solve_paper_method
-from .session_data import CalibrationInputError, SessionData, load_session
+from .session_data import SessionData, load_session
 from .solver import (
     MicrophoneSolution,
     PriorGeometry,
@@ -115,7 +117,6 @@ from .speakers import (
 )
 from .speed_of_sound import SpeedOfSoundFit, fit_speed_of_sound_robust
 from .times_of_flight import TOF_CACHE_POSES, SessionTofs, TofMemo, measure_session_tofs
-from .delay_estimation import Weighting
 
 NOMINAL_SPEED_OF_SOUND_M_S = 343.0
 """Start value of c when nothing better is known (about 20 degC)."""

@@ -7,6 +7,7 @@ Comparing a result with the truth is one line because both use
 from __future__ import annotations
 
 import json
+import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Literal
 from xml.sax.saxutils import quoteattr
@@ -15,6 +16,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from acquisition.contracts.session import write_atomic
+
+from .errors import CalibrationInputError
 
 Vector3 = tuple[float, float, float]
 
@@ -236,8 +239,9 @@ def write_acoular_calib_xml(result: CalibrationResult, path: Path,
         ValueError: the result has no microphone responses.
     """
     if result.microphone_responses is None:
-        raise ValueError("the result has no microphone responses (calibrate with the joint "
-                         "fit to estimate them)")
+        raise CalibrationInputError(
+            "the result has no microphone responses (calibrate with the joint "
+            "fit to estimate them)")
     gain = {r.id: float(np.median(r.gain)) for r in result.microphone_responses.microphones}
     lines = ['<?xml version="1.0" encoding="utf-8"?>', f"<Calib name={quoteattr(name)}>"]
     for mic in sorted(result.microphones, key=lambda m: m.id):
@@ -256,7 +260,8 @@ def compare_with_truth(result: CalibrationResult, truth: dict,
     focal = {c.name: (c.K[0][0], c.K[1][1]) for c in result.cameras}
     if camera_frozen:
         if result.camera_frozen is None:
-            raise ValueError("the result has no camera-frozen solution (joint fit switched off)")
+            raise CalibrationInputError(
+                "the result has no camera-frozen solution (joint fit switched off)")
         part = result.camera_frozen
         focal = dict(result.camera_frozen.focal_px)
     true_pos = {m["id"]: np.array(m["position_m"]) for m in truth["microphones"]}
@@ -285,28 +290,28 @@ def load_prior_positions(path: Path, mic_ids: np.ndarray) -> np.ndarray:
 
     Reads a result.json or truth.json (`microphones[].id / position_m`) or Acoular's MicGeom
     XML (`<pos Name="Point k" x y z/>`, Point k being microphone id k, as written by
-    `write_acoular_xml`). Raises ValueError naming the file and the missing microphones.
+    `write_acoular_xml`). Raises CalibrationInputError naming the file and the missing
+    microphones.
     """
     path = Path(path)
     is_xml = path.suffix.lower() == ".xml"
     try:
         if is_xml:
-            import xml.etree.ElementTree as ET
-
             points = ET.parse(path).getroot().findall("pos")
             by_id = {int(p.get("Name", "").split()[-1]):
                      [float(p.get(axis, "")) for axis in "xyz"] for p in points}
         else:
             doc = json.loads(path.read_text())
             by_id = {int(m["id"]): m["position_m"] for m in doc["microphones"]}
-    except (OSError, ValueError, KeyError, TypeError, IndexError) as exc:
-        raise ValueError(f"cannot read the prior geometry {path}: {exc}; give a result.json, "
-                         "a truth.json or an Acoular MicGeom XML") from None
+    except (OSError, ValueError, KeyError, TypeError, IndexError, ET.ParseError) as exc:
+        raise CalibrationInputError(f"cannot read the prior geometry {path}: {exc}; give a "
+                                    "result.json, a truth.json or an Acoular MicGeom XML"
+                                    ) from None
     missing = [int(i) for i in mic_ids if int(i) not in by_id]
     if missing:
         hint = ('; micam names microphone k "Point k", from 0: an XML counting from '
                 '"Point 1" (as Acoular\'s export_mpos and earlier micam versions write it) '
                 'needs its names lowered by 1' if is_xml else "")
-        raise ValueError(f"the prior geometry {path} lacks microphones {missing[:10]}"
-                         f"{' ...' if len(missing) > 10 else ''}{hint}")
+        raise CalibrationInputError(f"the prior geometry {path} lacks microphones "
+                                    f"{missing[:10]}{' ...' if len(missing) > 10 else ''}{hint}")
     return np.array([by_id[int(i)] for i in mic_ids], dtype=np.float64)

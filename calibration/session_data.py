@@ -15,12 +15,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from pydantic import ValidationError
 
 from acquisition.contracts.air import AIR_FILE, AirReading
 from acquisition.contracts.capture_config import CaptureConfig
+from acquisition.contracts.config_model import describe_problems
+from acquisition.contracts.errors import UserError
 from acquisition.contracts.rig_description import (
     DESCRIPTION_KIND,
-    DescriptionError,
     RigArrayDescription,
     RigDescription,
     validate_description,
@@ -28,9 +30,7 @@ from acquisition.contracts.rig_description import (
 from acquisition.contracts.session import SessionError, SessionReader
 from acquisition.contracts.step_ids import is_pose_step, reference_step
 
-
-class CalibrationInputError(ValueError):
-    """The session cannot be calibrated as it is (missing steps, wrong kind of session)."""
+from .errors import CalibrationInputError
 
 
 @dataclass(frozen=True)
@@ -153,7 +153,11 @@ def session_description(reader: SessionReader) -> RigArrayDescription:
             return validate_description(capture, f"session {reader.path}: its description")
         config = CaptureConfig.of_session(capture, reader.path)
         return config.description(_image_sizes(reader))
-    except (SessionError, DescriptionError, ValueError) as exc:
+    except ValidationError as exc:  # a valid configuration whose description is not
+        problems = "; ".join(describe_problems(exc, RigArrayDescription))
+        raise CalibrationInputError(f"session {reader.path}: its description: {problems}"
+                                    ) from None
+    except UserError as exc:  # SessionError, DescriptionError
         raise CalibrationInputError(str(exc)) from None
 
 

@@ -37,6 +37,7 @@ from scipy.spatial.transform import Rotation
 
 from acquisition.contracts.rigid import RigidTransform, kabsch, rotated_point_jacobian
 
+from .errors import CalibrationInputError
 from .multilateration import multilaterate
 from .robust import inverse_normal, robust_sigma
 
@@ -476,7 +477,7 @@ def latency_columns(n_board: int, options: SolverOptions) -> tuple[np.ndarray, i
     if options.latency == "common":
         return np.zeros(n_board, dtype=int), 1
     if options.latency != "per_board":
-        raise ValueError(f"unknown latency model {options.latency!r}")
+        raise CalibrationInputError(f"unknown latency model {options.latency!r}")
     free = [b for b in range(n_board) if b != options.reference_board]
     column = np.full(n_board, -1)
     column[free] = np.arange(len(free))

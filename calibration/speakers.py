@@ -25,13 +25,14 @@ from acquisition.contracts.rigid import RigidTransform
 from acquisition.contracts.step_ids import REFMIC_STEP, is_pose_step
 
 from .camera_calibration import CameraCalibration, Pose
+from .errors import CalibrationInputError
 
 _STEP_RAD_OR_M = 1e-6
 """Central-difference step for the pose parameters (radians and metres): small against the
 pose uncertainty (~1e-4), large against rounding (~1e-16 relative)."""
 
 
-class SpeakerLocationError(ValueError):
+class SpeakerLocationError(CalibrationInputError):
     """A rig point cannot be located (no calibrated camera saw the board)."""
 
 

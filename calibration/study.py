@@ -28,6 +28,7 @@ from typing import Literal
 import numpy as np
 
 from .crlb import expected_error_norm, joint_crlb
+from .errors import CalibrationInputError
 from .pipeline import (
     CalibrationOptions,
     Measurements,
@@ -91,11 +92,12 @@ def _subset(n_sources: int, n_poses: int, n_speakers: int,
     if n_sources <= n_speakers:
         return rng.choice(n_poses, 1), np.sort(rng.choice(n_speakers, n_sources, replace=False))
     if n_sources % n_speakers:
-        raise ValueError(f"{n_sources} sources: above {n_speakers}, use whole poses "
-                         f"(multiples of {n_speakers})")
+        raise CalibrationInputError(f"{n_sources} sources: above {n_speakers}, use whole poses "
+                                    f"(multiples of {n_speakers})")
     k = n_sources // n_speakers
     if k > n_poses:
-        raise ValueError(f"{n_sources} sources need {k} poses; the session has {n_poses}")
+        raise CalibrationInputError(
+            f"{n_sources} sources need {k} poses; the session has {n_poses}")
     return np.sort(rng.choice(n_poses, k, replace=False)), np.arange(n_speakers)
 
 

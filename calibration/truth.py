@@ -17,12 +17,14 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from acquisition.contracts.config_model import dotted
 
+from .errors import CalibrationInputError
+
 SHAPE = ("a micam truth file has microphones = [{id, position_m}], speed_of_sound_m_s, "
          "cameras = [{name, K}] and optionally board_latencies_s, as `micam simulate` writes "
          "truth.json")
 
 
-class TruthError(ValueError):
+class TruthError(CalibrationInputError):
     """The truth file cannot be compared with this session; the message says why."""
 
 

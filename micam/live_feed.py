@@ -23,6 +23,7 @@ import numpy as np
 import zmq
 from pydantic import ValidationError
 
+from acquisition.contracts.errors import UserError
 from acquisition.daemon.client import DaemonClient
 from acquisition.contracts.protocol import (
     EVENT_ADAPTER,
@@ -57,13 +58,13 @@ class _Column(Protocol):
 def mic_columns(columns: Sequence[_Column], geometry: ArrayGeometry
                 ) -> tuple[np.ndarray, np.ndarray]:
     """The positions (M,) of the geometry's microphones among `columns` (a capture
-    configuration's, or `describe`'s) and their volts per code (M,). Raises ValueError naming
+    configuration's, or `describe`'s) and their volts per code (M,). Raises UserError naming
     a microphone that is not recorded."""
     by_id = {c.mic_id: (j, c.range_v) for j, c in enumerate(columns) if c.role == "mic"}
     missing = [m for m in geometry.mic_ids if m not in by_id]
     if missing:
-        raise ValueError(f"no microphone {missing[:5]} of the geometry is recorded; use the "
-                         "calibration of this array")
+        raise UserError(f"no microphone {missing[:5]} of the geometry is recorded; use the "
+                        "calibration of this array")
     index = np.array([by_id[m][0] for m in geometry.mic_ids])
     scale = np.array([(by_id[m][1] or 1.0) / 32768.0 for m in geometry.mic_ids])
     return index, scale

@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import textwrap
 
+from acquisition.contracts.errors import UserError
 from sim.geometry import PAPER_SPEAKERS_MM
 
 TEMPLATES = ("paper", "generic", "import")
@@ -43,7 +44,7 @@ def template(name: str) -> str:
             n_mics=35, reference=("36003", 11), cameras=["cam0"])
     if name == "import":
         return _IMPORT
-    raise ValueError(f"unknown template {name!r}; choose one of {', '.join(TEMPLATES)}")
+    raise UserError(f"unknown template {name!r}; choose one of {', '.join(TEMPLATES)}")
 
 
 def _toml(value: object) -> str:

@@ -15,6 +15,7 @@ from typing import Literal
 
 import numpy as np
 
+from .errors import SimulationInputError
 from .geometry import CameraModel, RigidTransform, pinhole
 
 REFERENCE_BOARD_SERIAL = "16099"
@@ -113,11 +114,11 @@ def _wire(n_mics: int, input_boards: list[BoardSpec], models_inputs: dict[str, i
             if len(mic_inputs) < n_mics:
                 mic_inputs.append(ChannelRef(b, ch))
     if len(mic_inputs) < n_mics:
-        raise ValueError(f"{n_mics} microphones need more inputs than the boards offer")
+        raise SimulationInputError(f"{n_mics} microphones need more inputs than the boards offer")
     outputs = [ChannelRef(b, ch) for b, s in enumerate(input_boards)
                if s.model.startswith("DT9836") for ch in range(2)]
     if len(outputs) < n_speakers:
-        raise ValueError(f"{n_speakers} speakers need more outputs than the boards offer")
+        raise SimulationInputError(f"{n_speakers} speakers need more outputs than the boards offer")
     boards = (*input_boards, BoardSpec("DT9816-A", REFERENCE_BOARD_SERIAL))
     return boards, tuple(mic_inputs), tuple(outputs[:n_speakers]), ChannelRef(len(boards) - 1, 0)
 
@@ -175,5 +176,6 @@ def array_layout(kind: str, n_speakers: int = 6) -> ArrayLayout:
     """The layout named `kind` (one of ARRAY_KINDS), with a clear error for unknown names."""
     builders = {"sphere72": sphere72, "planar64": planar64, "scatter48": scatter48}
     if kind not in builders:
-        raise ValueError(f"unknown array {kind!r}; choose one of {', '.join(ARRAY_KINDS)}")
+        raise SimulationInputError(
+            f"unknown array {kind!r}; choose one of {', '.join(ARRAY_KINDS)}")
     return builders[kind](n_speakers=n_speakers)

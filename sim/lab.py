@@ -37,6 +37,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from .errors import SimulationInputError
 from .geometry import Rig
 
 EFFECTS = ("acoustic-centres", "rig-tolerance", "print-scale", "mic-responses", "air-drift",
@@ -200,8 +201,8 @@ class LabEffects:
         """The ideal lab with the named effects (see EFFECTS) turned on."""
         unknown = sorted(set(names) - set(EFFECTS))
         if unknown:
-            raise ValueError(f"unknown lab effect(s) {', '.join(unknown)}; choose from "
-                             f"{', '.join(EFFECTS)}")
+            raise SimulationInputError(f"unknown lab effect(s) {', '.join(unknown)}; choose from "
+                                       f"{', '.join(EFFECTS)}")
         on = set(names)
         return cls(
             acoustic_centres=AcousticCentreModel() if "acoustic-centres" in on else None,

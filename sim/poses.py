@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .errors import SimulationInputError
 from .geometry import CameraModel, Rig, RigidTransform, rotation_from_rotvec
 
 FACING_CAMERA = np.diag([1.0, -1.0, -1.0])
@@ -11,7 +12,7 @@ FACING_CAMERA = np.diag([1.0, -1.0, -1.0])
 rig Z (out of the printed face) towards the camera (camera -z)."""
 
 
-class PoseSamplingError(RuntimeError):
+class PoseSamplingError(SimulationInputError):
     """No pose satisfies the constraints (distance range too small for the image, say)."""
 
 

@@ -22,6 +22,7 @@ from .rig_description import (
     BurstLayout,
     CameraDescription,
     ChannelGroup,
+    DescriptionError,
     ReferenceMicrophone,
     RigArrayDescription,
     RigDescription,
@@ -198,7 +199,7 @@ class CaptureConfig(ConfigModel):
                 to calibrate.
 
         Raises:
-            ValueError: camera 0 (the calibration's frame) has no image size.
+            DescriptionError: camera 0 (the calibration's frame) has no image size.
         """
         groups: dict[str, list[tuple[int, int]]] = {}
         for j, c in enumerate(self.columns):
@@ -207,8 +208,8 @@ class CaptureConfig(ConfigModel):
         reference_column = [c.role for c in self.columns].index("reference")
         frame = self.cameras[0].name
         if frame not in image_sizes:
-            raise ValueError(f"no image of camera {frame}, the calibration's frame: its image "
-                             "size is unknown; capture the poses with it")
+            raise DescriptionError(f"no image of camera {frame}, the calibration's frame: its "
+                                   "image size is unknown; capture the poses with it")
         return RigArrayDescription(
             sample_rate_hz=self.sample_rate_hz,
             rig=self.rig,

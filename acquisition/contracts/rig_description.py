@@ -32,6 +32,7 @@ from pydantic import Field, ValidationError, model_validator
 
 from .air import AirReading
 from .config_model import ConfigModel, describe_problems
+from .errors import UserError
 
 DESCRIPTION_KIND: Final = "rig-and-array"
 """The `kind` of a description stored as a session's capture (a capture configuration has
@@ -47,7 +48,7 @@ _NAMES_ITS_FIELD = re.compile(r"(rig|air|burst|channels|reference|cameras)[\w.\[
 """A cross-field problem of this module: it starts with the fields it is about."""
 
 
-class DescriptionError(ValueError):
+class DescriptionError(UserError):
     """A description that does not validate; the message has one line per problem."""
 
 

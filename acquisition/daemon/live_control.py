@@ -17,6 +17,8 @@ from typing import Any
 
 from daq import DaqError, GroupStream
 
+from acquisition.contracts.errors import UserError
+
 from ..live.mode import LiveFault, LiveMode, LiveOptions
 from .hardware import Hardware
 from acquisition.contracts.protocol import (
@@ -101,7 +103,7 @@ class LiveControl:
         try:
             self.root.mkdir(parents=True, exist_ok=True)
             return mode.record(self.root, args.seconds)
-        except (OSError, ValueError) as exc:
+        except (OSError, UserError) as exc:
             raise Refusal("session_error", f"cannot record under {self.root}: {exc}") from None
 
     def tick(self) -> None:

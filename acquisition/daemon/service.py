@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 import zmq
-from pydantic import BaseModel
+from pydantic import BaseModel, ValidationError
 
 from acquisition.contracts.capture_config import CaptureConfig
 from ..live.mode import POLL_S as LIVE_POLL_S
@@ -224,8 +224,9 @@ class Daemon:
         """Queue the final calibration job of a complete session (never raises)."""
         try:
             job = job_for_session(session, "final")
-        except (SessionError, OSError, ValueError) as exc:
-            log.error("cannot make the final calibration job of %s: %s", session, exc)
+        except Exception as exc:  # a damaged session (SessionError), a full disk, or a bug
+            log.error("cannot make the final calibration job of %s: %s", session, exc,
+                      exc_info=not isinstance(exc, SessionError | OSError | ValidationError))
             self.publish(ErrorEvent, message=f"session {session.name} is complete, but its "
                                              f"calibration job cannot be made: {exc}")
             return
@@ -269,8 +270,9 @@ class Daemon:
         if sum(is_pose_step(s) for s in run.completed()) >= workers.live_min_poses:
             try:
                 self.broker.submit(job_for_session(run.path, "live"))
-            except (SessionError, OSError, ValueError) as exc:  # a live job can wait a pose
-                log.error("cannot make a live calibration job of %s: %s", run.session_id, exc)
+            except Exception as exc:  # a live job can wait a pose; a bug is logged in full
+                log.error("cannot make a live calibration job of %s: %s", run.session_id, exc,
+                          exc_info=not isinstance(exc, SessionError | OSError | ValidationError))
 
     def _close(self, reason: str) -> None:
         path = self.run.path if self.run is not None else None

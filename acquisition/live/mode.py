@@ -34,6 +34,7 @@ from daq import DaqError, GroupStream
 
 from acquisition.contracts.camera import Camera, CameraError
 from acquisition.contracts.capture_config import CaptureConfig
+from acquisition.contracts.errors import UserError
 from ..preview_jpeg import encode_preview
 from acquisition.contracts.protocol import (
     SAMPLES_TOPIC,
@@ -185,7 +186,7 @@ class LiveMode:
         fs = self.sample_rate_hz
         first, codes = self.ring.latest(round(seconds * fs))
         if codes.shape[0] == 0:
-            raise ValueError("live mode has not recorded anything yet; try again in a moment")
+            raise UserError("live mode has not recorded anything yet; try again in a moment")
         frames = self.frames.between(first, first + codes.shape[0])
         session = f"live-{datetime.now(UTC):%Y-%m-%dT%H-%M-%S.%fZ}"
         path = Path(root) / session

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from acquisition.contracts.capture_config import CaptureConfig
-from acquisition.contracts.session import SessionReader, SessionWriter
+from acquisition.contracts.session import SessionError, SessionReader, SessionWriter
 from .ring import StampedFrame
 
 STEP = "live"
@@ -39,13 +39,13 @@ def frame_name(camera: str, k: int) -> str:
 def read_live_recording(path: Path, camera: str
                         ) -> tuple[np.ndarray, int, int, list[StampedFrame], CaptureConfig]:
     """A live recording: its codes (n, columns), sample rate, first stream index, the frames
-    of `camera` (oldest first) and its capture configuration. Raises SessionError or
-    ValueError saying what is wrong."""
+    of `camera` (oldest first) and its capture configuration. Raises SessionError saying what
+    is wrong."""
     reader = SessionReader(path)
     config = CaptureConfig.of_session(reader.capture, path)
     step = reader.steps().get(STEP)
     if step is None:
-        raise ValueError(f"{path} is not a live recording (it has no step {STEP!r})")
+        raise SessionError(f"{path} is not a live recording (it has no step {STEP!r})")
     codes, fs = reader.read_recording(STEP, RECORDING)
     first = int(step.files[RECORDING].meta.get("first_sample", 0))
     names = sorted(n for n in step.files if n.startswith(f"{camera}-") and n.endswith(".png"))
@@ -60,7 +60,7 @@ def mic_volts(codes: np.ndarray, config: CaptureConfig) -> tuple[np.ndarray, lis
     mics = sorted((c.mic_id, j, c.range_v) for j, c in enumerate(config.columns)
                   if c.role == "mic" and c.mic_id is not None)
     if not mics:
-        raise ValueError("the capture configuration names no microphone column")
+        raise SessionError("the capture configuration names no microphone column")
     columns = [j for _, j, _ in mics]
     scale = np.array([r / 32768.0 for _, _, r in mics], dtype=np.float32)
     return codes[:, columns].astype(np.float32) * scale, [m for m, _, _ in mics]

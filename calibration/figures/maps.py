@@ -18,6 +18,7 @@ import numpy as np
 from matplotlib.colors import ListedColormap
 from matplotlib.figure import Figure
 
+from ..errors import CalibrationInputError
 from .style import MAP_COLORMAP, PAGE_IN, PALETTE, new_figure, styled
 
 PLAYING_COLOUR = PALETTE[5]
@@ -56,7 +57,7 @@ def acoustic_map_figure(image: np.ndarray, panels: list[MapPanel], speakers_px: 
     """The figure (module docstring). Axes are in image pixels (x right, y down), one per
     panel with gid "map-<k>"; the colour bar's axes has gid "colour-bar"."""
     if dynamic_range_db <= 0:
-        raise ValueError(f"dynamic range {dynamic_range_db} dB must be positive")
+        raise CalibrationInputError(f"dynamic range {dynamic_range_db} dB must be positive")
     grey = image if image.ndim == 2 else image[..., ::-1].mean(axis=2)
     height, width = grey.shape
     panel_w = PAGE_IN / len(panels) - 0.25

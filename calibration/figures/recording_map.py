@@ -18,6 +18,7 @@ from matplotlib.figure import Figure
 from acquisition.contracts.session import SessionReader
 from acquisition.contracts.step_ids import pose_step
 
+from ..errors import CalibrationInputError
 from ..imaging.beamform import beamform_csm
 from ..imaging.cleansc import CleanScOptions, clean_sc
 from ..imaging.evaluate import ImagingSettings, bin_spectra, geometry_steering, mic_signals
@@ -60,7 +61,8 @@ def recording_map(reader: SessionReader, geometry: ArrayGeometry, pose: int, spe
     board = geometry.pose(pose)
     view = geometry.camera(camera)
     if not 0 <= speaker < len(board.speakers_m):
-        raise ValueError(f"the rig has speakers 0-{len(board.speakers_m) - 1}, not {speaker}")
+        raise CalibrationInputError(
+            f"the rig has speakers 0-{len(board.speakers_m) - 1}, not {speaker}")
     signals, fs = mic_signals(reader, step, f"speaker_{speaker}.wav", geometry)
     image = reader.read_image(step, f"{camera}.png")
     band = bin_spectra(signals, fs, settings).band_sum(band_hz, settings.fraction)

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import CalibrationInputError
 from .csm import CrossSpectra
 from .parallel import run_blocks
 from .steering import SteeringModel
@@ -50,8 +51,8 @@ def complex_dtype(precision: str) -> type:
     try:
         return PRECISIONS[precision]
     except KeyError:
-        raise ValueError(f"precision {precision!r} must be one of {sorted(PRECISIONS)}"
-                         ) from None
+        raise CalibrationInputError(f"precision {precision!r} must be one of {sorted(PRECISIONS)}"
+                                    ) from None
 
 
 def diagonal_norm(n_mics: int, remove_diagonal: bool) -> float:

@@ -47,6 +47,7 @@ import numpy as np
 
 from .._blas import single_threaded_blas
 from .._cores import resolve_workers
+from ..errors import CalibrationInputError
 from .beamform import beamform_csm, diagonal_norm
 from .csm import CrossSpectra
 from .lazymap import BLOCK_POINTS, LazyMap
@@ -85,13 +86,13 @@ class CleanScOptions:
 
     def __post_init__(self) -> None:
         if not 0.0 < self.loop_gain <= 1.0:
-            raise ValueError(f"loop gain {self.loop_gain} must be in (0, 1]")
+            raise CalibrationInputError(f"loop gain {self.loop_gain} must be in (0, 1]")
         if self.max_iterations is not None and self.max_iterations < 1:
-            raise ValueError(f"max_iterations {self.max_iterations} must be >= 1")
+            raise CalibrationInputError(f"max_iterations {self.max_iterations} must be >= 1")
         if self.stop_window < 1 or self.coherence_iterations < 1:
-            raise ValueError("stop_window and coherence_iterations must be >= 1")
+            raise CalibrationInputError("stop_window and coherence_iterations must be >= 1")
         if self.min_peak_db is not None and self.min_peak_db <= 0:
-            raise ValueError(f"min_peak_db {self.min_peak_db} must be positive")
+            raise CalibrationInputError(f"min_peak_db {self.min_peak_db} must be positive")
         object.__setattr__(self, "stop_rule", StopRule(self.stop_rule))
 
 
@@ -192,7 +193,7 @@ class _Deconvolution:
         self.norm = diagonal_norm(degraded.shape[0], options.remove_diagonal)
         dirty = beamform_csm(h, degraded, options.remove_diagonal, power, "double", workers)
         self.lazy = LazyMap(dirty, h, power, options.remove_diagonal, max_iterations,
-                             block_points)
+                                        block_points)
         self.clean = np.zeros(h.shape[0])
         self.components: list[Component] = []
         self.peaks: list[float] = []

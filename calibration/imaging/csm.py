@@ -31,6 +31,8 @@ import scipy.signal
 from numpy.lib.stride_tricks import sliding_window_view
 from scipy import fft as sfft
 
+from ..errors import CalibrationInputError
+
 DFT_MAX_BINS = 80
 """Up to this many bins a direct DFT (a matrix product, N x 2F per block, at BLAS speed) is
 cheaper than an FFT of every block; beyond, the FFT (measured for 72 channels of 2 s at
@@ -57,9 +59,9 @@ class WelchOptions:
 
     def __post_init__(self) -> None:
         if self.block_size < 2:
-            raise ValueError(f"block size {self.block_size} must be at least 2 samples")
+            raise CalibrationInputError(f"block size {self.block_size} must be at least 2 samples")
         if not 0.0 <= self.overlap < 1.0:
-            raise ValueError(f"overlap {self.overlap} must be in [0, 1)")
+            raise CalibrationInputError(f"overlap {self.overlap} must be in [0, 1)")
 
     @property
     def hop(self) -> int:
@@ -115,7 +117,8 @@ class CrossSpectra:
         """The matrices with lo_hz <= f < hi_hz."""
         inside = (self.freqs_hz >= lo_hz) & (self.freqs_hz < hi_hz)
         if not np.any(inside):
-            raise ValueError(f"no frequency of these spectra lies in {lo_hz:.1f}-{hi_hz:.1f} Hz")
+            raise CalibrationInputError(
+                f"no frequency of these spectra lies in {lo_hz:.1f}-{hi_hz:.1f} Hz")
         return replace(self, freqs_hz=self.freqs_hz[inside], csm=self.csm[inside],
                        bins=self.bins[inside])
 
@@ -123,8 +126,9 @@ class CrossSpectra:
 def band_edges(centre_hz: float, fraction: int) -> tuple[float, float]:
     """Edges (lo, hi) of the 1/fraction-octave band around centre_hz: centre * 2**(-+1/(2 n))."""
     if centre_hz <= 0 or fraction < 1:
-        raise ValueError(f"a band needs centre > 0 Hz and fraction >= 1, got {centre_hz}, "
-                         f"{fraction}")
+        raise CalibrationInputError(
+            f"a band needs centre > 0 Hz and fraction >= 1, got {centre_hz}, "
+            f"{fraction}")
     half = 2.0 ** (1.0 / (2 * fraction))
     return centre_hz / half, centre_hz * half
 
@@ -137,15 +141,17 @@ def band_bins(centre_hz: float, fraction: int, block_size: int, sample_rate_hz: 
     lo, hi = band_edges(centre_hz, fraction)
     nyquist = sample_rate_hz / 2
     if hi > nyquist:
-        raise ValueError(f"the band {lo:.0f}-{hi:.0f} Hz reaches above the Nyquist frequency "
-                         f"{nyquist:.0f} Hz")
+        raise CalibrationInputError(
+            f"the band {lo:.0f}-{hi:.0f} Hz reaches above the Nyquist frequency "
+            f"{nyquist:.0f} Hz")
     df = sample_rate_hz / block_size
     bins = np.arange(int(np.ceil(lo / df)), int(np.ceil(hi / df)))
     bins = bins[(bins * df >= lo) & (bins * df < hi)]
     if bins.size == 0:
-        raise ValueError(f"the band {lo:.1f}-{hi:.1f} Hz holds no bin of a {block_size}-point "
-                         f"DFT at {sample_rate_hz:g} Hz (bin spacing {df:.1f} Hz); use longer "
-                         "blocks or a wider band")
+        raise CalibrationInputError(
+            f"the band {lo:.1f}-{hi:.1f} Hz holds no bin of a {block_size}-point "
+            f"DFT at {sample_rate_hz:g} Hz (bin spacing {df:.1f} Hz); use longer "
+            "blocks or a wider band")
     return bins
 
 
@@ -155,7 +161,8 @@ def octave_band_centres(lo_hz: float, hi_hz: float, fraction: int) -> np.ndarray
                   np.floor(fraction * np.log2(hi_hz / 1000.0) + 1e-9) + 1)
     centres = 1000.0 * 2.0 ** (k / fraction)
     if centres.size == 0:
-        raise ValueError(f"no 1/{fraction}-octave band centre lies in {lo_hz}-{hi_hz} Hz")
+        raise CalibrationInputError(
+            f"no 1/{fraction}-octave band centre lies in {lo_hz}-{hi_hz} Hz")
     return centres
 
 
@@ -194,7 +201,8 @@ def cross_spectra(signals: np.ndarray, sample_rate_hz: float, bins: Sequence[int
                          f"{bins.min()}..{bins.max()}")
     n_blocks = options.n_blocks(x.shape[0])
     if n_blocks == 0:
-        raise ValueError(f"the recording has {x.shape[0]} samples, fewer than one block of {n}")
+        raise CalibrationInputError(
+            f"the recording has {x.shape[0]} samples, fewer than one block of {n}")
     x = np.ascontiguousarray(x)
     w = options.window_values()
     frames = sliding_window_view(x, n, axis=0)[:: options.hop][:n_blocks]  # (K, M, N) view

@@ -35,6 +35,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..errors import CalibrationInputError
 from .csm import CrossSpectra, band_edges
 
 MAX_RESPONSE_FREQUENCIES = 100_000
@@ -129,7 +130,7 @@ def simulated_phase_error(n_channels: int, std_deg: float, seed: int = 0) -> Cha
     evaluation (the simulated world's own capsule responses, `micam simulate --effect
     mic-responses`, are delays and resonances of fixed spread)."""
     if not 0.0 <= std_deg <= 90.0:
-        raise ValueError(f"a phase error of {std_deg} degrees must lie in 0-90")
+        raise CalibrationInputError(f"a phase error of {std_deg} degrees must lie in 0-90")
     phase = np.radians(std_deg) * np.random.default_rng([seed, 17]).standard_normal(n_channels)
     return ChannelResponses(np.array([1.0]), np.exp(1j * phase)[None, :],
                             f"simulated phase error {std_deg:g} deg (seed {seed})")
@@ -201,11 +202,11 @@ def eigen_calibration(spectra: CrossSpectra, transfer: np.ndarray, band_centres_
         lo, hi = band_edges(centre, fraction)
         inside = (spectra.freqs_hz >= lo) & (spectra.freqs_hz < hi)
         if not np.any(inside):
-            raise ValueError(f"no bin of the calibration recording lies in the band "
-                             f"{lo:.0f}-{hi:.0f} Hz")
+            raise CalibrationInputError(f"no bin of the calibration recording lies in the band "
+                                        f"{lo:.0f}-{hi:.0f} Hz")
         share = float(np.median(dominance[inside]))
         if share < MIN_DOMINANCE:
-            raise ValueError(
+            raise CalibrationInputError(
                 f"{source}: the band at {centre:.0f} Hz is not dominated by one source (one "
                 f"source explains {100 * share:.0f} % of its cross-spectra, at least "
                 f"{100 * MIN_DOMINANCE:.0f} % needed); calibrate from a recording of a "
@@ -244,5 +245,5 @@ def responses_from_document(doc: dict, mic_ids: tuple[int, ...], source: str
         return ChannelResponses(freqs, np.column_stack([by_id[m] for m in mic_ids]),
                                 f"microphone_responses of {source}")
     except (KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"{source}: its microphone_responses cannot be used: {exc}; see "
-                         "docs/imaging.md for the format") from None
+        raise CalibrationInputError(f"{source}: its microphone_responses cannot be used: "
+                                    f"{exc}; see docs/imaging.md for the format") from None

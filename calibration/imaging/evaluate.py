@@ -31,6 +31,7 @@ from acquisition.contracts.session import SessionReader
 from acquisition.contracts.step_ids import pose_index, pose_step
 
 from .._cores import resolve_workers
+from ..errors import CalibrationInputError
 from .cleansc import LOCKSTEP_BINS, CleanScOptions, clean_sc_many
 from .csm import CrossSpectra, WelchOptions, band_bins, cross_spectra, octave_band_centres
 from .csm_calibration import ChannelResponses, apply_responses, correct_csm, eigen_calibration
@@ -105,8 +106,9 @@ def mic_signals(reader: SessionReader, step: str, name: str, geometry: ArrayGeom
     by_id = {c["mic_id"]: j for j, c in enumerate(columns) if c["role"] == "mic"}
     missing = [m for m in geometry.mic_ids if m not in by_id]
     if missing:
-        raise ValueError(f"the geometry's microphones {missing[:5]} are not recorded in this "
-                         "session; use the geometry calibrated for this array")
+        raise CalibrationInputError(
+            f"the geometry's microphones {missing[:5]} are not recorded in this "
+            "session; use the geometry calibrated for this array")
     cols = [by_id[m] for m in geometry.mic_ids]
     scale = np.array([columns[j]["range_v"] / 32768.0 for j in cols])
     return codes[:, cols].astype(np.float64) * scale, float(fs)
@@ -188,7 +190,8 @@ def channel_calibration(reader: SessionReader, geometry: ArrayGeometry, pose: in
     name = f"speaker_{speaker}.wav"
     board = geometry.pose(pose)
     if not 0 <= speaker < len(board.speakers_m):
-        raise ValueError(f"the rig has speakers 0-{len(board.speakers_m) - 1}, not {speaker}")
+        raise CalibrationInputError(
+            f"the rig has speakers 0-{len(board.speakers_m) - 1}, not {speaker}")
     signals, fs = mic_signals(reader, step, name, geometry)
     spectra = bin_spectra(signals, fs, replace(settings, correction=None))
     model = geometry_steering(geometry, board.speakers_m[speaker][None], Formulation.CLASSIC)
@@ -300,7 +303,7 @@ class Evaluation:
 
     def overall(self) -> Summary:
         if not self.rows:
-            raise ValueError("no recording was evaluated")
+            raise CalibrationInputError("no recording was evaluated")
         return Summary.of(self.rows)
 
     def by_band(self) -> dict[float, Summary]:
@@ -414,7 +417,7 @@ def evaluate_session(reader: SessionReader, geometry: ArrayGeometry,
                if wanted is None or pose in wanted
                if (kept := [r for r in recordings if (pose, r[2]) not in left_out])}
     if not by_pose:
-        raise ValueError(f"{reader.path} has no completed pose recordings to evaluate")
+        raise CalibrationInputError(f"{reader.path} has no completed pose recordings to evaluate")
     true_speakers = {pose: None if truth is None else truth.pose(pose).speakers_m
                      for pose in by_pose}
     total = sum(len(r) for r in by_pose.values())

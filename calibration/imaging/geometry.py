@@ -31,6 +31,7 @@ import numpy as np
 
 from acquisition.contracts.rigid import RigidTransform
 
+from ..errors import CalibrationInputError
 from .csm_calibration import ChannelResponses, responses_from_document
 
 MAX_LATENCY_S = 0.01
@@ -108,14 +109,14 @@ class ArrayGeometry:
         for cam in self.cameras:
             if cam.name == name:
                 return cam
-        raise ValueError(f"no camera {name!r} in the geometry; it has "
-                         f"{', '.join(c.name for c in self.cameras) or 'none'}")
+        raise CalibrationInputError(f"no camera {name!r} in the geometry; it has "
+                                    f"{', '.join(c.name for c in self.cameras) or 'none'}")
 
     def pose(self, index: int) -> BoardPose:
         if index not in self.poses:
-            raise ValueError(f"the geometry has no rig pose {index}; it has "
-                             f"{sorted(self.poses) or 'none'} (a calibration result.json or a "
-                             "truth.json with \"poses\" is needed)")
+            raise CalibrationInputError(
+                f"the geometry has no rig pose {index}; it has {sorted(self.poses) or 'none'} "
+                "(a calibration result.json or a truth.json with \"poses\" is needed)")
         return self.poses[index]
 
 
@@ -143,16 +144,19 @@ def geometry_from_dict(doc: dict, source: str = "geometry") -> ArrayGeometry:
         own = np.array([float(m.get("delay_s") or 0.0) for m in mics])
         latencies = np.array([board_latency.get(str(m.get("board")), 0.0) for m in mics]) + own
     except (KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"{source}: not a calibration result or truth document ({exc!r}); "
-                         "it needs microphones[].id/position_m, speed_of_sound_m_s and "
-                         "cameras[]") from None
+        raise CalibrationInputError(
+            f"{source}: not a calibration result or truth document ({exc!r}); it needs "
+            "microphones[].id/position_m, speed_of_sound_m_s and cameras[]") from None
     if positions.ndim != 2 or positions.shape[1] != 3 or len(set(ids)) != len(ids):
-        raise ValueError(f"{source}: microphone positions must be (M, 3) with unique ids")
-    if not c > 0:
-        raise ValueError(f"{source}: speed of sound {c} m/s must be positive")
+        raise CalibrationInputError(f"{source}: microphone positions must be (M, 3) with "
+                                    "unique ids")
+    if not np.all(np.isfinite(positions)):
+        raise CalibrationInputError(f"{source}: microphone positions must be finite")
+    if not (np.isfinite(c) and c > 0):
+        raise CalibrationInputError(f"{source}: speed of sound {c} m/s must be positive")
     if not np.all(np.abs(latencies) < MAX_LATENCY_S):
-        raise ValueError(f"{source}: channel latencies and delays must be finite and below "
-                         f"{1e3 * MAX_LATENCY_S:g} ms")
+        raise CalibrationInputError(f"{source}: channel latencies and delays must be finite "
+                                    f"and below {1e3 * MAX_LATENCY_S:g} ms")
     return ArrayGeometry(ids, positions, c, cameras, poses, latencies,
                          responses_from_document(doc, ids, source),
                          own if np.any(own) else None)
@@ -169,5 +173,5 @@ def load_geometry(path: Path) -> ArrayGeometry:
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, json.JSONDecodeError) as exc:
-        raise ValueError(f"cannot read the geometry {path}: {exc}") from None
+        raise CalibrationInputError(f"cannot read the geometry {path}: {exc}") from None
     return geometry_from_dict(doc, str(path))

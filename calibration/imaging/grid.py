@@ -16,6 +16,8 @@ import numpy as np
 
 from acquisition.contracts.rigid import RigidTransform
 
+from ..errors import CalibrationInputError
+
 
 def _axis(n_points: int, lo: float, hi: float, spacing: float) -> np.ndarray:
     if n_points < 1:
@@ -57,10 +59,10 @@ class PlaneGrid:
                  ) -> PlaneGrid:
         """Points every spacing_m from the low end of each range up to its high end."""
         if spacing_m <= 0:
-            raise ValueError(f"grid spacing {spacing_m} m must be positive")
+            raise CalibrationInputError(f"grid spacing {spacing_m} m must be positive")
         (u0, u1), (v0, v1) = u_range, v_range
         if u1 < u0 or v1 < v0:
-            raise ValueError(f"empty grid ranges {u_range}, {v_range}")
+            raise CalibrationInputError(f"empty grid ranges {u_range}, {v_range}")
         nu = int(np.floor((u1 - u0) / spacing_m + 1e-9)) + 1
         nv = int(np.floor((v1 - v0) / spacing_m + 1e-9)) + 1
         return PlaneGrid(np.asarray(origin_m, float), np.asarray(u_axis, float),

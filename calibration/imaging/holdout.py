@@ -23,6 +23,7 @@ import numpy as np
 from acquisition.contracts.session import SessionReader
 from acquisition.contracts.step_ids import pose_index
 
+from ..errors import CalibrationInputError
 from ..pipeline import CalibrationOptions, CalibrationRun, calibrate_measured, measure
 from .evaluate import (
     Evaluation,
@@ -60,12 +61,13 @@ def fold_poses(poses: list[int], folds: int) -> list[list[int]]:
     """The poses dealt into `folds` folds, the i-th into fold i mod folds. Raises ValueError
     when a fold would leave fewer than `MIN_TRAINING_POSES` poses to calibrate from."""
     if folds < 2:
-        raise ValueError(f"{folds} folds: cross-validation needs at least 2")
+        raise CalibrationInputError(f"{folds} folds: cross-validation needs at least 2")
     largest = math.ceil(len(poses) / folds)
     if len(poses) - largest < MIN_TRAINING_POSES or folds > len(poses):
-        raise ValueError(f"{len(poses)} located poses cannot be split into {folds} folds that "
-                         f"each leave {MIN_TRAINING_POSES} poses to calibrate from; use fewer "
-                         "folds or a longer session")
+        raise CalibrationInputError(
+            f"{len(poses)} located poses cannot be split into {folds} folds that "
+            f"each leave {MIN_TRAINING_POSES} poses to calibrate from; use fewer "
+            "folds or a longer session")
     return [poses[k::folds] for k in range(folds)]
 
 

@@ -29,6 +29,7 @@ import cv2
 import numpy as np
 
 from .._blas import single_threaded_blas
+from ..errors import CalibrationInputError
 from .beamform import beamform_csm
 from .cleansc import CleanScOptions, clean_sc
 from .csm import WelchOptions, band_bins
@@ -82,12 +83,12 @@ class LiveSettings:
 
     def __post_init__(self) -> None:
         if self.fraction not in FRACTIONS:
-            raise ValueError(f"a live band is an octave (1) or a third octave (3), not "
-                             f"1/{self.fraction}")
+            raise CalibrationInputError(f"a live band is an octave (1) or a third octave (3), not "
+                                        f"1/{self.fraction}")
         if not self.window_s > 0 or not self.dynamic_range_db > 0:
-            raise ValueError("the CSM window and the dynamic range must be positive")
+            raise CalibrationInputError("the CSM window and the dynamic range must be positive")
         if self.max_components < 1:
-            raise ValueError(f"max_components {self.max_components} must be at least 1")
+            raise CalibrationInputError(f"max_components {self.max_components} must be at least 1")
         object.__setattr__(self, "formulation", Formulation(self.formulation))
 
     @property

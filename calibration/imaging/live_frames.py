@@ -18,6 +18,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..errors import CalibrationInputError
 from .live import LiveImager, LiveMap
 from .live_draw import draw_live_frame
 
@@ -48,7 +49,7 @@ class MapFrames:
 
     def __init__(self, imager: LiveImager, fps: float, caption: str = "") -> None:
         if not fps > 0:
-            raise ValueError(f"a video needs a positive frame rate, not {fps}")
+            raise CalibrationInputError(f"a video needs a positive frame rate, not {fps}")
         self.imager = imager
         self.hop = max(1, round(imager.sample_rate_hz / fps))
         self.caption = caption
@@ -108,9 +109,9 @@ class VideoFile:
     def __init__(self, path: Path, fps: float) -> None:
         self.path = Path(path)
         if self.path.suffix.lower() not in FOURCC:
-            raise ValueError(f"{self.path}: write a video as {' or '.join(FOURCC)}")
+            raise CalibrationInputError(f"{self.path}: write a video as {' or '.join(FOURCC)}")
         if not self.path.parent.is_dir():
-            raise ValueError(f"the directory of {self.path} does not exist")
+            raise CalibrationInputError(f"the directory of {self.path} does not exist")
         self.fps = float(fps)
         self.frames = 0
         self._writer: cv2.VideoWriter | None = None
@@ -121,8 +122,8 @@ class VideoFile:
             self._writer = cv2.VideoWriter(str(self.path), fourcc, self.fps,
                                            (image.shape[1], image.shape[0]))
             if not self._writer.isOpened():
-                raise ValueError(f"OpenCV cannot write {self.path} (no encoder for "
-                                 f"{self.path.suffix})")
+                raise CalibrationInputError(f"OpenCV cannot write {self.path} (no encoder for "
+                                            f"{self.path.suffix})")
         self._writer.write(image)
         self.frames += 1
 

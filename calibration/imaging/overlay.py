@@ -14,6 +14,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from ..errors import CalibrationInputError
 from .cleansc import CleanScResult, Component
 from .geometry import BoardPose, CameraView
 from .grid import PlaneGrid
@@ -57,7 +58,7 @@ class ImageMapper:
 
     def __init__(self, grid: PlaneGrid, camera: CameraView, scale: float = 1.0) -> None:
         if not 0 < scale <= 1:
-            raise ValueError(f"image scale {scale} must be in (0, 1]")
+            raise CalibrationInputError(f"image scale {scale} must be in (0, 1]")
         self.grid = grid
         self.width = max(1, round(camera.width * scale))
         self.height = max(1, round(camera.height * scale))
@@ -79,7 +80,7 @@ class ImageMapper:
         values = np.asarray(values, dtype=np.float32)
         if values.size != self.grid.size:
             raise ValueError(f"the map has {values.size} values but the grid "
-                             f"{self.grid.size} points")
+                                        f"{self.grid.size} points")
         return cv2.remap(values.reshape(self.grid.shape), self._map_x, self._map_y,
                          interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                          borderValue=float("nan"))
@@ -99,7 +100,7 @@ def field_of_view_grid(camera: CameraView, pose: BoardPose, z_rig_m: float, spac
     exceed max_points points. Maps on it fill the whole image instead of ending at the
     rig's plate."""
     if spacing_m <= 0:
-        raise ValueError(f"grid spacing {spacing_m} m must be positive")
+        raise CalibrationInputError(f"grid spacing {spacing_m} m must be positive")
     w, h = camera.width, camera.height
     edge = np.linspace(0.0, 1.0, 65)
     border = np.vstack([np.column_stack([edge * (w - 1), np.zeros_like(edge)]),
@@ -110,7 +111,8 @@ def field_of_view_grid(camera: CameraView, pose: BoardPose, z_rig_m: float, spac
     origin = rig_to_cam0.apply(np.array([0.0, 0.0, z_rig_m]))
     points, hit = _rays_on_plane(camera, border, origin, rig_to_cam0.R[:, 2])
     if hit.sum() < 3:
-        raise ValueError(f"{camera.name} does not see the rig plane of pose {pose.index}")
+        raise CalibrationInputError(
+            f"{camera.name} does not see the rig plane of pose {pose.index}")
     rig_xy = rig_to_cam0.inverse_apply(points[hit])[:, :2]
     if not hit.all():  # part of the border looks past the plane's horizon
         rig_xy = np.vstack([rig_xy, [[-MAX_VIEW_EXTENT_M] * 2, [MAX_VIEW_EXTENT_M] * 2]])

@@ -38,6 +38,8 @@ from enum import StrEnum
 
 import numpy as np
 
+from ..errors import CalibrationInputError
+
 
 class Formulation(StrEnum):
     """The steering-vector formulations (see the module docstring for their formulas)."""
@@ -182,8 +184,9 @@ class SteeringModel:
         if self._geometry is None:
             r = _distances(self.points, self.mics)
             if np.any(r < 1e-9):
-                raise ValueError("a scan point coincides with a microphone: move the scan "
-                                 "surface off the array")
+                raise CalibrationInputError(
+                    "a scan point coincides with a microphone: move the scan "
+                    "surface off the array")
             r0 = np.linalg.norm(self.points - self.reference, axis=1)
             path = r - r0[:, None]
             if self.latencies_s is not None:

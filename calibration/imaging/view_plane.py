@@ -11,6 +11,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from ..errors import CalibrationInputError
 from .geometry import CameraView
 from .grid import PlaneGrid
 
@@ -24,11 +25,12 @@ def depth_plane_grid(camera: CameraView, depth_m: float, shape: tuple[int, int] 
     everything the camera sees of it (the bounding rectangle of the image border's rays, with
     the lens distortion), points in the camera-0 frame."""
     if not depth_m > 0:
-        raise ValueError(f"the scan plane's depth {depth_m} m must be positive (in front of "
-                         f"camera {camera.name})")
+        raise CalibrationInputError(
+            f"the scan plane's depth {depth_m} m must be positive (in front of "
+            f"camera {camera.name})")
     n_u, n_v = shape
     if n_u < 2 or n_v < 2:
-        raise ValueError(f"a live grid needs at least 2 x 2 points, got {n_u} x {n_v}")
+        raise CalibrationInputError(f"a live grid needs at least 2 x 2 points, got {n_u} x {n_v}")
     w, h = camera.width, camera.height
     edge = np.linspace(0.0, 1.0, BORDER_SAMPLES)
     border = np.vstack([np.column_stack([edge * (w - 1), np.zeros_like(edge)]),

@@ -31,6 +31,8 @@ from acquisition.contracts.job_messages import Job, JobFile
 from acquisition.contracts.safe_names import is_name
 from acquisition.contracts.session import sha256_file
 
+from ..errors import CalibrationInputError
+
 JOURNAL = "journal.jsonl"
 DEFAULT_MAX_BYTES = 4 * 2**30
 """The cache's default size limit, bytes. 4 GiB: at roughly 20 MB per pose (72 microphones,
@@ -137,18 +139,20 @@ class FileCache:
         return evicted
 
     def session_dir(self, job: Job) -> Path:
-        """The job's session mirror; ValueError for a session id that is not a plain name
+        """The job's session mirror; CalibrationInputError for a session id that is not a name
         (the job message refuses one already: this guards the cache on its own)."""
         if not is_name(job.session_id):
-            raise ValueError(f"the job names the session {job.session_id!r}, which is not a "
-                             "plain directory name")
+            raise CalibrationInputError(
+                f"the job names the session {job.session_id!r}, which is not a "
+                "plain directory name")
         return self.root / job.session_id
 
     def target(self, job: Job, rel: str) -> Path:
-        """Where `rel` of the job's session goes; ValueError for a path leaving the session."""
+        """Where `rel` of the job's session goes; CalibrationInputError for a path leaving it."""
         parts = PurePosixPath(rel).parts
         if PurePosixPath(rel).is_absolute() or ".." in parts or not parts:
-            raise ValueError(f"the job names the file {rel!r}, which is not inside its session")
+            raise CalibrationInputError(
+                f"the job names the file {rel!r}, which is not inside its session")
         return self.session_dir(job).joinpath(*parts)
 
     def wanted(self, job: Job) -> list[JobFile]:
@@ -210,13 +214,15 @@ _UNITS = {"": 1, "B": 1, "K": 2**10, "M": 2**20, "G": 2**30, "T": 2**40,
 
 def parse_size(text: str) -> int:
     """A size such as `4GiB`, `500M`, `2GB` or `1048576` in bytes (K, M, G, T and KiB … TiB
-    are powers of 1024; KB … TB powers of 1000). ValueError, saying what is accepted, if not."""
+    are powers of 1024; KB … TB powers of 1000). CalibrationInputError, saying what is
+    accepted, if not."""
     match = re.fullmatch(r"\s*(\d+(?:\.\d*)?)\s*([A-Za-z]*)\s*", text)
     unit = _UNITS.get(match.group(2).upper()) if match else None
     if match is None or unit is None:
-        raise ValueError(f"{text!r} is not a size; write bytes, or a number with a unit such "
-                         "as 500MiB, 4GiB or 2GB")
+        raise CalibrationInputError(
+            f"{text!r} is not a size; write bytes, or a number with a unit such "
+            "as 500MiB, 4GiB or 2GB")
     size = int(float(match.group(1)) * unit)
     if size <= 0:
-        raise ValueError(f"{text!r}: the size must be at least one byte")
+        raise CalibrationInputError(f"{text!r}: the size must be at least one byte")
     return size

@@ -50,6 +50,7 @@ from acquisition.contracts.job_messages import (
     encode,
     version_problem,
 )
+from acquisition.contracts.errors import UserError
 from acquisition.contracts.keys import secure_client
 
 from .cache import DEFAULT_MAX_BYTES, ChecksumMismatch, FileCache
@@ -281,7 +282,7 @@ class Worker:
             report(self._failure(job, f"cannot fetch the session: {exc}", exc.retryable))
         except ChecksumMismatch as exc:
             report(self._failure(job, f"checksum mismatch: {exc}", False))
-        except ValueError as exc:  # the pipeline's input errors: this session cannot calibrate
+        except UserError as exc:  # the session (or its files) cannot calibrate: for good
             report(self._failure(job, f"the session cannot be calibrated: {exc}", False))
         except Exception as exc:  # a bug or a full disk: another worker may do better
             log.exception("job %s failed", job.job_id, extra={"session_id": job.session_id})

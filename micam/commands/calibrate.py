@@ -87,7 +87,6 @@ def _prior(args: argparse.Namespace):
         if args.prior_std_mm is not None:
             raise UserError("--prior-std-mm needs --prior")
         return None
-    from acquisition.contracts.session import SessionError
     from calibration.result import load_prior_positions
     from calibration.session_data import load_session
     from calibration.solver import PriorGeometry
@@ -96,11 +95,8 @@ def _prior(args: argparse.Namespace):
         raise UserError("--prior works with --method micam only (the paper's search has none)")
     if args.prior_std_mm is not None and args.prior_std_mm <= 0:
         raise UserError("--prior-std-mm must be positive")
-    try:
-        data = load_session(args.session, args.allow_interrupted)
-        positions = load_prior_positions(args.prior, data.mic_ids)
-    except (ValueError, SessionError) as exc:
-        raise UserError(str(exc)) from None
+    data = load_session(args.session, args.allow_interrupted)
+    positions = load_prior_positions(args.prior, data.mic_ids)
     std = None if args.prior_std_mm is None else args.prior_std_mm / 1000.0
     return PriorGeometry(positions, std)
 
@@ -155,7 +151,7 @@ def _known_intrinsics(args: argparse.Namespace, data) -> dict:
         try:
             known[camera] = read_intrinsics(Path(file), camera, sizes[camera],
                                             args.intrinsics_use)
-        except (IntrinsicsFileError, ValueError) as exc:
+        except IntrinsicsFileError as exc:
             raise UserError(f"--intrinsics {item!r}: {exc}") from None
     return known
 
@@ -178,7 +174,6 @@ def _truth(args: argparse.Namespace, data) -> dict | None:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from acquisition.contracts.session import SessionError
     from calibration.pipeline import CalibrationOptions, calibrate
     from calibration.report import summary_lines, write_report
     from calibration.result import write_acoular_calib_xml, write_acoular_xml
@@ -192,10 +187,7 @@ def run(args: argparse.Namespace) -> int:
     if args.acoular_calib is not None and (args.no_joint or args.method == "paper"):
         raise UserError("--acoular-calib needs the joint fit (it estimates the responses); "
                         "leave out --no-joint and --method paper")
-    try:
-        data = load_session(args.session, args.allow_interrupted)
-    except ValueError as exc:
-        raise UserError(str(exc)) from None
+    data = load_session(args.session, args.allow_interrupted)
     truth = _truth(args, data)
     prior = _prior(args)
     options = CalibrationOptions(
@@ -212,12 +204,7 @@ def run(args: argparse.Namespace) -> int:
             bar.n = stages.index(name)
             bar.refresh()
 
-        try:
-            run_ = calibrate(args.session, options, on_stage)
-        except ValueError as exc:  # CalibrationInputError and the cameras' own errors
-            raise UserError(str(exc)) from None
-        except SessionError as exc:  # a damaged file: every read is checked against the journal
-            raise UserError(str(exc)) from None
+        run_ = calibrate(args.session, options, on_stage)  # input errors are UserErrors
         bar.n = len(stages)
         bar.refresh()
     run_.result.write(out)

@@ -115,7 +115,7 @@ def _write_json(path: Path, document: dict) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from acquisition.contracts.session import SessionError, SessionReader
+    from acquisition.contracts.session import SessionReader
     from calibration.figures.evaluation import localization_figure
     from calibration.figures.style import save
     from calibration.imaging import load_geometry
@@ -129,36 +129,33 @@ def run(args: argparse.Namespace) -> int:
     if args.folds is not None and (args.responses or args.csm_calibration is not None):
         raise UserError("--responses and --csm-calibration need one calibration: use them "
                         "with --geometry, not --folds")
-    try:
-        reader = SessionReader(args.session)
-        truth = load_geometry(truth_path) if truth_path.is_file() else None
-        settings = ImagingSettings(fraction=args.fraction, band_lo_hz=args.band_lo,
-                                   band_hi_hz=args.band_hi, spacing_m=args.spacing,
-                                   offset_seed=None if args.aligned_grid else 0)
-        settings.band_centres()
-        with tqdm(unit="rec", disable=args.quiet, desc="imaging") as bar:
-            def progress(done: int, total: int) -> None:
-                bar.total = total
-                bar.update(done - bar.n)
+    reader = SessionReader(args.session)
+    truth = load_geometry(truth_path) if truth_path.is_file() else None
+    settings = ImagingSettings(fraction=args.fraction, band_lo_hz=args.band_lo,
+                               band_hi_hz=args.band_hi, spacing_m=args.spacing,
+                               offset_seed=None if args.aligned_grid else 0)
+    settings.band_centres()
+    with tqdm(unit="rec", disable=args.quiet, desc="imaging") as bar:
+        def progress(done: int, total: int) -> None:
+            bar.total = total
+            bar.update(done - bar.n)
 
-            if args.folds is not None:
-                n_mics = sum(c["role"] == "mic" for c in reader.capture["columns"])
-                settings = imaging_options.with_simulated_error(args, settings, n_mics)
-                cv = cross_validate(args.session, args.folds, settings, truth=truth,
-                                    progress=progress, workers=args.workers)
-                columns = {"in-sample": cv.in_sample, f"held-out ({args.folds} folds)":
-                           cv.held_out}
-                document = cv.to_json()
-            else:
-                geometry = load_geometry(args.geometry)
-                settings, skip, geometry = imaging_options.corrected_settings(
-                    args, reader, geometry, settings)
-                result = evaluate_session(reader, geometry, settings, progress, args.workers,
-                                          skip=skip, truth=truth)
-                columns = {"given calibration": result}
-                document = result.to_json()
-    except (SessionError, ValueError, RuntimeError) as exc:  # RuntimeError: a worker died
-        raise UserError(str(exc)) from None
+        if args.folds is not None:
+            n_mics = sum(c["role"] == "mic" for c in reader.capture["columns"])
+            settings = imaging_options.with_simulated_error(args, settings, n_mics)
+            cv = cross_validate(args.session, args.folds, settings, truth=truth,
+                                progress=progress, workers=args.workers)
+            columns = {"in-sample": cv.in_sample, f"held-out ({args.folds} folds)":
+                       cv.held_out}
+            document = cv.to_json()
+        else:
+            geometry = load_geometry(args.geometry)
+            settings, skip, geometry = imaging_options.corrected_settings(
+                args, reader, geometry, settings)
+            result = evaluate_session(reader, geometry, settings, progress, args.workers,
+                                      skip=skip, truth=truth)
+            columns = {"given calibration": result}
+            document = result.to_json()
     for line in table(columns, args.spacing):
         print(line)
     if settings.simulated_error is not None:

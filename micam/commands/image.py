@@ -47,7 +47,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from acquisition.contracts.session import SessionError, SessionReader
+    from acquisition.contracts.session import SessionReader
     from calibration.figures.style import save
     from calibration.imaging import load_geometry
     from calibration.imaging.evaluate import ImagingSettings
@@ -57,16 +57,13 @@ def run(args: argparse.Namespace) -> int:
     check_outputs(("--out", args.out))
     if args.range_db <= 0:
         raise UserError(f"--range-db {args.range_db} must be positive")
-    try:
-        reader = SessionReader(args.session)
-        geometry = load_geometry(args.geometry)
-        settings, calibrated_from, geometry = imaging_options.corrected_settings(
-            args, reader, geometry, ImagingSettings(fraction=args.fraction,
-                                                    bands_hz=(args.band,)))
-        drawn = recording_map(reader, geometry, args.pose, args.speaker, args.band, settings,
-                              args.camera, args.spacing, args.range_db, args.steering)
-    except (SessionError, ValueError) as exc:
-        raise UserError(str(exc)) from None
+    reader = SessionReader(args.session)
+    geometry = load_geometry(args.geometry)
+    settings, calibrated_from, geometry = imaging_options.corrected_settings(
+        args, reader, geometry, ImagingSettings(fraction=args.fraction,
+                                                bands_hz=(args.band,)))
+    drawn = recording_map(reader, geometry, args.pose, args.speaker, args.band, settings,
+                          args.camera, args.spacing, args.range_db, args.steering)
     save(drawn.figure, args.out)
     print(f"wrote {args.out}; CLEAN-SC peak {significant(1e3 * drawn.error_m)} mm from speaker "
           f"{args.speaker} as the geometry places it (sub-grid; its grid node "

@@ -49,10 +49,7 @@ def with_simulated_error(args: argparse.Namespace, settings, n_mics: int):
 
     if not args.mic_phase_error_deg:
         return settings
-    try:
-        error = simulated_phase_error(n_mics, args.mic_phase_error_deg, args.mic_phase_error_seed)
-    except ValueError as exc:
-        raise UserError(f"--mic-phase-error-deg: {exc}") from None
+    error = simulated_phase_error(n_mics, args.mic_phase_error_deg, args.mic_phase_error_seed)
     return replace(settings, simulated_error=error)
 
 
@@ -62,8 +59,8 @@ def corrected_settings(args: argparse.Namespace, reader, geometry, settings):
     image with (without the microphones' own delays when the responses, which hold them,
     correct the CSM).
 
-    Raises UserError for --responses without responses in the geometry file, and
-    ValueError/SessionError from the eigenvalue calibration (for the caller to report)."""
+    Raises UserError for --responses without responses in the geometry file, and the
+    eigenvalue calibration's input errors (CalibrationInputError, SessionError)."""
     from calibration.imaging.evaluate import channel_calibration
 
     settings = with_simulated_error(args, settings, geometry.n_mics)

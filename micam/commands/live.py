@@ -93,36 +93,29 @@ def _video(args: argparse.Namespace) -> int:
     from calibration.imaging.live import LiveSettings
     from calibration.imaging.live_frames import VideoFile
 
-    try:
-        geometry = load_geometry(args.geometry)
-        settings = LiveSettings(band_hz=args.band, fraction=args.fraction,
-                                block_size=args.block, overlap=args.overlap,
-                                window_s=args.window, depth_m=args.depth,
-                                grid_shape=(args.grid, args.grid), camera=args.camera,
-                                clean_sc=args.clean_sc, dynamic_range_db=args.range_db,
-                                image_scale=args.scale)
-        video = VideoFile(args.out, args.fps)
-        if args.recording is not None:
-            n = _video_of_recording(args.recording, geometry, settings, args.fps, video)
-        else:
-            n = _video_of_live(args, geometry, settings, video)
-    except ValueError as exc:
-        raise UserError(str(exc)) from None
+    geometry = load_geometry(args.geometry)
+    settings = LiveSettings(band_hz=args.band, fraction=args.fraction,
+                            block_size=args.block, overlap=args.overlap,
+                            window_s=args.window, depth_m=args.depth,
+                            grid_shape=(args.grid, args.grid), camera=args.camera,
+                            clean_sc=args.clean_sc, dynamic_range_db=args.range_db,
+                            image_scale=args.scale)
+    video = VideoFile(args.out, args.fps)
+    if args.recording is not None:
+        n = _video_of_recording(args.recording, geometry, settings, args.fps, video)
+    else:
+        n = _video_of_live(args, geometry, settings, video)
     print(f"wrote {args.out}: {n} frames at {args.fps:g} fps")
     return 0
 
 
 def _video_of_recording(path: Path, geometry, settings, fps: float, video) -> int:
     from acquisition.live.record import read_live_recording
-    from acquisition.contracts.session import SessionError
     from calibration.imaging.live import LiveImager
     from micam.live_feed import mic_columns
     from calibration.imaging.live_frames import MapFrames, caption_of
 
-    try:
-        codes, fs, first, frames, config = read_live_recording(path, settings.camera)
-    except SessionError as exc:
-        raise ValueError(str(exc)) from None
+    codes, fs, first, frames, config = read_live_recording(path, settings.camera)
     imager = LiveImager(geometry, settings, fs)
     drawn = MapFrames(imager, fps, caption_of(imager))
     for frame in frames:
@@ -145,8 +138,8 @@ def _video_of_live(args: argparse.Namespace, geometry, settings, video) -> int:
     with client_from_args(args) as client:
         status = client.status()
         if status.live is None:
-            raise ValueError("the daemon is not in live mode; `micam live start` first, or "
-                             "film a recording with --recording")
+            raise UserError("the daemon is not in live mode; `micam live start` first, or "
+                            "film a recording with --recording")
         imager = LiveImager(geometry, settings, status.live.sample_rate_hz)
         with LiveFeed(client, MapFrames(imager, args.fps, caption_of(imager)),
                       geometry) as feed, video:

@@ -52,6 +52,8 @@ def run(args: argparse.Namespace) -> int:
     from calibration.figures.style import save
     from calibration.pipeline import measure
     from calibration.study import PAPER_TABLE_II_MM, source_count_study, sources_needed
+    from pydantic import ValidationError
+
     from sim.capture import SimulationOptions
 
     bands = [_band(b) for b in args.bands]
@@ -67,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             options = SimulationOptions(array=args.array, poses=args.poses, distance_m=band,
                                         seed=args.seed + i, mls_order=args.mls_order)
-        except ValueError as exc:
+        except ValidationError as exc:
             raise UserError(f"band {band}: {exc}") from None
         truth = record_simulated_session(session, options)
         rows = source_count_study(measure(session), truth, args.sources, args.trials,

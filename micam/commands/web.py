@@ -47,19 +47,15 @@ def _live_stream(args: argparse.Namespace):  # -> LiveStream | None
     if args.geometry is None:
         return None
     from acquisition.daemon.client import client_from_args
-    from acquisition.contracts.errors import UserError
     from micam.web.live_stream import LiveStream
     from calibration.imaging import load_geometry
     from calibration.imaging.live import LiveSettings
 
-    try:
-        settings = LiveSettings(band_hz=args.band, fraction=args.fraction, depth_m=args.depth,
-                                clean_sc=args.clean_sc, dynamic_range_db=args.range_db,
-                                image_scale=0.5)
-        geometry = load_geometry(args.geometry)
-        geometry.camera(settings.camera)
-    except ValueError as exc:
-        raise UserError(str(exc)) from None
+    settings = LiveSettings(band_hz=args.band, fraction=args.fraction, depth_m=args.depth,
+                            clean_sc=args.clean_sc, dynamic_range_db=args.range_db,
+                            image_scale=0.5)
+    geometry = load_geometry(args.geometry)
+    geometry.camera(settings.camera)
     return LiveStream(lambda: client_from_args(args), geometry, settings, args.live_fps)
 
 

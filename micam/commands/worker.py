@@ -49,11 +49,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _size(text: str) -> int:
     """`--cache-max`: a size in bytes, with an optional unit (argparse's error if invalid)."""
+    from acquisition.contracts.errors import UserError
     from calibration.worker.cache import parse_size
 
     try:
         return parse_size(text)
-    except ValueError as exc:
+    except UserError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 

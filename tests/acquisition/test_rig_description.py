@@ -149,7 +149,7 @@ def test_a_capture_configuration_derives_its_description() -> None:
     assert d.burst.n_samples == config.burst.n_samples
     assert d.rig == config.rig
     assert d.cameras[0].width == 1280
-    with pytest.raises(ValueError, match="no image of camera cam0"):
+    with pytest.raises(DescriptionError, match="no image of camera cam0"):
         config.description({})
 
 

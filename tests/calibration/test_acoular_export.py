@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from calibration.errors import CalibrationInputError
 from calibration.result import (
     CalibrationResult,
     MicrophoneResponse,
@@ -73,5 +74,5 @@ def test_an_xml_counting_from_point_1_is_refused_with_the_reason(tmp_path: Path)
 
     positions = np.array([[0.0, 0.1, 0.2], [0.0, 0.0, 0.0], [1.0, 1.0, 1.0]])
     ac.MicGeom(pos_total=positions).export_mpos(str(tmp_path / "theirs.xml"))
-    with pytest.raises(ValueError, match=r'lacks microphones \[0\].*counting from "Point 1"'):
+    with pytest.raises(CalibrationInputError, match=r'lacks microphones \[0\].*counting from "Point 1"'):
         load_prior_positions(tmp_path / "theirs.xml", np.arange(3))

@@ -8,9 +8,10 @@ import pytest
 
 from acquisition.contracts.air import piston_directivity, speed_of_sound
 from sim.air_sensor import SimulatedAirSensor
+from sim.analog_bench import AcousticBench
 from sim.arrays import planar64, sphere72
 from sim.arrivals import SpeakerState, linear_phase, transfer_functions
-from sim.analog_bench import AcousticBench
+from sim.errors import SimulationInputError
 from sim.lab import EFFECTS, LabEffects, LabTruth, RoomModel
 from sim.world import World
 
@@ -31,7 +32,7 @@ def test_profiles_and_names() -> None:
     assert LabEffects.ideal().names == ()
     assert LabEffects.realistic().names == EFFECTS
     assert LabEffects.with_effects(["room", "directivity"]).names == ("room", "directivity")
-    with pytest.raises(ValueError, match="unknown lab effect"):
+    with pytest.raises(SimulationInputError, match="unknown lab effect"):
         LabEffects.with_effects(["rooms"])
 
 

@@ -7,9 +7,10 @@ import pytest
 
 from daq import board_model
 from sim.arrays import ARRAY_KINDS, array_layout, sphere72
+from sim.errors import SimulationInputError
 from sim.geometry import Rig
-from sim.simulated_operator import SimulatedOperator, reference_stand_position
 from sim.poses import PoseSamplingError, in_view, rig_points, sample_poses
+from sim.simulated_operator import SimulatedOperator, reference_stand_position
 from sim.world import World
 
 
@@ -37,7 +38,7 @@ def test_every_layout_has_distinct_channels(kind: str) -> None:
 
 
 def test_unknown_array_is_refused() -> None:
-    with pytest.raises(ValueError, match="sphere72"):
+    with pytest.raises(SimulationInputError, match="sphere72"):
         array_layout("cube")
 
 

@@ -15,6 +15,7 @@ from typing import Annotated, Any, Final, Literal
 
 from pydantic import AfterValidator, AwareDatetime, BaseModel, ConfigDict, Field, TypeAdapter
 
+from ..errors import UserError
 from ..safe_names import SafeName, SafeRelativePath, is_step_id
 
 SCHEMA_VERSION: Final = 1
@@ -34,7 +35,7 @@ StepId = Annotated[str, AfterValidator(_step_id)]
 Sha256 = Annotated[str, Field(pattern=r"^[0-9a-f]{64}$")]
 
 
-class SessionError(RuntimeError):
+class SessionError(UserError):
     """A session directory cannot be created, written, resumed or read as asked.
 
     The message names the session, step or file concerned and says what to do about it.

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from calibration.errors import CalibrationInputError
 from calibration.imaging import (
     Formulation,
     PlaneGrid,
@@ -186,7 +187,7 @@ def test_single_precision_steering_vectors_keep_float64_phases() -> None:
         np.testing.assert_allclose(h, exact, rtol=0, atol=2e-6 * np.abs(exact).max())
     with pytest.raises(ValueError, match="complex64 or complex128"):
         next(model.vectors_at(freqs, np.float32))
-    with pytest.raises(ValueError, match="precision"):
+    with pytest.raises(CalibrationInputError, match="precision"):
         beamform_csm(model.vectors(1000.0), np.eye(72), precision="half")
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from calibration.errors import CalibrationInputError
 from calibration.imaging import (
     CleanScOptions,
     PlaneGrid,
@@ -98,7 +99,7 @@ def test_stop_rules_and_options() -> None:
     assert clean_sc(csm, h, CleanScOptions(min_peak_db=10)).n_iterations <= 3
     sijtsma = clean_sc(csm, h, CleanScOptions(stop_rule="csm-norm"))
     assert sijtsma.n_iterations < 2 * len(MICS)
-    with pytest.raises(ValueError, match="loop gain"):
+    with pytest.raises(CalibrationInputError, match="loop gain"):
         CleanScOptions(loop_gain=0.0)
     with pytest.raises(ValueError):
         CleanScOptions(stop_rule="never")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from calibration.errors import CalibrationInputError
 from calibration.imaging import (
     WelchOptions,
     band_bins,
@@ -92,19 +93,20 @@ def test_acoular_block_count_is_the_float_quirk() -> None:
     assert WelchOptions().n_blocks(192_000) == 92
 
 
-@pytest.mark.parametrize(("call", "message"), [
-    (lambda: band_bins(45_000.0, 3, 4096, 96_000.0), "Nyquist"),
-    (lambda: band_bins(100.0, 12, 256, 96_000.0), "holds no bin"),
+@pytest.mark.parametrize(("call", "message", "error"), [
+    (lambda: band_bins(45_000.0, 3, 4096, 96_000.0), "Nyquist", CalibrationInputError),
+    (lambda: band_bins(100.0, 12, 256, 96_000.0), "holds no bin", CalibrationInputError),
     (lambda: cross_spectra(np.zeros((100, 2)), 1e3, [1], WelchOptions(block_size=256)),
-     "fewer than one block"),
+     "fewer than one block", CalibrationInputError),
+    (lambda: WelchOptions(overlap=1.0), "overlap", CalibrationInputError),
+    # the calling code's mistakes, not the user's: bugs
     (lambda: cross_spectra(np.zeros((1000, 2)), 1e3, [129], WelchOptions(block_size=256)),
-     "Nyquist"),
+     "Nyquist", ValueError),
     (lambda: cross_spectra(np.zeros(1000), 1e3, [1], WelchOptions(block_size=256)),
-     "n_channels"),
+     "n_channels", ValueError),
     (lambda: cross_spectra(np.zeros((1000, 2)), 1e3, [], WelchOptions(block_size=256)),
-     "no frequency"),
-    (lambda: WelchOptions(overlap=1.0), "overlap"),
+     "no frequency", ValueError),
 ])
-def test_bad_input_is_refused_clearly(call, message: str) -> None:
-    with pytest.raises(ValueError, match=message):
+def test_bad_input_is_refused_clearly(call, message: str, error: type[Exception]) -> None:
+    with pytest.raises(error, match=message):
         call()

@@ -8,6 +8,7 @@ import re
 import numpy as np
 import pytest
 
+from calibration.errors import CalibrationInputError
 from calibration.imaging import SteeringModel, WelchOptions
 from calibration.imaging.csm import CrossSpectra
 from calibration.imaging.csm_calibration import (
@@ -90,9 +91,9 @@ def test_eigenvalue_calibration_refuses_two_sources() -> None:
     other = np.array([-0.2, 0.1, 0.9])
     csm = np.array([point_source_csm(MICS, np.vstack([SOURCE, other]), [1.0, 0.7], f)
                     for f in FREQS])
-    with pytest.raises(ValueError, match="not dominated by one source"):
+    with pytest.raises(CalibrationInputError, match="not dominated by one source"):
         eigen_calibration(spectra_of(csm), _transfer(FREQS), np.array([8000.0]), 12, "test")
-    with pytest.raises(ValueError, match="no bin"):
+    with pytest.raises(CalibrationInputError, match="no bin"):
         eigen_calibration(spectra_of(csm), _transfer(FREQS), np.array([12000.0]), 12, "test")
 
 
@@ -100,7 +101,7 @@ def test_simulated_phase_error_has_the_asked_spread() -> None:
     error = simulated_phase_error(2000, 2.0, seed=3)
     assert np.std(np.degrees(np.angle(error.responses))) == pytest.approx(2.0, rel=0.05)
     assert np.all(np.abs(error.responses) == pytest.approx(1.0))
-    with pytest.raises(ValueError, match="0-90"):
+    with pytest.raises(CalibrationInputError, match="0-90"):
         simulated_phase_error(3, -1.0)
 
 
@@ -131,5 +132,5 @@ def test_responses_from_a_result_document_and_its_errors() -> None:
         "microphones": {"microphone_responses": {"frequencies_hz": [1.0]}},
     }
     for message, document in bad.items():
-        with pytest.raises(ValueError, match=re.escape(message)):
+        with pytest.raises(CalibrationInputError, match=re.escape(message)):
             responses_from_document(document, (0, 1, 2, 3), "result.json")

@@ -11,12 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from micam.commands import evaluate_imaging
 from acquisition.contracts.errors import UserError
 from acquisition.contracts.session import SessionReader
 from calibration.imaging import load_geometry
 from calibration.imaging.csm_calibration import simulated_phase_error
 from calibration.imaging.evaluate import ImagingSettings, channel_calibration, evaluate_session
+from micam.commands import evaluate_imaging
 from tests.conftest import simulated_session
 
 from .test_evaluate import run_command

@@ -10,11 +10,12 @@ import cv2
 import numpy as np
 import pytest
 
-from micam.commands import evaluate_imaging, image, simulate
 from acquisition.contracts.errors import UserError
 from acquisition.contracts.session import SessionReader
+from calibration.errors import CalibrationInputError
 from calibration.imaging import load_geometry
 from calibration.imaging.evaluate import ImagingSettings, evaluate_session
+from micam.commands import evaluate_imaging, image, simulate
 
 
 def run_command(module, argv: list[str]) -> int:
@@ -67,8 +68,8 @@ def _png_pixel(fig, ax, xy: np.ndarray) -> np.ndarray:
 def test_map_figure_marks_speakers_and_sources_at_their_pixels(session: Path,
                                                               tmp_path: Path) -> None:
     from calibration.figures.maps import PLAYING_COLOUR, map_colours
-    from calibration.figures.style import save
     from calibration.figures.recording_map import recording_map
+    from calibration.figures.style import save
 
     drawn = recording_map(SessionReader(session), load_geometry(session / "truth.json"), 0, 2,
                           8000.0, ImagingSettings(bands_hz=(8000.0,)), dynamic_range_db=20.0)
@@ -158,7 +159,7 @@ def test_geometry_adds_each_microphones_own_delay(session: Path, tmp_path: Path)
                                plain.mic_latencies_s)
     truth["microphones"][3]["delay_s"] = float("nan")
     path.write_text(json.dumps(truth))
-    with pytest.raises(ValueError, match="finite"):
+    with pytest.raises(CalibrationInputError, match="finite"):
         load_geometry(path)
 
 

@@ -9,11 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from micam.commands import evaluate_imaging
 from acquisition.contracts.errors import UserError
+from calibration.errors import CalibrationInputError
 from calibration.imaging import load_geometry
 from calibration.imaging.evaluate import ImagingSettings
 from calibration.imaging.holdout import cross_validate, fold_poses
+from micam.commands import evaluate_imaging
 from tests.conftest import simulated_session
 
 from .test_evaluate import run_command
@@ -31,11 +32,11 @@ def session(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_folds_deal_the_poses_and_keep_enough_to_calibrate() -> None:
     assert fold_poses([0, 1, 2, 3, 4], 2) == [[0, 2, 4], [1, 3]]
     assert fold_poses([0, 1, 2], 3) == [[0], [1], [2]]
-    with pytest.raises(ValueError, match="2 poses to calibrate from"):
+    with pytest.raises(CalibrationInputError, match="2 poses to calibrate from"):
         fold_poses([0, 1, 2], 2)
-    with pytest.raises(ValueError, match="cannot be split into 7 folds"):
+    with pytest.raises(CalibrationInputError, match="cannot be split into 7 folds"):
         fold_poses([0, 1, 2, 3, 4, 5], 7)
-    with pytest.raises(ValueError, match="at least 2"):
+    with pytest.raises(CalibrationInputError, match="at least 2"):
         fold_poses([0, 1, 2, 3], 1)
 
 

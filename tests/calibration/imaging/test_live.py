@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from calibration.errors import CalibrationInputError
 from calibration.imaging.csm import WelchOptions, band_bins, cross_spectra
 from calibration.imaging.csm_calibration import ChannelResponses, correct_csm
 from calibration.imaging.geometry import geometry_from_dict
@@ -67,7 +68,7 @@ def test_the_depth_plane_fills_the_image_and_a_smaller_image_samples_the_same_ma
                                0.25 * (full[200:760:14, 200:1080:14] + full[201:761:14, 200:1080:14]
                                        + full[200:760:14, 201:1081:14]
                                        + full[201:761:14, 201:1081:14]), atol=2e-3)
-    with pytest.raises(ValueError, match="depth"):
+    with pytest.raises(CalibrationInputError, match="depth"):
         depth_plane_grid(camera, -1.0)
 
 
@@ -120,7 +121,7 @@ def test_a_frame_is_drawn_over_the_camera_image_at_the_map_peak(world) -> None:
 
 
 def test_settings_refuse_a_band_that_is_neither_octave_nor_third() -> None:
-    with pytest.raises(ValueError, match="octave"):
+    with pytest.raises(CalibrationInputError, match="octave"):
         LiveSettings(fraction=12)
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from calibration.errors import CalibrationInputError
 from calibration.imaging import CameraView, CleanScOptions, SteeringModel, beamform_csm, clean_sc
 from calibration.imaging.evaluate import rig_grid
 from calibration.imaging.geometry import BoardPose
@@ -67,7 +68,7 @@ def test_field_of_view_grid_covers_the_whole_image(scene, camera: int) -> None:
     np.testing.assert_allclose(grid.spacing(), (0.01, 0.01))
     coarse = field_of_view_grid(view_of(model), pose, -0.0025, 0.001, max_points=10_000)
     assert coarse.size <= 10_000 and coarse.spacing()[0] > 0.001
-    with pytest.raises(ValueError, match="spacing"):
+    with pytest.raises(CalibrationInputError, match="spacing"):
         field_of_view_grid(view_of(model), pose, -0.0025, 0.0)
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import threading
 import time
 from collections.abc import Iterator
@@ -143,6 +144,23 @@ def test_bad_jobs_get_clear_errors_and_the_worker_keeps_serving(
     assert done.job_id == good.job_id
     assert hashlib.sha256(frames[1]).hexdigest() == done.result_sha256
     assert len(json.loads(frames[1])["microphones"]) == 48
+
+
+def test_a_bug_in_the_calibration_is_retryable_with_its_traceback_in_the_log(
+        daemon: ScriptedDaemon, session: Path, monkeypatch: pytest.MonkeyPatch,
+        caplog: pytest.LogCaptureFixture) -> None:
+    from tests.micam.test_bugs_are_bugs import BROADCAST_BUG, inject_solver_bug
+
+    inject_solver_bug(monkeypatch)
+    caplog.set_level(logging.ERROR, logger="micam.worker")
+    daemon.offer(job_for_session(session, "final"))
+    failed, _ = daemon.receive(Failed)
+    assert failed.retryable, failed.reason
+    assert "internal error" in failed.reason and BROADCAST_BUG in failed.reason
+    tracebacks = [logging.Formatter().formatException(r.exc_info) for r in caplog.records
+                  if r.exc_info is not None]
+    assert any("broken_solve" in text and BROADCAST_BUG in text for text in tracebacks), \
+        "the bug's traceback is not in the worker's log"
 
 
 def test_a_job_that_would_leave_the_cache_is_refused(daemon: ScriptedDaemon, session: Path,

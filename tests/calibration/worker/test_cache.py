@@ -11,6 +11,7 @@ import pytest
 from micam.cli import build_parser
 from acquisition.contracts.job_messages import Done, Job, JobFile, JournalPrefix
 from calibration.worker import Worker, WorkerSettings
+from calibration.errors import CalibrationInputError
 from calibration.worker.cache import DEFAULT_MAX_BYTES, JOURNAL, FileCache, parse_size
 
 SHA = "0" * 64
@@ -149,7 +150,7 @@ def test_sizes_are_read_with_their_units(text: str, size: int) -> None:
 
 @pytest.mark.parametrize("text", ["", "GiB", "4 XB", "-1", "0", "4GiB extra"])
 def test_a_bad_size_says_what_is_accepted(text: str) -> None:
-    with pytest.raises(ValueError, match=r"size|byte"):
+    with pytest.raises(CalibrationInputError, match=r"size|byte"):
         parse_size(text)
 
 
