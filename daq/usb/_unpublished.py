@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from enum import StrEnum
 
 import numpy as np
 
@@ -41,6 +42,25 @@ from ._registers import (
     OutputControl,
     Reg,
 )
+
+
+class Guess(StrEnum):
+    """The guesses of this module by name, each value the module attribute that holds it.
+
+    `micam daq trace diff` names these when a capture contradicts one (a test keeps every
+    value resolvable here, so a renamed guess cannot leave the diff naming a stale one).
+    """
+
+    DT9816_RUNNING_PID = "DT9816_RUNNING_PID"
+    DT9816_VERSION_IDS = "DT9816_VERSION_IDS"
+    EXT_TRIG_POSITIVE_EDGE = "EXT_TRIG_POSITIVE_EDGE"
+    STREAM_DTYPE = "STREAM_DTYPE"
+    SCAN_REGISTERS = "ScanSettings.registers"
+    CLOCK_PERIOD = "clock_period"
+    ARM_COMMANDS = "arm_commands"
+    SOFTWARE_TRIGGER_COMMANDS = "software_trigger_commands"
+    STOP_COMMANDS = "stop_commands"
+
 
 DT9816_RUNNING_PID = 0x1698
 """Guess: the DT9816 after firmware download (byte-swapped loader id). Check with lsusb."""
