@@ -27,6 +27,10 @@ T = TypeVar("T")
 
 _LIBUSB_NO_DEVICE = -4
 _LIBUSB_PIPE = -9
+_CLEAR_FEATURE_TYPE = 0x02
+"""bmRequestType of a standard request to an endpoint, host to device (USB 2.0, 9.3)."""
+_CLEAR_FEATURE = 1
+_ENDPOINT_HALT = 0
 
 
 def usb_location(device: usb.core.Device) -> str:
@@ -72,8 +76,8 @@ class UsbTransport:
                 status = str(e)
                 raise
             finally:
-                self._trace("ctrl", "out", data, status, request=request, value=value,
-                            index=index)
+                self._trace("ctrl", "out", data, status, request_type=request_type,
+                            request=request, value=value, index=index)
         self._guard(f"control request 0x{request:02x} (value 0x{value:04x})", run)
 
     def bulk_write(self, endpoint: int, data: bytes, timeout_s: float) -> None:
@@ -117,9 +121,21 @@ class UsbTransport:
         return self._guard(f"read from endpoint 0x{endpoint:02x}", run)
 
     def clear_halt(self, endpoint: int) -> None:
-        """Clear a stall on `endpoint` (before a scan, and after a stalled transfer)."""
-        self._guard(f"clear halt on endpoint 0x{endpoint:02x}",
-                    lambda: self.device.clear_halt(endpoint))
+        """Clear a stall on `endpoint` (before a scan, and after a stalled transfer).
+
+        Traced as what goes over the wire: the standard CLEAR_FEATURE(ENDPOINT_HALT) control
+        request to the endpoint, as a usbmon capture shows it."""
+        def run() -> None:
+            status = "ok"
+            try:
+                self.device.clear_halt(endpoint)
+            except usb.core.USBError as e:
+                status = str(e)
+                raise
+            finally:
+                self._trace("ctrl", "out", None, status, request_type=_CLEAR_FEATURE_TYPE,
+                            request=_CLEAR_FEATURE, value=_ENDPOINT_HALT, index=endpoint)
+        self._guard(f"clear halt on endpoint 0x{endpoint:02x}", run)
 
     def close(self) -> None:
         """Release the interface and the handle; never raises (the board may be gone)."""
@@ -136,7 +152,8 @@ class UsbTransport:
                **fields: int) -> None:
         if self.trace is not None:
             self.trace.record(self.name, kind, direction,
-                              None if data is None else bytes(data), status, **fields)
+                              None if data is None else bytes(data), status,
+                              bus=self.device.bus, addr=self.device.address, **fields)
 
     def _guard(self, what: str, action: Callable[[], T]) -> T:
         """Run a pyusb call and translate its errors into driver errors naming the board."""
