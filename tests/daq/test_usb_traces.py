@@ -9,6 +9,7 @@ pcap and pcapng, either byte order) and USBPcap captures, byte by byte.
 
 from __future__ import annotations
 
+import json
 import struct
 from collections import defaultdict
 from collections.abc import Iterator
@@ -254,3 +255,32 @@ def test_every_guess_identity_names_an_entry_of_unpublished() -> None:
         obj: object = unpublished
         for part in guess.value.split("."):
             obj = getattr(obj, part)
+
+
+def test_show_selects_by_device_serial_and_time_and_prints_pure_json(
+        run: Run, capsys: pytest.CaptureFixture[str]) -> None:
+    capture = str(run.captures["usbmon-220.pcap"])
+    assert main(["daq", "trace", "show", capture, "--json"]) == 0
+    lines = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert {e["device"] for e in lines} == {"1:2", "1:3", "1:4", "1:5"}
+    assert all(e["kind"] != "poll" for e in lines)
+    version = next(e for e in lines if e["kind"] == "reply" and e["device"] == "1:5")
+    assert version["values"] == [{"register": "VERSION_ID", "value": 0x4816}]
+    stream = next(e for e in lines if e["kind"] == "stream" and e["endpoint"] == 0x82)
+    assert (stream["frames"], stream["torn_bytes"], len(stream["first_frame"])) == (N, 0, 12)
+
+    assert main(["daq", "trace", "show", capture, "--serial", "4", "--json"]) == 0
+    serial4 = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert {e["device"] for e in serial4} == {"1:5"}
+    assert serial4[0]["command"] == "R_SINGLE_WORD_LB"  # held until the serial showed
+    assert main(["daq", "trace", "show", capture, "--device", "1:2", "--json"]) == 0
+    assert {json.loads(x)["kind"] for x in capsys.readouterr().out.splitlines()} == {"firmware"}
+
+    t = [e["t"] for e in lines]
+    start, end = t[len(t) // 3], t[2 * len(t) // 3]
+    assert main(["daq", "trace", "show", capture, "--from", str(start), "--to", str(end),
+                 "--json", "--polls"]) == 0
+    window = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
+    assert window and all(start <= e["t"] <= end for e in window)
+    assert main(["daq", "trace", "show", capture, "--polls"]) == 0
+    assert " poll     bulk in 0x88: nothing (cancelled)" in capsys.readouterr().out
