@@ -16,10 +16,12 @@ and FPGA register map. *Not* public, and therefore guessed here:
 - the stream formats: one frame per sample clock edge, the enabled channels in ascending
   order, each sample a little-endian signed 16-bit code, on 0x82 (inputs) and 0x06 (outputs).
 
-How to correct it: run the driver with a transfer trace (`TransferTrace`) and compare it with a
-usbmon / USBPcap capture of Data Translation's software doing the same scan; change the values
-here. The emulated device (sim.usb) imports the same guesses, so its tests keep passing and the
-emulator follows automatically.
+How to correct it: capture Data Translation's software doing a scan (usbmon or USBPcap) and
+micam doing the same (a capture or a `TransferTrace`); `micam daq trace diff` names the entry
+below (`Guess`) each difference contradicts; change the values here and pin them in
+tests/daq/test_usb_guesses_pinned.py (docs/usb-protocol.md, "Correcting the guesses"). The
+emulated device (sim.usb) imports the same guesses, so its tests keep passing and the emulator
+follows automatically.
 """
 
 from __future__ import annotations
