@@ -11,7 +11,8 @@
 docs/usb-protocol.md, "Correcting the guesses against real hardware", is the procedure.
 """
 
-from ._decode import Decoder, DeviceInfo, Event, Op, decode
+from ._decode import Decoder, decode
+from ._events import DeviceInfo, Event, Op
 from ._diff import Difference, TraceDiff, diff_traces
 from ._errors import TraceError, WriteRefusedError
 from ._probe import ProbedBoard, ProbeReport, ReadOnlyChannel, probe

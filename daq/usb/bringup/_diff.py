@@ -26,7 +26,8 @@ from typing import Any
 
 from .._families import DT9816
 from .._unpublished import Guess
-from ._decode import Decoder, DeviceInfo, Event, Op
+from ._decode import Decoder
+from ._events import DeviceInfo, Event, Op
 from ._errors import TraceError
 from ._read import read_transfers
 from ._select import Selection, select

@@ -11,7 +11,8 @@ from __future__ import annotations
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 
-from ._decode import Decoder, Event
+from ._decode import Decoder
+from ._events import Event
 
 MAX_HELD = 10_000
 """Events held per device while its serial is unknown; a device past it does not match."""
