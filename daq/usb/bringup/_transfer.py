@@ -93,3 +93,12 @@ class Transfer:
 def device_key(bus: int, address: int) -> str:
     """The name of a device in every decoded file: "BUS:ADDRESS", as `--device` takes it."""
     return f"{bus}:{address}"
+
+
+def incomplete(t: float, device: str, kind: Kind, endpoint: int, setup: Setup | None,
+               submitted: int, data: bytes, source: int) -> Transfer:
+    """A submission the capture holds no completion of: an OUT transfer with what it
+    submitted, an IN transfer with nothing received."""
+    is_in = bool(endpoint & 0x80)
+    return Transfer(t, device, kind, endpoint, setup, 0 if is_in else submitted,
+                    b"" if is_in else data, Status.INCOMPLETE, "no completion", source)

@@ -36,7 +36,7 @@ from pathlib import Path
 
 from ._errors import TraceError
 from ._files import LINKTYPE_USB_LINUX_MMAPPED, Record
-from ._transfer import DATA_BYTES, Kind, Setup, Status, Transfer, device_key
+from ._transfer import DATA_BYTES, Kind, Setup, Status, Transfer, device_key, incomplete
 
 MAX_PENDING = 65_536
 """Submissions awaiting their completion; beyond it the oldest is given up as INCOMPLETE."""
@@ -123,9 +123,6 @@ def _transfer(submitted: _Event | None, completed: _Event, t0: float) -> Transfe
                     setup, length, data, status, detail, completed.index)
 
 
-def _abandoned(submitted: _Event, t0: float) -> Transfer:
-    is_in = bool(submitted.endpoint & 0x80)
-    return Transfer(submitted.ts - t0, submitted.device, submitted.kind, submitted.endpoint,
-                    submitted.setup, 0 if is_in else submitted.length,
-                    b"" if is_in else submitted.data, Status.INCOMPLETE, "no completion",
-                    submitted.index)
+def _abandoned(s: _Event, t0: float) -> Transfer:
+    return incomplete(s.ts - t0, s.device, s.kind, s.endpoint, s.setup, s.length, s.data,
+                      s.index)

@@ -32,7 +32,7 @@ from pathlib import Path
 
 from ._errors import TraceError
 from ._files import Record
-from ._transfer import DATA_BYTES, Kind, Setup, Status, Transfer, device_key
+from ._transfer import DATA_BYTES, Kind, Setup, Status, Transfer, device_key, incomplete
 
 MAX_PENDING = 65_536
 """Requests awaiting their completion; beyond it the oldest is given up as INCOMPLETE."""
@@ -129,9 +129,6 @@ def _transfer(request: _Request, record: Record, t0: float, status: int,
                     record.index)
 
 
-def _abandoned(request: _Request, t0: float) -> Transfer:
-    is_in = bool(request.endpoint & 0x80)
-    return Transfer(request.ts - t0, request.device, request.kind, request.endpoint,
-                    request.setup, 0 if is_in else request.out_length,
-                    b"" if is_in else request.out, Status.INCOMPLETE, "no completion",
-                    request.index)
+def _abandoned(r: _Request, t0: float) -> Transfer:
+    return incomplete(r.ts - t0, r.device, r.kind, r.endpoint, r.setup, r.out_length, r.out,
+                      r.index)
