@@ -178,6 +178,7 @@ def run_probe(args: argparse.Namespace) -> int:
         with TransferTrace(trace_path) as trace:
             report = probe(backend, trace)
     except (usb.core.NoBackendError, usb.core.USBError) as exc:
+        trace_path.unlink(missing_ok=True)
         raise UserError(f"cannot scan the USB bus: {exc}. Is libusb-1.0 installed (Debian: "
                         "libusb-1.0-0), and may this user open the boards "
                         "(micam/data/udev/README.md, `micam install udev`)?") from None

@@ -98,3 +98,18 @@ def test_micam_daq_probe_writes_a_report_and_a_trace(tmp_path: Path,
     assert {type(decode_command(t.data)) for t in commands} == {ReadWord, ReadI2cBytes}
     assert main(["daq", "probe", "--emulate", "--out", str(tmp_path / "none")]) == 2
     assert "is not a directory" in capsys.readouterr().err
+
+
+def test_probe_without_libusb_is_one_line_and_leaves_no_file(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    import daq.usb.bringup
+
+    def no_backend(*args: object) -> None:
+        raise usb.core.NoBackendError("No backend available")
+
+    monkeypatch.setattr(daq.usb.bringup, "probe", no_backend)
+    assert main(["daq", "probe", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "cannot scan the USB bus" in err
+    assert list(tmp_path.iterdir()) == []

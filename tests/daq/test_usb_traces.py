@@ -168,6 +168,8 @@ def test_diff_of_the_driver_against_itself_is_empty(run: Run,
     assert "no differences" in out
     # a capture started after enumeration holds no device descriptor: no product id
     assert "board: 1:4 DT9836-12-2 serial 3  <->  1:4 0867:3698 DT9836-12-2 serial 3" in out
+    assert main(["daq", "trace", "diff", str(run.trace), str(run.trace), "--serial", "99"]) == 2
+    assert "has no board with serial 99 with commands" in capsys.readouterr().err
 
 
 # -- injected differences: the emulated driver with one guess changed -------------------------

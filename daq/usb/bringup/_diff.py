@@ -128,6 +128,11 @@ class TraceDiff:
 def diff_traces(a: Path, b: Path, serial: str | None = None) -> TraceDiff:
     """Compare the traces at `a` and `b` (any format `read_transfers` reads)."""
     boards_a, boards_b = _boards(a, serial), _boards(b, serial)
+    for path, boards in ((a, boards_a), (b, boards_b)):
+        if not boards:
+            which = f"with serial {serial} " if serial is not None else ""
+            raise TraceError(f"{path} has no board {which}with commands to compare; "
+                             "`micam daq trace show` lists its devices")
     pairs, differences = [], []
     for board_a, board_b in _pair(boards_a, boards_b):
         labels = (board_a.info.label() if board_a else "-", board_b.info.label() if board_b
