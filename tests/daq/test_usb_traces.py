@@ -286,3 +286,23 @@ def test_show_selects_by_device_serial_and_time_and_prints_pure_json(
     assert window and all(start <= e["t"] <= end for e in window)
     assert main(["daq", "trace", "show", capture, "--polls"]) == 0
     assert " poll     bulk in 0x88: nothing (cancelled)" in capsys.readouterr().out
+
+
+def test_a_record_of_a_real_wireshark_usbmon_capture_reads_as_wireshark_shows_it(
+        tmp_path: Path) -> None:
+    """The 64-byte header of a GET_DESCRIPTOR submission as Wireshark captured it on usbmon2
+    (a public capture: Wireshark shows URB id 0xffff880151d719c0, 'S', control, endpoint 0x80,
+    device 40, bus 2, setup 80 06 00 01 00 00 12 00, -EINPROGRESS, length 18)."""
+    record = bytes.fromhex(
+        "c019d7510188ffff 53 02 80 28 0200 00 3c"  # id, 'S', control, 0x80, 40, bus 2, 0, '<'
+        "9a48865800000000 d9340800 8dffffff"  # ts_sec, ts_usec, status -115
+        "12000000 00000000 8006000100001200"  # length 18, len_cap 0, setup
+        "00000000 00000000 00020000 00000000")  # interval, start_frame, xfer_flags, ndesc
+    assert len(record) == 64
+    path = write_pcap(tmp_path / "wireshark.pcap", 220, [(1485195418.537817, record)])
+    [t] = list(read_transfers(path))
+    assert (t.device, t.kind, t.endpoint, t.status) == ("2:40", "ctrl", 0x80, "incomplete")
+    assert t.setup is not None and (t.setup.request_type, t.setup.request, t.setup.value,
+                                    t.setup.length) == (0x80, 6, 0x0100, 18)
+    [event] = list(decode([t]))
+    assert event.text.startswith("GET_DESCRIPTOR value 0x0100 index 0x0000")
