@@ -3,10 +3,13 @@
 Why: the DT9836 stream format and start sequence and all of the DT9816 protocol are guesses
 (see `_unpublished`). A lab with the hardware runs the driver with a trace and compares it with
 a usbmon / USBPcap capture of Data Translation's own software; the differences say what to
-correct. Each line holds: `t` (seconds since the trace was opened, monotonic clock), `wall`
-(Unix time, seconds), `dev` (the board's name), `kind` ("ctrl" or "bulk"), `dir` ("out"/"in"),
-`ep` (endpoint address) or the control setup fields, `len` (bytes transferred), `status` ("ok"
-or the error) and `data` (hex, cut to `max_data_bytes` so a 14 MB/s stream stays traceable).
+correct (`micam daq trace diff`, `daq.usb.bringup`, reads these files and the captures). Each
+line holds: `t` (seconds since the trace was opened, monotonic clock), `wall` (Unix time,
+seconds), `dev` (the board's name), `bus` and `addr` (its USB bus number and device address, as
+a capture names it), `kind` ("ctrl" or "bulk"), `dir` ("out"/"in"), `ep` (endpoint address) or
+the control setup fields (`request_type`, `request`, `value`, `index`), `len` (bytes
+transferred), `status` ("ok" or the error) and `data` (hex, cut to `max_data_bytes` so a
+14 MB/s stream stays traceable).
 """
 
 from __future__ import annotations

@@ -27,6 +27,10 @@ T = TypeVar("T")
 
 _LIBUSB_NO_DEVICE = -4
 _LIBUSB_PIPE = -9
+_CLEAR_FEATURE_TYPE = 0x02
+"""bmRequestType of a standard request to an endpoint, host to device (USB 2.0, 9.3)."""
+_CLEAR_FEATURE = 1
+_ENDPOINT_HALT = 0
 
 
 def usb_location(device: usb.core.Device) -> str:
@@ -63,30 +67,17 @@ class UsbTransport:
     def control_out(self, request: int, value: int, index: int, data: bytes,
                     timeout_s: float, request_type: int) -> None:
         """A control transfer from host to device (used by the FX2 firmware loader)."""
-        def run() -> None:
-            status = "ok"
-            try:
-                self.device.ctrl_transfer(request_type, request, value, index, data,
-                                          _ms(timeout_s))
-            except usb.core.USBError as e:
-                status = str(e)
-                raise
-            finally:
-                self._trace("ctrl", "out", data, status, request=request, value=value,
-                            index=index)
-        self._guard(f"control request 0x{request:02x} (value 0x{value:04x})", run)
+        what = f"control request 0x{request:02x} (value 0x{value:04x})"
+        self._guard(what, lambda: self._traced(
+            lambda: self.device.ctrl_transfer(request_type, request, value, index, data,
+                                              _ms(timeout_s)),
+            "ctrl", data, request_type=request_type, request=request, value=value, index=index))
 
     def bulk_write(self, endpoint: int, data: bytes, timeout_s: float) -> None:
         """Write all of `data` to a bulk OUT endpoint."""
         def run() -> None:
-            status = "ok"
-            try:
-                written = self.device.write(endpoint, data, _ms(timeout_s))
-            except usb.core.USBError as e:
-                status = str(e)
-                raise
-            finally:
-                self._trace("bulk", "out", data, status, ep=endpoint)
+            written = self._traced(lambda: self.device.write(endpoint, data, _ms(timeout_s)),
+                                   "bulk", data, ep=endpoint)
             if written != len(data):
                 raise UsbTransferError(
                     f"{self.name}: endpoint 0x{endpoint:02x} took {written} of {len(data)} "
@@ -117,9 +108,14 @@ class UsbTransport:
         return self._guard(f"read from endpoint 0x{endpoint:02x}", run)
 
     def clear_halt(self, endpoint: int) -> None:
-        """Clear a stall on `endpoint` (before a scan, and after a stalled transfer)."""
-        self._guard(f"clear halt on endpoint 0x{endpoint:02x}",
-                    lambda: self.device.clear_halt(endpoint))
+        """Clear a stall on `endpoint` (before a scan, and after a stalled transfer).
+
+        Traced as what goes over the wire: the standard CLEAR_FEATURE(ENDPOINT_HALT) control
+        request to the endpoint, as a usbmon capture shows it."""
+        self._guard(f"clear halt on endpoint 0x{endpoint:02x}", lambda: self._traced(
+            lambda: self.device.clear_halt(endpoint), "ctrl", None,
+            request_type=_CLEAR_FEATURE_TYPE, request=_CLEAR_FEATURE, value=_ENDPOINT_HALT,
+            index=endpoint))
 
     def close(self) -> None:
         """Release the interface and the handle; never raises (the board may be gone)."""
@@ -132,11 +128,24 @@ class UsbTransport:
             self._claimed = False
             usb.util.dispose_resources(self.device)
 
+    def _traced(self, call: Callable[[], T], kind: str, data: bytes | None,
+                **fields: int) -> T:
+        """Run one OUT transfer (`call`, a pyusb call) and trace it, whatever its outcome."""
+        status = "ok"
+        try:
+            return call()
+        except usb.core.USBError as e:
+            status = str(e)
+            raise
+        finally:
+            self._trace(kind, "out", data, status, **fields)
+
     def _trace(self, kind: str, direction: str, data: bytes | memoryview | None, status: str,
                **fields: int) -> None:
         if self.trace is not None:
             self.trace.record(self.name, kind, direction,
-                              None if data is None else bytes(data), status, **fields)
+                              None if data is None else bytes(data), status,
+                              bus=self.device.bus, addr=self.device.address, **fields)
 
     def _guard(self, what: str, action: Callable[[], T]) -> T:
         """Run a pyusb call and translate its errors into driver errors naming the board."""

@@ -16,16 +16,19 @@ and FPGA register map. *Not* public, and therefore guessed here:
 - the stream formats: one frame per sample clock edge, the enabled channels in ascending
   order, each sample a little-endian signed 16-bit code, on 0x82 (inputs) and 0x06 (outputs).
 
-How to correct it: run the driver with a transfer trace (`TransferTrace`) and compare it with a
-usbmon / USBPcap capture of Data Translation's software doing the same scan; change the values
-here. The emulated device (sim.usb) imports the same guesses, so its tests keep passing and the
-emulator follows automatically.
+How to correct it: capture Data Translation's software doing a scan (usbmon or USBPcap) and
+micam doing the same (a capture or a `TransferTrace`); `micam daq trace diff` names the entry
+below (`Guess`) each difference contradicts; change the values here and pin them in
+tests/daq/test_usb_guesses_pinned.py (docs/usb-protocol.md, "Correcting the guesses"). The
+emulated device (sim.usb) imports the same guesses, so its tests keep passing and the emulator
+follows automatically.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from enum import StrEnum
 
 import numpy as np
 
@@ -41,6 +44,25 @@ from ._registers import (
     OutputControl,
     Reg,
 )
+
+
+class Guess(StrEnum):
+    """The guesses of this module by name, each value the module attribute that holds it.
+
+    `micam daq trace diff` names these when a capture contradicts one (a test keeps every
+    value resolvable here, so a renamed guess cannot leave the diff naming a stale one).
+    """
+
+    DT9816_RUNNING_PID = "DT9816_RUNNING_PID"
+    DT9816_VERSION_IDS = "DT9816_VERSION_IDS"
+    EXT_TRIG_POSITIVE_EDGE = "EXT_TRIG_POSITIVE_EDGE"
+    STREAM_DTYPE = "STREAM_DTYPE"
+    SCAN_REGISTERS = "ScanSettings.registers"
+    CLOCK_PERIOD = "clock_period"
+    ARM_COMMANDS = "arm_commands"
+    SOFTWARE_TRIGGER_COMMANDS = "software_trigger_commands"
+    STOP_COMMANDS = "stop_commands"
+
 
 DT9816_RUNNING_PID = 0x1698
 """Guess: the DT9816 after firmware download (byte-swapped loader id). Check with lsusb."""

@@ -1,4 +1,5 @@
-"""`micam daq list|selftest`: the boards on the USB bus, and a short scan on each.
+"""`micam daq list|selftest`: the boards on the USB bus, and a short scan on each
+(`trace` and `probe`, the bring-up kit, are in `daq_trace`).
 
 With `--emulate`, the same commands run the real driver against emulated boards (the
 simulated 72-microphone sphere's ten boards), which is how they are tested here.
@@ -11,6 +12,8 @@ from pathlib import Path
 from typing import Any
 
 from acquisition.contracts.errors import UserError
+
+from . import daq_trace
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -27,6 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                             help="use emulated boards instead of the USB bus")
     lst.set_defaults(run=run_list)
     test.set_defaults(run=run_selftest)
+    daq_trace.register(actions, _emulated_backend)
 
 
 def _emulated_backend() -> Any:
