@@ -10,6 +10,7 @@ import pytest
 from starlette.testclient import TestClient, WebSocketDenialResponse
 
 from acquisition.contracts.errors import UserError
+from micam.cli import main
 from micam.web.access import check_listen, read_token
 from micam.web.app import create_app
 from micam.web.hosts import ServedHosts
@@ -157,3 +158,17 @@ def test_a_command_is_json_of_the_page() -> None:
                             headers={"content-type": "application/json"})
         assert reply.status_code == 400 and why in reply.json()["error"], (body[:40], reply.text)
     assert bridge.requests == []
+
+
+@pytest.mark.parametrize(("argv", "why"), [
+    (["--allow-host", "http://rig-pc.example"], "--allow-host http://rig-pc.example: give"),
+    (["--request-timeout", "0"], "--request-timeout 0: give seconds"),
+    (["--request-timeout", "nan"], "--request-timeout nan: give seconds"),
+    (["--listen", "127.0.0.1:0"], "port from 1 to 65535"),
+    (["--listen", "127.0.0.1:٨٠"], "port from 1 to 65535"),
+])
+def test_bad_options_are_one_line_errors(argv: list[str], why: str,
+                                         capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["web", "--control", "ipc:///nonexistent/control", *argv]) == 2
+    error = capsys.readouterr().err
+    assert error.startswith("micam: error: ") and why in error and error.count("\n") == 1
