@@ -92,14 +92,8 @@ class AccessGuard:
 
     def _problem(self, scope: Scope, headers: dict[str, list[str]]
                  ) -> tuple[int, str, str] | None:
-        """Why the request's address, `Host` or `Origin` is refused (status, code, reason), or
+        """Why the request's `Host`, `Origin` or address is refused (status, code, reason), or
         None."""
-        if not scope.get("query_string", b"").isascii():
-            return 400, "bad_request", ("refused: the address holds bytes that are not ASCII "
-                                        "(percent-encode them)")
-        if scope["type"] == "websocket" and scope["path"] != WEBSOCKET_PATH:
-            return 404, "not_found", (f"there is no WebSocket at {shown(scope['path'])}; the "
-                                      f"page's is {WEBSOCKET_PATH}")
         hosts = headers.get("host", [])
         if len(hosts) != 1:
             return 400, "bad_host", (f"refused: the request has {len(hosts)} Host headers; "
@@ -121,6 +115,12 @@ class AccessGuard:
             if origin is None or not same_origin(origin, host):
                 return 403, "other_site", (f"refused: the request comes from "
                                            f"{shown(origins[0])}, another site than this page")
+        if not scope.get("query_string", b"").isascii():
+            return 400, "bad_request", ("refused: the address holds bytes that are not ASCII "
+                                        "(percent-encode them)")
+        if scope["type"] == "websocket" and scope["path"] != WEBSOCKET_PATH:
+            return 404, "not_found", (f"there is no WebSocket at {shown(scope['path'])}; the "
+                                      f"page's is {WEBSOCKET_PATH}")
         return None
 
 
