@@ -3,22 +3,24 @@
 A client (the operator's page) names a session by id and a file by a safe relative path under
 the session's `calibration/` directory (result.json, live.json, the live history, a report and
 its figures). Nothing else of the machine can be read: the id is one safe name under the
-session root, the path a safe relative path (acquisition.safe_names) that must resolve inside
-the session directory without a symbolic link at its end, the file must be a regular file, and
-it is read only up to MAX_FILE_BYTES.
+session root, the path a safe relative path (acquisition.safe_names) under calibration/, opened
+segment by segment beneath the session directory without following a symbolic link anywhere,
+the file must be a regular file with one hard link (another name of it may be anywhere on the
+disk), and it is read only up to MAX_FILE_BYTES.
 """
 
 from __future__ import annotations
 
 import base64
+import errno
 import json
 import os
 import stat
 from pathlib import Path
 
 from acquisition.contracts.session import SessionError, SessionReader
+from acquisition.contracts.safe_names import is_relative_path
 from acquisition.contracts.session._layout import attempt_dir
-from .files import open_inside
 from acquisition.contracts.protocol import (
     CalibrationFile,
     PoseQuality,
@@ -69,15 +71,18 @@ def _quality(path: Path) -> dict:
 
 
 def _calibration_files(session: Path) -> list[CalibrationFile]:
-    """The regular files under calibration/ (no symbolic links followed), sorted."""
-    found = []
+    """The files under calibration/ that `session_file` sends (regular, one link, no symbolic
+    link on the way), sorted."""
+    found: list[CalibrationFile] = []
     top = session / CALIBRATION_PREFIX.rstrip("/")
+    if top.is_symlink() or not top.is_dir():
+        return found
     for directory, dirs, files in os.walk(top, followlinks=False):
         dirs.sort()
         for name in sorted(files):
             full = Path(directory) / name
             info = full.lstat()
-            if stat.S_ISREG(info.st_mode) and not name.endswith(".partial"):
+            if _sendable(info) and not name.endswith(".partial"):
                 found.append(CalibrationFile(path=str(full.relative_to(session)),
                                              bytes=info.st_size))
             if len(found) >= MAX_REPORT_FILES:
@@ -85,19 +90,68 @@ def _calibration_files(session: Path) -> list[CalibrationFile]:
     return found
 
 
+def _sendable(info: os.stat_result) -> bool:
+    """A regular file with one name: a hard link's other name may be anywhere on the disk."""
+    return stat.S_ISREG(info.st_mode) and info.st_nlink == 1
+
+
+def _open_beneath(session: Path, relative: str) -> int:
+    """A read-only descriptor of `relative` in `session`, opened one segment at a time, each
+    relative to its parent's descriptor with O_NOFOLLOW: no symbolic link is followed anywhere
+    on the way (not only at the end), so the file is inside the session whatever happens to
+    its directories meanwhile (a realpath check before the open would race). O_NONBLOCK: a
+    FIFO opens at once instead of blocking the daemon (and is then refused as not regular).
+    ValueError says why it cannot be opened."""
+    segments = relative.split("/")
+    try:
+        directory = os.open(session, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW)
+    except OSError as exc:
+        raise ValueError(f"cannot open the session directory {session}: {exc.strerror}"
+                         ) from None
+    try:
+        for segment in segments[:-1]:
+            inner = _open_at(directory, segment, relative, os.O_DIRECTORY)
+            os.close(directory)
+            directory = inner
+        return _open_at(directory, segments[-1], relative, os.O_NONBLOCK | os.O_NOCTTY)
+    finally:
+        os.close(directory)
+
+
+def _open_at(directory: int, segment: str, relative: str, flags: int) -> int:
+    """`segment` of the open `directory`, read-only, never through a symbolic link."""
+    try:
+        return os.open(segment, os.O_RDONLY | os.O_NOFOLLOW | flags, dir_fd=directory)
+    except OSError as exc:
+        raise ValueError(f"{relative}: cannot open it: {_why_not(directory, segment, exc)}"
+                         ) from None
+
+
+def _why_not(directory: int, segment: str, exc: OSError) -> str:
+    """Why `segment` of `directory` could not be opened, for a person."""
+    try:
+        info = os.lstat(segment, dir_fd=directory)
+    except OSError:
+        return str(exc.strerror)
+    if stat.S_ISLNK(info.st_mode):
+        return f"{segment} is a symbolic link (none is followed)"
+    return f"{segment} is not a directory" if exc.errno == errno.ENOTDIR else str(exc.strerror)
+
+
 def session_file(path: Path, relative: str) -> SessionFileResult:
     """The bytes of `relative` (under calibration/) in the session at `path`; ValueError says
-    why a file cannot be sent."""
-    if not relative.startswith(CALIBRATION_PREFIX):
+    why a file cannot be sent: not a safe path under calibration/, a symbolic link anywhere on
+    its way, not a regular file, more than one hard link, longer than MAX_FILE_BYTES."""
+    if not relative.startswith(CALIBRATION_PREFIX) or not is_relative_path(relative):
         raise ValueError(f"{relative}: only files under {CALIBRATION_PREFIX} are sent")
-    try:
-        fd = open_inside(path, relative)
-    except OSError as exc:
-        raise ValueError(f"{relative}: cannot open it: {exc}") from None
+    fd = _open_beneath(path, relative)
     try:
         info = os.fstat(fd)
         if not stat.S_ISREG(info.st_mode):
             raise ValueError(f"{relative} is not a regular file")
+        if info.st_nlink != 1:
+            raise ValueError(f"{relative} has {info.st_nlink} hard links; only a file with one "
+                             "name is sent (another name may be anywhere on the disk)")
         if info.st_size > MAX_FILE_BYTES:
             raise ValueError(f"{relative} has {info.st_size} bytes; at most {MAX_FILE_BYTES} "
                              "are sent")

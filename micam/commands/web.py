@@ -8,6 +8,8 @@ from pathlib import Path
 from acquisition.daemon.cli_args import add_client_arguments
 
 DEFAULT_LISTEN = "127.0.0.1:8765"
+DEFAULT_REQUEST_TIMEOUT_S = 10.0
+MIN_TIMEOUT_S, MAX_TIMEOUT_S = 0.1, 3600.0
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -21,6 +23,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--token-file", type=Path, metavar="FILE",
                    help="a file (mode 0600) holding the token the page asks for (default "
                         "$MICAM_WEB_TOKEN; needed off loopback)")
+    p.add_argument("--allow-host", action="append", default=[], metavar="NAME[:PORT]",
+                   help="a name the page answers to besides localhost, 127.0.0.1, [::1] and "
+                        "the --listen address (each with its port), e.g. a reverse proxy's "
+                        "name; without a port, any port. Repeatable. Requests naming another "
+                        "host are refused (421), against DNS rebinding")
+    p.add_argument("--request-timeout", type=float, default=DEFAULT_REQUEST_TIMEOUT_S,
+                   metavar="S", help="seconds a client has to send a request's head, and again "
+                                     f"its body (default {DEFAULT_REQUEST_TIMEOUT_S:g}); a "
+                                     "slower one is cut off (408)")
     p.add_argument("--target-mm", type=float, default=0.5, metavar="MM",
                    help="the live calibration's predicted accuracy at which the page says "
                         "'enough poses' (default 0.5 mm)")
@@ -63,29 +74,34 @@ def run(args: argparse.Namespace) -> int:
     from acquisition.contracts.errors import UserError
 
     try:
-        import uvicorn
-
         from micam.web.access import check_listen, read_token
         from micam.web.app import create_app
         from micam.web.bridge import Bridge
+        from micam.web.hosts import ServedHosts, parse_allowed
+        from micam.web.server import serve
     except ImportError as exc:
         raise UserError(f"`micam web` needs the web packages ({exc.name} is missing): "
                         "pip install 'micam[web]'") from None
     from acquisition.daemon.client import client_from_args
 
     host, _, port = args.listen.rpartition(":")
-    if not host or not port.isdigit():
-        raise UserError(f"--listen {args.listen}: give HOST:PORT, e.g. {DEFAULT_LISTEN}")
+    host = host.strip("[]")
+    if not host or not (port.isascii() and port.isdigit()) or not 0 < int(port) < 65536:
+        raise UserError(f"--listen {args.listen}: give HOST:PORT with a port from 1 to 65535, "
+                        f"e.g. {DEFAULT_LISTEN}")
+    if not MIN_TIMEOUT_S <= args.request_timeout <= MAX_TIMEOUT_S:
+        raise UserError(f"--request-timeout {args.request_timeout:g}: give seconds from "
+                        f"{MIN_TIMEOUT_S:g} to {MAX_TIMEOUT_S:g}")
+    served = ServedHosts(int(port), host, tuple(parse_allowed(a) for a in args.allow_host))
     token = read_token(args.token_file)
-    check_listen(host.strip("[]"), token)
+    check_listen(host, token)
     client = client_from_args(args)
     try:
         bridge = Bridge(client, target_m=args.target_mm / 1e3, live_stream=_live_stream(args))
-        app = create_app(bridge, token)
+        app = create_app(bridge, token, served, args.request_timeout)
         print(f"micam web: the page is at http://{args.listen}/ (daemon {client.control})",
               flush=True)
-        uvicorn.run(app, host=host.strip("[]"), port=int(port), log_level="warning",
-                    ws="websockets", lifespan="on")
+        serve(app, host, int(port), args.request_timeout)
     finally:
         client.close()
     return 0

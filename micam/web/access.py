@@ -6,9 +6,8 @@
   drives captures is never open to a network. The browser presents it once in the address
   (`/?token=...`), gets it back as an HttpOnly, SameSite=Strict cookie, and is sent to the
   address without it; programs may send `Authorization: Bearer TOKEN` instead.
-- Requests that change something (POST) and the WebSocket must come from the page itself:
-  an `Origin` that is not this page's host is refused, so another site open in the same
-  browser cannot drive the daemon through it.
+- Every request must name this page in `Host`, and come from the page itself when it says
+  where it comes from (`Origin`): hosts.py, against DNS rebinding and other sites' pages.
 - TLS: put a reverse proxy in front (docs/operator.md); the page itself speaks plain HTTP.
 """
 
@@ -17,15 +16,17 @@ from __future__ import annotations
 import hmac
 import ipaddress
 import os
+import re
 import stat
 from pathlib import Path
-from urllib.parse import urlsplit
 
 from acquisition.contracts.errors import UserError
 
 TOKEN_ENV = "MICAM_WEB_TOKEN"
 COOKIE = "micam_token"
 MIN_TOKEN_CHARS = 16
+TOKEN_RE = re.compile(rf"[A-Za-z0-9._~-]{{{MIN_TOKEN_CHARS},512}}")
+"""A token: characters that go unchanged into an address and a cookie."""
 
 
 def is_loopback(host: str) -> bool:
@@ -56,10 +57,10 @@ def read_token(path: Path | None) -> str | None:
         where = str(path)
     if token is None:
         return None
-    if len(token) < MIN_TOKEN_CHARS or any(c.isspace() for c in token):
-        raise UserError(f"the token in {where} must be at least {MIN_TOKEN_CHARS} characters "
-                        "without spaces; make one with `python3 -c 'import secrets; "
-                        "print(secrets.token_urlsafe(24))'`")
+    if TOKEN_RE.fullmatch(token) is None:
+        raise UserError(f"the token in {where} must be at least {MIN_TOKEN_CHARS} letters, "
+                        "digits or ._~- (it goes into an address and a cookie); make one "
+                        "with `python3 -c 'import secrets; print(secrets.token_urlsafe(24))'`")
     return token
 
 
@@ -77,13 +78,3 @@ def token_matches(token: str | None, presented: str | None) -> bool:
     if token is None:
         return True
     return presented is not None and hmac.compare_digest(token.encode(), presented.encode())
-
-
-def same_origin(origin: str | None, host: str | None) -> bool:
-    """Whether a request's `Origin` header names the host it was sent to (or it has none, as
-    requests that are not from a browser page)."""
-    if origin is None:
-        return True
-    if host is None:
-        return False
-    return urlsplit(origin).netloc.lower() == host.lower()

@@ -21,6 +21,7 @@ import json
 import logging
 import time
 from collections import deque
+from collections.abc import Iterator
 from typing import TYPE_CHECKING, Any, cast
 
 import zmq
@@ -42,7 +43,8 @@ from acquisition.contracts.protocol import (
     StateEvent,
     StatusResult,
 )
-from .view import cameras_view, levels_view, live_view
+from .json_body import JsonInputError, load_json
+from .view import ViewError, cameras_view, history_point, levels_view, live_view
 
 if TYPE_CHECKING:
     from .live_stream import LiveStream
@@ -56,6 +58,8 @@ PREVIEW_LEASE_S = 6.0
 HISTORY_LIMIT = 10_000
 LIVE_FILE = "calibration/live.json"
 LIVE_HISTORY_FILE = "calibration/live_history.jsonl"
+MAX_FILE_BYTES = 4 * 2**20
+"""The longest session file the page reads (the daemon sends at most as much)."""
 
 
 class Browser:
@@ -216,11 +220,13 @@ class Bridge:
                                                             event.outline.model_dump()]}
             return changed
         if isinstance(event, LiveCalibrationEvent):
-            update = event.update.model_dump(mode="json")
-            point = _history_point(update)
+            try:
+                live, point = live_view(event.update, self.target_m), history_point(event.update)
+            except ViewError as exc:
+                log.warning("ignored a live calibration: %s", exc)
+                return {}
             history = [p for p in self.state["live_history"] if p["poses"] != point["poses"]]
-            return {"live": live_view(update, self.target_m),
-                    "live_history": [*history, point][-HISTORY_LIMIT:]}
+            return {"live": live, "live_history": [*history, point][-HISTORY_LIMIT:]}
         if isinstance(event, StateEvent | CalibrationEvent):
             self._resync.set()  # a session opened or closed, a result arrived: read again
         return {}
@@ -284,13 +290,18 @@ class Bridge:
             self._send(changed)
 
     async def _live_files(self, session_id: str) -> dict[str, Any]:
-        """The open session's latest live update and its history, from its files."""
+        """The open session's latest live update and its history, from its files (what
+        cannot be read or shown is left out, and logged)."""
         live, history = None, []
-        with contextlib.suppress(DaemonError, ValueError):
-            live = live_view(json.loads(await self.file(session_id, LIVE_FILE)), self.target_m)
-        with contextlib.suppress(DaemonError, ValueError):
+        with contextlib.suppress(DaemonError):
+            try:
+                live = live_view(load_json(await self.file(session_id, LIVE_FILE),
+                                           MAX_FILE_BYTES, LIVE_FILE), self.target_m)
+            except (JsonInputError, ViewError) as exc:
+                log.warning("%s: %s", session_id, exc)
+        with contextlib.suppress(DaemonError):
             lines = (await self.file(session_id, LIVE_HISTORY_FILE)).splitlines()
-            history = _dedup([json.loads(line) for line in lines if line.strip()])
+            history = _dedup(list(_history_points(session_id, lines)))
         return {"live": live, "live_history": history[-HISTORY_LIMIT:], "levels": None,
                 "previews": {}}
 
@@ -300,9 +311,15 @@ class Bridge:
         return base64.b64decode(reply["content_b64"])
 
 
-def _history_point(update: dict[str, Any]) -> dict[str, Any]:
-    return {k: update[k] for k in ("poses", "predicted_accuracy_m", "mean_uncertainty_m",
-                                   "speed_of_sound_m_s")}
+def _history_points(session_id: str, lines: list[bytes]) -> Iterator[dict[str, Any]]:
+    """The points of a live history file's lines; a line that cannot be read or shown is
+    skipped (and logged)."""
+    for n, line in enumerate(lines, 1):
+        if line.strip():
+            try:
+                yield history_point(load_json(line, MAX_FILE_BYTES, f"line {n}"))
+            except (JsonInputError, ViewError) as exc:
+                log.warning("%s, %s: %s", session_id, LIVE_HISTORY_FILE, exc)
 
 
 def _dedup(points: list[dict[str, Any]]) -> list[dict[str, Any]]:

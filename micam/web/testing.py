@@ -93,9 +93,11 @@ def browser_missing() -> str | None:
 
 
 class Chromium:
-    """One headless Chromium (a fresh profile) driven by selenium through chromedriver."""
+    """One headless Chromium (a fresh profile) driven by selenium through chromedriver, with
+    `flags` added to CHROMIUM_FLAGS (e.g. `--host-resolver-rules=...`)."""
 
-    def __init__(self, width: int = 1400, height: int = 1800) -> None:
+    def __init__(self, width: int = 1400, height: int = 1800, flags: tuple[str, ...] = ()
+                 ) -> None:
         from selenium import webdriver
         from selenium.webdriver.chrome.service import Service
 
@@ -105,7 +107,7 @@ class Chromium:
         self.profile = tempfile.mkdtemp(prefix="micam-chromium-")
         options = webdriver.ChromeOptions()
         options.binary_location = CHROMIUM
-        for flag in CHROMIUM_FLAGS:
+        for flag in (*CHROMIUM_FLAGS, *flags):
             options.add_argument(flag)
         options.add_argument(f"--user-data-dir={self.profile}")
         options.add_argument(f"--window-size={width},{height}")

@@ -4,16 +4,25 @@ Pure functions of the protocol's models (acquisition.contracts.protocol): the le
 microphone id and board with the reference microphone apart and the flagged channels by name,
 each camera's pose count with a warning while it is on course to stay uncalibrated, the live
 calibration's microphones with their uncertainty, and the summary of a final result. The
-browser only draws what these return.
+browser only draws what these return. The calibrations come from messages and files, so
+their views validate what they read (ViewError names what cannot be shown, never a crash), and
+nothing they return holds a number JSON cannot carry (NaN, Infinity).
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, TypeVar
+
+from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, ValidationError
 
 from acquisition.contracts.capture_config import column_name
+from acquisition.contracts.config_model import describe_problems
+from acquisition.contracts.errors import UserError
+from acquisition.contracts.job_messages import LiveUpdate
 from acquisition.contracts.protocol import CameraPoses, DescribeResult, LevelsEvent
+
+ModelT = TypeVar("ModelT", bound=BaseModel)
 
 
 def channel_name(describe: DescribeResult, column: int) -> str:
@@ -96,33 +105,119 @@ def cameras_view(describe: DescribeResult, seen: list[CameraPoses], poses_done: 
             for name in describe.cameras]
 
 
-def _norm(v: Any) -> float:
-    return math.sqrt(sum(float(x) ** 2 for x in v))
+class ViewError(UserError):
+    """A calibration (a message or a session's file) the page cannot show; the message says
+    why, for the page to show instead."""
 
 
-def live_view(update: dict[str, Any], target_m: float | None) -> dict[str, Any]:
-    """The live calibration for drawing: microphones with their uncertainty (norm of their
-    std, metres), the figures, and whether the predicted accuracy meets `target_m`."""
-    mics = [{"id": m["id"], "position_m": m["position_m"], "uncertainty_m": _norm(m["std_m"])}
-            for m in update.get("microphones", [])]
-    predicted = update.get("predicted_accuracy_m")
-    return {**{k: v for k, v in update.items() if k != "microphones"}, "microphones": mics,
-            "enough": target_m is not None and predicted is not None and predicted <= target_m}
+class _Lenient(BaseModel):
+    """What a view reads of a document, ignoring the rest."""
+
+    model_config = ConfigDict(extra="ignore", frozen=True)
 
 
-def result_view(result: dict[str, Any]) -> dict[str, Any]:
-    """A final calibration result (result.json) in short, with its microphones for drawing."""
-    mics = [{"id": m["id"], "board": m.get("board"), "position_m": m["position_m"],
-             "uncertainty_m": _norm(m["std_m"])} for m in result.get("microphones", [])]
-    stds = sorted(m["uncertainty_m"] for m in mics)
-    residuals = result.get("residuals") or {}
-    return {
-        "session_id": result.get("session_id"), "method": result.get("method"),
+Vector = tuple[FiniteFloat, FiniteFloat, FiniteFloat]
+
+
+class _ResultMicrophone(_Lenient):
+    id: int
+    board: str | None = None
+    position_m: Vector
+    std_m: Vector
+
+
+class _ResultCamera(_Lenient):
+    name: str | None = None
+
+
+class _Residuals(_Lenient):
+    rms_s: FiniteFloat | None = None
+
+
+class _ShownResult(_Lenient):
+    """The parts of a result.json (calibration.result.CalibrationResult) the report shows."""
+
+    session_id: str | None = None
+    method: str | None = None
+    microphones: list[_ResultMicrophone] = Field(max_length=100_000)
+    speed_of_sound_m_s: FiniteFloat
+    speed_of_sound_std_m_s: FiniteFloat | None = None
+    poses: list[Any] = Field(default=[], max_length=100_000)
+    cameras: list[_ResultCamera] = Field(default=[], max_length=1000)
+    residuals: _Residuals | None = None
+
+
+class HistoryPoint(_Lenient):
+    """One line of a session's live history (poses, the accuracies in metres, c in m/s)."""
+
+    poses: int = Field(ge=0, le=1_000_000)
+    predicted_accuracy_m: FiniteFloat
+    mean_uncertainty_m: FiniteFloat
+    speed_of_sound_m_s: FiniteFloat
+
+
+def _validated(model: type[ModelT], data: Any, what: str) -> ModelT:
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        raise ViewError(f"this {what} cannot be shown: "
+                        f"{describe_problems(exc, model)[0]}") from None
+
+
+def _require_finite(value: Any, what: str, where: str = "") -> None:
+    """ViewError if a number anywhere in `value` is NaN or infinite (JSON has no such numbers:
+    the browser could not read the page's message)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ViewError(f"this {what} cannot be shown: {where or 'it'} is {value}")
+    if isinstance(value, dict):
+        for key, item in value.items():
+            _require_finite(item, what, f"{where}.{key}".lstrip("."))
+    elif isinstance(value, list | tuple):
+        for n, item in enumerate(value):
+            _require_finite(item, what, f"{where}.{n}".lstrip("."))
+
+
+def _norm(v: tuple[float, float, float]) -> float:
+    return math.sqrt(sum(x * x for x in v))
+
+
+def live_view(update: Any, target_m: float | None) -> dict[str, Any]:
+    """The live calibration (a LiveUpdate, or its JSON from a session's live.json) for drawing:
+    microphones with their uncertainty (norm of their std, metres), the figures, and whether
+    the predicted accuracy meets `target_m`; ViewError if it is not one that can be shown."""
+    model = _validated(LiveUpdate, update, "live calibration")
+    data = model.model_dump(exclude={"v", "microphones"})
+    data["microphones"] = [{"id": m.id, "position_m": list(m.position_m),
+                            "uncertainty_m": _norm(m.std_m)} for m in model.microphones]
+    data["enough"] = target_m is not None and model.predicted_accuracy_m <= target_m
+    _require_finite(data, "live calibration")
+    return data
+
+
+def history_point(data: Any) -> dict[str, Any]:
+    """One point of the live calibration's history (LiveUpdate, or a line of the history
+    file); ViewError if it is not one that can be shown."""
+    if isinstance(data, LiveUpdate):
+        data = data.model_dump()
+    return _validated(HistoryPoint, data, "live history point").model_dump()
+
+
+def result_view(result: Any) -> dict[str, Any]:
+    """A final calibration result (result.json) in short, with its microphones for drawing;
+    ViewError if it is not one that can be shown."""
+    shown = _validated(_ShownResult, result, "result")
+    stds = [_norm(m.std_m) for m in shown.microphones]
+    mics = [{"id": m.id, "board": m.board, "position_m": list(m.position_m),
+             "uncertainty_m": std} for m, std in zip(shown.microphones, stds, strict=True)]
+    stds.sort()
+    view = {
+        "session_id": shown.session_id, "method": shown.method,
         "microphones": mics, "n_microphones": len(mics),
         "median_uncertainty_m": stds[len(stds) // 2] if stds else None,
-        "speed_of_sound_m_s": result.get("speed_of_sound_m_s"),
-        "speed_of_sound_std_m_s": result.get("speed_of_sound_std_m_s"),
-        "poses": len(result.get("poses", [])), "cameras": [c.get("name") for c in
-                                                           result.get("cameras", [])],
-        "residual_rms_s": residuals.get("rms_s") if isinstance(residuals, dict) else None,
+        "speed_of_sound_m_s": shown.speed_of_sound_m_s,
+        "speed_of_sound_std_m_s": shown.speed_of_sound_std_m_s,
+        "poses": len(shown.poses), "cameras": [c.name for c in shown.cameras],
+        "residual_rms_s": shown.residuals.rms_s if shown.residuals is not None else None,
     }
+    _require_finite(view, "result")  # a norm of huge finite numbers overflows
+    return view

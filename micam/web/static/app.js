@@ -424,6 +424,9 @@ async function showReport(id) {
     drawArray(front, res.microphones, 0, 1, "calibrated: front view", umax);
     views.append(top, front);
     box.append(views);
+  } else if (r.result_error) {
+    box.dataset.calibrated = "unreadable";
+    box.append(el("p", { id: "report-result", class: "bad" }, r.result_error));
   } else {
     box.dataset.calibrated = "no";
     box.append(el("p", { class: "small" }, "no final calibration yet (a worker calibrates a complete session after it closes)"));

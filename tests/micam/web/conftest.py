@@ -1,5 +1,6 @@
 """The stack the page's tests run against: a daemon on a small simulated world, a calibration
-worker and `micam web`, all as processes (readiness by handshake), once per module."""
+worker and `micam web`, all as processes (readiness by handshake), once per module; and a
+`micam web` alone, once for the package."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ from micam.web.testing import Chromium, WebProcess, browser_missing
 
 SKIP_ENV = "MICAM_SKIP_BROWSER_TESTS"
 POSES = 8  # the world's poses; sessions ask for fewer
+LONE_TIMEOUT_S = 0.5
 
 
 @dataclass
@@ -40,6 +42,19 @@ def stack(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Stack]:
             yield running
         finally:
             running.web.stop()
+
+
+@pytest.fixture(scope="package")
+def lone_web(tmp_path_factory: pytest.TempPathFactory) -> Iterator[WebProcess]:
+    """`micam web` with no daemon behind it (its requests to one fail within 0.2 s) and a
+    request timeout of LONE_TIMEOUT_S: for the tests of its HTTP side, shared by them."""
+    root = tmp_path_factory.mktemp("lone-web")
+    page = WebProcess(f"ipc://{root}/no-daemon", root / "web.log",
+                      "--request-timeout", str(LONE_TIMEOUT_S), "--timeout", "0.2")
+    try:
+        yield page
+    finally:
+        page.stop()
 
 
 @pytest.fixture

@@ -4,11 +4,14 @@ One browser drives a whole session from the page alone (start, the references, s
 the board found, stop, the report), checking what a person would look at on the way: the
 board found per camera, the level meters named by microphone and board, the live calibration
 updating, the hint drawn on camera 0's image. Five browsers connected at once must each see
-every event. Screenshots are saved (see the screenshots fixture).
+every event. Another site's pages (DNS rebinding, cross-site forms and fetches) can neither
+read nor drive it. Screenshots are saved (see the screenshots fixture).
 """
 
 from __future__ import annotations
 
+import http.server
+import threading
 import time
 from pathlib import Path
 
@@ -143,3 +146,108 @@ def test_a_whole_session_from_the_page(stack: Stack, chromium: type[Chromium],
         b.driver.save_screenshot(str(screenshots / "report.png"))
     finally:
         b.close()
+
+
+# -- another site's pages: DNS rebinding and cross-site requests -----------------------------
+
+EVIL = "evil.example"
+ATTACK = """
+const done = arguments[arguments.length - 1];
+const command = JSON.stringify({command: "session.start", args: {poses: 2}});
+const seen = {};
+async function attempt(name, request) {
+  try {
+    const reply = await request();
+    seen[name] = {status: reply.status, type: reply.type, text: await reply.text()};
+  } catch (error) {
+    seen[name] = {failed: String(error)};
+  }
+}
+(async () => {
+  await attempt("state", () => fetch(arguments[0] + "/api/state"));
+  await attempt("json", () => fetch(arguments[0] + "/api/command", {method: "POST",
+    headers: {"content-type": "application/json"}, body: command}));
+  await attempt("plain", () => fetch(arguments[0] + "/api/command", {method: "POST",
+    mode: "no-cors", headers: {"content-type": "text/plain"}, body: command}));
+  seen.ws = await new Promise((resolve) => {
+    const ws = new WebSocket(arguments[0].replace("http", "ws") + "/ws");
+    ws.onmessage = (m) => resolve("read: " + m.data.slice(0, 40));
+    ws.onerror = () => resolve("error");
+    ws.onclose = (e) => resolve("closed " + e.code);
+    setTimeout(() => resolve("no answer"), 10000);
+  });
+  done(seen);
+})();
+"""
+FORM = """<!doctype html><title>another site</title>
+<form id="csrf" method="POST" action="http://127.0.0.1:{port}/api/command" enctype="text/plain">
+<input name='{{"command": "session.start", "args": {{"poses": 2}}, "x": "' value='"}}'>
+</form>"""
+
+
+class AttackerSite:
+    """Another site's page (a form posting a command to the page), served on loopback."""
+
+    def __init__(self, page_port: int) -> None:
+        body = FORM.format(port=page_port).encode()
+
+        class Handler(http.server.BaseHTTPRequestHandler):
+            def do_GET(self) -> None:  # noqa: N802 (the standard library's name)
+                self.send_response(200)
+                self.send_header("content-type", "text/html")
+                self.send_header("content-length", str(len(body)))
+                self.end_headers()
+                self.wfile.write(body)
+
+            def log_message(self, *_args: object) -> None:
+                pass
+
+        self.server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.port = self.server.server_address[1]
+        threading.Thread(target=self.server.serve_forever, daemon=True).start()
+
+    def close(self) -> None:
+        self.server.shutdown()
+        self.server.server_close()
+
+
+def test_another_sites_pages_can_neither_read_nor_drive_the_page(
+        stack: Stack, chromium: type[Chromium]) -> None:
+    """A browser that resolves evil.example to 127.0.0.1 (as a DNS-rebinding attacker makes
+    it): a page at http://evil.example:PORT/ (the page's own port: the rebinding case) reads
+    nothing, starts nothing and gets no WebSocket; a page of another origin
+    (http://evil.example:OTHER/) posting a form or a fetch to http://127.0.0.1:PORT/ starts
+    nothing. The daemon's status says no session was started."""
+    with stack.loop.client() as client:
+        sessions_before = len(client.request("sessions.list")["sessions"])
+    port = stack.web.port
+    attacker = AttackerSite(port)
+    b = chromium(width=800, height=600, flags=(f"--host-resolver-rules=MAP {EVIL} 127.0.0.1",))
+    try:
+        b.driver.set_script_timeout(30)
+        b.driver.get(f"http://{EVIL}:{port}/")  # the rebinding page, on the page's port
+        refusal = b.driver.find_element(By.TAG_NAME, "body").text
+        assert f"does not answer to the host {EVIL}:{port}" in refusal, refusal
+        seen = b.driver.execute_async_script(ATTACK, f"http://{EVIL}:{port}")
+        for name in ("state", "json", "plain"):
+            assert seen[name]["status"] == 421, (name, seen[name])
+            assert "misdirected" in seen[name]["text"] and '"daemon"' not in seen[name]["text"]
+        assert seen["ws"] in ("error", "closed 1006"), seen["ws"]
+
+        b.driver.get(f"http://{EVIL}:{attacker.port}/")  # another origin, the real address
+        seen = b.driver.execute_async_script(ATTACK, f"http://127.0.0.1:{port}")
+        assert "failed" in seen["state"] and "failed" in seen["json"], seen  # no CORS
+        assert seen["plain"]["type"] == "opaque", seen["plain"]  # sent blind, refused
+        assert seen["ws"] in ("error", "closed 1006"), seen["ws"]
+        b.js("document.getElementById('csrf').submit()")
+        b.wait(f"location.href.startsWith('http://127.0.0.1:{port}/api/command')"
+               " && document.body.innerText.length > 0", what="the form's answer")
+        answer = b.driver.find_element(By.TAG_NAME, "body").text
+        assert "another site" in answer and f"{EVIL}:{attacker.port}" in answer, answer
+    finally:
+        b.close()
+        attacker.close()
+    with stack.loop.client() as client:
+        status = client.status()
+        assert status.session is None and status.state == "idle"
+        assert len(client.request("sessions.list")["sessions"]) == sessions_before

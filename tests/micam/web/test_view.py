@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from datetime import UTC, datetime
 
 import pytest
@@ -14,7 +15,15 @@ from acquisition.contracts.protocol import (
     QualityInfo,
     RigInfo,
 )
-from micam.web.view import camera_warning, cameras_view, levels_view, live_view
+from micam.web.view import (
+    ViewError,
+    camera_warning,
+    cameras_view,
+    history_point,
+    levels_view,
+    live_view,
+    result_view,
+)
 
 
 def _describe() -> DescribeResult:
@@ -64,11 +73,78 @@ def test_every_camera_is_listed_with_its_poses() -> None:
         ("cam0", 5, True), ("cam1", 0, False)]
 
 
+def _update(**changes: object) -> dict:
+    update = {"v": 2, "session_id": "s1", "poses": 6, "mean_uncertainty_m": 4e-4,
+              "microphones": [{"id": 1, "position_m": [0, 0, 1], "std_m": [3e-4, 4e-4, 0]}],
+              "predicted_accuracy_m": 4e-4, "speed_of_sound_m_s": 343.2}
+    return {**update, **changes}
+
+
+def _result(**changes: object) -> dict:
+    result = {"session_id": "s1", "method": "joint",
+              "microphones": [{"id": 7, "board": "A", "position_m": [0.1, 0, 1],
+                               "std_m": [3e-4, 4e-4, 0]}],
+              "speed_of_sound_m_s": 343.2, "speed_of_sound_std_m_s": 0.1,
+              "poses": [{}, {}], "cameras": [{"name": "cam0"}], "residuals": {"rms_s": 1e-8}}
+    return {**result, **changes}
+
+
 def test_the_live_view_says_enough_only_at_the_target() -> None:
-    update = {"poses": 6, "microphones": [{"id": 1, "position_m": [0, 0, 1],
-                                           "std_m": [3e-4, 4e-4, 0]}],
-              "predicted_accuracy_m": 4e-4}
+    update = _update()
     view = live_view(update, target_m=5e-4)
     assert view["enough"] and view["microphones"][0]["uncertainty_m"] == pytest.approx(5e-4)
     assert not live_view(update, target_m=3e-4)["enough"]
     assert not live_view(update, target_m=None)["enough"]
+    json.dumps(view, allow_nan=False)
+
+
+def test_a_result_is_summed_up() -> None:
+    view = result_view(_result())
+    assert view["n_microphones"] == 1 and view["poses"] == 2 and view["cameras"] == ["cam0"]
+    assert view["median_uncertainty_m"] == pytest.approx(5e-4)
+    assert view["residual_rms_s"] == 1e-8
+    json.dumps(view, allow_nan=False)
+
+
+BAD_RESULTS = [
+    ([], "valid dictionary"),
+    ({}, "microphones"),
+    (_result(speed_of_sound_m_s=float("nan")), "speed_of_sound_m_s"),
+    (_result(speed_of_sound_m_s=float("inf")), "speed_of_sound_m_s"),
+    (_result(microphones=[{"id": 1, "position_m": [0, 0], "std_m": [0, 0, 0]}]), "position_m"),
+    (_result(microphones=[{"id": "seven", "position_m": [0, 0, 0], "std_m": [0, 0, 0]}]),
+     "microphones[0].id"),
+    (_result(microphones=[{"id": 1, "position_m": [0, 0, 0], "std_m": [1e300, 1e300, 0]}]),
+     "inf"),
+    (_result(microphones="many"), "microphones"),
+    (_result(cameras=[{"name": 5}]), "cameras[0].name"),
+    (_result(residuals=[]), "residuals"),
+    (_result(poses=7), "poses"),
+]
+
+
+@pytest.mark.parametrize(("result", "why"), BAD_RESULTS)
+def test_a_result_that_cannot_be_shown_says_why(result: object, why: str) -> None:
+    with pytest.raises(ViewError, match="this result cannot be shown") as refused:
+        result_view(result)
+    assert why in str(refused.value)
+
+
+@pytest.mark.parametrize("update", [
+    None, [], _update(poses="six"), _update(speed_of_sound_m_s=float("nan")),
+    _update(microphones=[{"id": 1, "position_m": [0, 0, 1], "std_m": [1e300, 1e300, 0]}]),
+    _update(suggestion={"distance_m": float("inf")}), _update(extra=1),
+])
+def test_a_live_calibration_that_cannot_be_shown_says_why(update: object) -> None:
+    with pytest.raises(ViewError, match="this live calibration cannot be shown"):
+        live_view(update, target_m=5e-4)
+
+
+def test_a_history_point_is_checked_like_the_rest() -> None:
+    point = {"poses": 4, "predicted_accuracy_m": 1e-3, "mean_uncertainty_m": 1e-3,
+             "speed_of_sound_m_s": 343.0}
+    assert history_point({**point, "other": "ignored"}) == point
+    for bad in ({**point, "poses": -1}, {**point, "predicted_accuracy_m": float("nan")},
+                {"poses": 4}, "4"):
+        with pytest.raises(ViewError, match="live history point cannot be shown"):
+            history_point(bad)
