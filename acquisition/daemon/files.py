@@ -2,8 +2,9 @@
 
 A worker may fetch only what its job names (the journaled files of the job's steps, and the
 journal prefix), so a request can never read anything else of the machine: the names are safe
-relative paths (the journal and the outbox are validated when read), and the file opened must
-still resolve inside the session directory, without following a symbolic link out of it.
+relative paths (the journal and the outbox are validated when read), and the file is opened
+beneath the session directory without following a symbolic link anywhere on its way, and
+sent only if it is a regular file with one name (acquisition.daemon.open_beneath).
 Each request is answered with one chunk, read with `pread` from a file that is never rewritten
 once journaled; the worker checks each whole file against the journal's SHA-256.
 """
@@ -19,6 +20,9 @@ import zmq
 from pydantic import ValidationError
 
 from acquisition.contracts.job_messages import FETCH, Chunk, FetchError, encode, version_problem
+from acquisition.contracts.session import SessionError
+
+from .open_beneath import check_sendable, open_beneath
 from .outbox import JobRecord
 
 log = logging.getLogger("micam.daemon")
@@ -74,21 +78,14 @@ class FileServer:
                                       reason=f"offset {fetch.offset} is past the end ({size})"))]
         length = min(fetch.length, size - fetch.offset)
         try:
-            fd = open_inside(Path(job.session_path), fetch.path)
-        except OSError as exc:
-            return [encode(FetchError(path=fetch.path, reason=f"cannot open it: {exc}"))]
+            fd = open_beneath(Path(job.session_path), fetch.path)
+        except SessionError as exc:
+            return [encode(FetchError(path=fetch.path, reason=str(exc)))]
         try:
+            check_sendable(fd, fetch.path)  # the journal grows past its prefix: any length
             data = os.pread(fd, length, fetch.offset)
+        except SessionError as exc:
+            return [encode(FetchError(path=fetch.path, reason=str(exc)))]
         finally:
             os.close(fd)
         return [encode(Chunk(path=fetch.path, offset=fetch.offset)), data]
-
-
-def open_inside(session: Path, relative: str) -> int:
-    """A read-only descriptor of `session/relative`, refusing (OSError) a path that resolves
-    outside the session directory or ends in a symbolic link."""
-    path = session / relative
-    root = os.path.realpath(session)
-    if os.path.commonpath([root, os.path.realpath(path)]) != root:
-        raise OSError(f"{relative} leads outside the session directory")
-    return os.open(path, os.O_RDONLY | os.O_NOFOLLOW)

@@ -372,7 +372,7 @@ class Daemon:
         try:
             return session_file(session_dir(self.session_root, args.session),
                                 args.path).model_dump()
-        except (SessionError, ValueError) as exc:
+        except SessionError as exc:
             raise Refusal("session_error", str(exc)) from None
 
     def list_sessions(self) -> dict[str, Any]:

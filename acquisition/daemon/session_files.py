@@ -12,7 +12,6 @@ disk), and it is read only up to MAX_FILE_BYTES.
 from __future__ import annotations
 
 import base64
-import errno
 import json
 import os
 import stat
@@ -28,6 +27,8 @@ from acquisition.contracts.protocol import (
     SessionReportResult,
     SessionSummary,
 )
+
+from .open_beneath import check_sendable, open_beneath
 from .run import QUALITY_FILE
 
 CALIBRATION_PREFIX = "calibration/"
@@ -95,66 +96,16 @@ def _sendable(info: os.stat_result) -> bool:
     return stat.S_ISREG(info.st_mode) and info.st_nlink == 1
 
 
-def _open_beneath(session: Path, relative: str) -> int:
-    """A read-only descriptor of `relative` in `session`, opened one segment at a time, each
-    relative to its parent's descriptor with O_NOFOLLOW: no symbolic link is followed anywhere
-    on the way (not only at the end), so the file is inside the session whatever happens to
-    its directories meanwhile (a realpath check before the open would race). O_NONBLOCK: a
-    FIFO opens at once instead of blocking the daemon (and is then refused as not regular).
-    ValueError says why it cannot be opened."""
-    segments = relative.split("/")
-    try:
-        directory = os.open(session, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW)
-    except OSError as exc:
-        raise ValueError(f"cannot open the session directory {session}: {exc.strerror}"
-                         ) from None
-    try:
-        for segment in segments[:-1]:
-            inner = _open_at(directory, segment, relative, os.O_DIRECTORY)
-            os.close(directory)
-            directory = inner
-        return _open_at(directory, segments[-1], relative, os.O_NONBLOCK | os.O_NOCTTY)
-    finally:
-        os.close(directory)
-
-
-def _open_at(directory: int, segment: str, relative: str, flags: int) -> int:
-    """`segment` of the open `directory`, read-only, never through a symbolic link."""
-    try:
-        return os.open(segment, os.O_RDONLY | os.O_NOFOLLOW | flags, dir_fd=directory)
-    except OSError as exc:
-        raise ValueError(f"{relative}: cannot open it: {_why_not(directory, segment, exc)}"
-                         ) from None
-
-
-def _why_not(directory: int, segment: str, exc: OSError) -> str:
-    """Why `segment` of `directory` could not be opened, for a person."""
-    try:
-        info = os.lstat(segment, dir_fd=directory)
-    except OSError:
-        return str(exc.strerror)
-    if stat.S_ISLNK(info.st_mode):
-        return f"{segment} is a symbolic link (none is followed)"
-    return f"{segment} is not a directory" if exc.errno == errno.ENOTDIR else str(exc.strerror)
-
-
 def session_file(path: Path, relative: str) -> SessionFileResult:
-    """The bytes of `relative` (under calibration/) in the session at `path`; ValueError says
-    why a file cannot be sent: not a safe path under calibration/, a symbolic link anywhere on
-    its way, not a regular file, more than one hard link, longer than MAX_FILE_BYTES."""
+    """The bytes of `relative` (under calibration/) in the session at `path`; SessionError
+    says why a file cannot be sent: not a safe path under calibration/, a symbolic link
+    anywhere on its way, not a regular file, more than one hard link, longer than
+    MAX_FILE_BYTES (acquisition.daemon.open_beneath)."""
     if not relative.startswith(CALIBRATION_PREFIX) or not is_relative_path(relative):
-        raise ValueError(f"{relative}: only files under {CALIBRATION_PREFIX} are sent")
-    fd = _open_beneath(path, relative)
+        raise SessionError(f"{relative}: only files under {CALIBRATION_PREFIX} are sent")
+    fd = open_beneath(path, relative)
     try:
-        info = os.fstat(fd)
-        if not stat.S_ISREG(info.st_mode):
-            raise ValueError(f"{relative} is not a regular file")
-        if info.st_nlink != 1:
-            raise ValueError(f"{relative} has {info.st_nlink} hard links; only a file with one "
-                             "name is sent (another name may be anywhere on the disk)")
-        if info.st_size > MAX_FILE_BYTES:
-            raise ValueError(f"{relative} has {info.st_size} bytes; at most {MAX_FILE_BYTES} "
-                             "are sent")
+        info = check_sendable(fd, relative, MAX_FILE_BYTES)
         data = os.pread(fd, info.st_size, 0)
     finally:
         os.close(fd)

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 
+from acquisition.contracts.session import SessionError
 from acquisition.daemon.session_files import _calibration_files, session_file
 
 SECRET = b"the secret of another account\n"
@@ -67,7 +68,7 @@ def _links(session: Path) -> dict[str, str]:
 @pytest.mark.timeout(20)  # a FIFO opened without O_NONBLOCK would hang here
 def test_no_link_leads_out_of_the_calibration_directory(session: Path) -> None:
     for relative, why in _links(session).items():
-        with pytest.raises(ValueError, match=why):
+        with pytest.raises(SessionError, match=why):
             session_file(session, relative)
     assert [f.path for f in _calibration_files(session)] == [
         "calibration/result.json", "calibration/figures/array.png"]
@@ -77,6 +78,6 @@ def test_a_calibration_directory_that_is_a_link_is_refused(session: Path) -> Non
     elsewhere = session.parent / "elsewhere"
     (session / "calibration").rename(elsewhere)
     os.symlink(elsewhere, session / "calibration")
-    with pytest.raises(ValueError, match="symbolic link"):
+    with pytest.raises(SessionError, match="symbolic link"):
         session_file(session, "calibration/result.json")
     assert _calibration_files(session) == []

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import time
 from collections.abc import Iterator
 from datetime import UTC, datetime, timedelta
@@ -121,12 +122,33 @@ def test_planted_job_files_are_ignored_and_the_daemon_keeps_serving(tmp_path: Pa
         running.stop()
 
 
-def test_the_file_server_does_not_follow_a_link_out_of_the_session(tmp_path: Path) -> None:
+def _plant(kind: str, session: Path, secret: Path) -> None:
+    """refmic-a1/cam0.png of `session` made to reach `secret` (or to block a reader)."""
+    if kind == "symlink":
+        (session / "refmic-a1").mkdir(parents=True)
+        (session / "refmic-a1" / "cam0.png").symlink_to(secret)
+    elif kind == "linked-directory":  # the link in the middle of the path
+        session.mkdir(parents=True)
+        (secret.parent / "elsewhere").mkdir()
+        (secret.parent / "elsewhere" / "cam0.png").write_bytes(secret.read_bytes())
+        (session / "refmic-a1").symlink_to(secret.parent / "elsewhere")
+    elif kind == "hard-link":
+        (session / "refmic-a1").mkdir(parents=True)
+        os.link(secret, session / "refmic-a1" / "cam0.png")
+    else:  # a FIFO: opening it for reading would block the daemon
+        (session / "refmic-a1").mkdir(parents=True)
+        os.mkfifo(session / "refmic-a1" / "cam0.png")
+
+
+@pytest.mark.parametrize(("kind", "why"), [
+    ("symlink", "symbolic link"), ("linked-directory", "refmic-a1 is a symbolic link"),
+    ("hard-link", "2 hard links"), ("fifo", "not a regular file")])
+def test_the_file_server_serves_no_link_and_no_fifo(tmp_path: Path, kind: str, why: str
+                                                   ) -> None:
     session = tmp_path / "s1"
-    (session / "refmic-a1").mkdir(parents=True)
     secret = tmp_path / "secret"
     secret.write_bytes(b"not for workers")
-    (session / "refmic-a1" / "cam0.png").symlink_to(secret)
+    _plant(kind, session, secret)
     job = JobRecord(job_id="s1.final", kind="final", session_id="s1",
                     session_path=str(session), poses=0,
                     journal=JournalPrefix(bytes=1, sha256="0" * 64),
@@ -146,7 +168,7 @@ def test_the_file_server_does_not_follow_a_link_out_of_the_session(tmp_path: Pat
         reply = json.loads(dealer.recv_multipart()[0])
     finally:
         context.destroy(linger=0)
-    assert reply["type"] == "fetch_error" and "cannot open it" in reply["reason"]
+    assert reply["type"] == "fetch_error" and why in reply["reason"], reply
 
 
 # -- workers -----------------------------------------------------------------------------
