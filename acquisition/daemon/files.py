@@ -25,6 +25,13 @@ log = logging.getLogger("micam.daemon")
 
 MAX_FETCH_BYTES = 4096
 """The largest frame the files socket accepts: a `fetch` is a few hundred bytes of JSON."""
+FETCH_QUEUE = 16
+"""Fetches queued per worker connection (x MAX_FETCH_BYTES)."""
+CHUNK_QUEUE = 8
+"""Replies queued per worker connection: a worker keeps at most its window of fetches in
+flight (8, calibration/worker/fetch.py), so a chunk never waits behind more than that; a peer
+that asks without reading holds at most 8 chunks of 1 MiB in the daemon, and the replies after
+are refused (`zmq.Again`, logged)."""
 
 
 class FileServer:
@@ -33,6 +40,7 @@ class FileServer:
     def __init__(self, sock: zmq.Socket, find_job: Callable[[str], JobRecord | None],
                  max_per_turn: int = 32) -> None:
         self.sock = sock
+        sock.router_mandatory = 1  # a reply that cannot be queued is an error we can log
         self._find_job = find_job
         self._max_per_turn = max_per_turn
 
@@ -50,7 +58,7 @@ class FileServer:
                 reply = [encode(FetchError(path="", reason=f"{type(exc).__name__}: {exc}"))]
             try:
                 self.sock.send_multipart([identity, *reply], zmq.NOBLOCK)
-            except zmq.ZMQError as exc:  # the worker went away (ROUTER_MANDATORY)
+            except zmq.ZMQError as exc:  # the worker went away, or does not read its chunks
                 log.info("cannot answer a file request: %s", exc)
 
     def _answer(self, frames: list[bytes]) -> list[bytes]:

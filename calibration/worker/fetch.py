@@ -46,10 +46,13 @@ class _Transfer:
 
 CHUNK_BYTES = 1 << 20
 """Bytes asked for per `fetch` (the file server answers with at most this many)."""
+FETCH_WINDOW = 8
+"""Fetches in flight at most; the daemon queues as many chunks per worker (its CHUNK_QUEUE),
+and the worker's file socket as many messages each way."""
 
 
 def fetch_job_files(sock: zmq.Socket, job: Job, cache: FileCache, chunk_bytes: int = CHUNK_BYTES,
-                    window: int = 8, timeout_s: float = 30.0) -> int:
+                    window: int = FETCH_WINDOW, timeout_s: float = 30.0) -> int:
     """Fetch every file of `job` the cache lacks, over the connected DEALER `sock`; returns the
     bytes fetched. Raises FetchFailed, or ChecksumMismatch if a file is wrong twice."""
     transfers: dict[str, _Transfer] = {}

@@ -55,7 +55,7 @@ from acquisition.contracts.keys import secure_client
 from .cache import DEFAULT_MAX_BYTES, ChecksumMismatch, FileCache
 from ..pipeline import WorkMemo
 from .compute import compute
-from .fetch import CHUNK_BYTES, FetchFailed, fetch_job_files
+from .fetch import CHUNK_BYTES, FETCH_WINDOW, FetchFailed, fetch_job_files
 
 log = logging.getLogger("micam.worker")
 
@@ -64,6 +64,10 @@ MAX_JOB_MESSAGE_BYTES = 16 * 2**20
 """The largest frame the worker takes from the daemon's jobs socket (a job lists its files:
 about 150 bytes each); ZeroMQ drops a connection that sends more, before it is read."""
 MAX_CHUNK_FRAME_BYTES = CHUNK_BYTES + 2**16  # a chunk's bytes, or its JSON header
+JOBS_QUEUE = 16
+"""Messages queued each way on the jobs socket: received (jobs, heartbeats, acks: x
+MAX_JOB_MESSAGE_BYTES at most) and unsent (for a daemon that stopped reading; `_send` then
+drops the message, as for a daemon that is not connected)."""
 
 
 @dataclass(frozen=True)
@@ -169,6 +173,7 @@ class Worker:
         sock.immediate = 1  # queue nothing for a daemon that is not there (no stale flood)
         sock.identity = f"{self.settings.name}-{uuid.uuid4().hex[:8]}".encode()
         sock.maxmsgsize = MAX_JOB_MESSAGE_BYTES  # set before connect, or it never applies
+        sock.rcvhwm = sock.sndhwm = JOBS_QUEUE
         self._secure(sock)
         sock.connect(self.settings.jobs)
         self._sock = sock
@@ -259,6 +264,7 @@ class Worker:
                 files = self._context.socket(zmq.DEALER)
                 files.linger = 0
                 files.maxmsgsize = MAX_CHUNK_FRAME_BYTES
+                files.rcvhwm = files.sndhwm = FETCH_WINDOW  # the fetches in flight
                 self._secure(files)
                 files.connect(self.settings.files)
                 try:
