@@ -18,7 +18,14 @@ from pathlib import Path
 import zmq
 from pydantic import ValidationError
 
-from acquisition.contracts.job_messages import FETCH, Chunk, FetchError, encode, version_problem
+from acquisition.contracts.job_messages import (
+    FETCH,
+    FETCH_WINDOW,
+    Chunk,
+    FetchError,
+    encode,
+    version_problem,
+)
 from .outbox import JobRecord
 
 log = logging.getLogger("micam.daemon")
@@ -27,11 +34,13 @@ MAX_FETCH_BYTES = 4096
 """The largest frame the files socket accepts: a `fetch` is a few hundred bytes of JSON."""
 FETCH_QUEUE = 16
 """Fetches queued per worker connection (x MAX_FETCH_BYTES)."""
-CHUNK_QUEUE = 8
-"""Replies queued per worker connection: a worker keeps at most its window of fetches in
-flight (8, calibration/worker/fetch.py), so a chunk never waits behind more than that; a peer
-that asks without reading holds at most 8 chunks of 1 MiB in the daemon, and the replies after
-are refused (`zmq.Again`, logged)."""
+CHUNK_QUEUE = 2 * FETCH_WINDOW
+"""Replies queued per worker connection. A worker keeps at most FETCH_WINDOW fetches in
+flight, but ZeroMQ tells a queue's writer what its reader took only every half queue, so a
+queue of exactly the window can seem full with fewer in it (and a refused reply stalls the
+worker for its fetch timeout): twice the window never does. A peer that asks without reading
+holds at most 16 chunks of 1 MiB in the daemon; the replies after are refused (`zmq.Again`,
+logged)."""
 
 
 class FileServer:

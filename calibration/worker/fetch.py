@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import zmq
 
 from acquisition.contracts.job_messages import (
+    FETCH_WINDOW,
     FILE_REPLY,
     Chunk,
     Fetch,
@@ -46,11 +47,6 @@ class _Transfer:
 
 CHUNK_BYTES = 1 << 20
 """Bytes asked for per `fetch` (the file server answers with at most this many)."""
-FETCH_WINDOW = 8
-"""Fetches in flight at most; the daemon queues as many chunks per worker (its CHUNK_QUEUE),
-and the worker's file socket as many messages each way."""
-
-
 def fetch_job_files(sock: zmq.Socket, job: Job, cache: FileCache, chunk_bytes: int = CHUNK_BYTES,
                     window: int = FETCH_WINDOW, timeout_s: float = 30.0) -> int:
     """Fetch every file of `job` the cache lacks, over the connected DEALER `sock`; returns the
