@@ -29,7 +29,7 @@ def read_at_most(path: Path, limit: int) -> bytes:
     with open(path, "rb") as fh:
         data = fh.read(limit + 1)
     if len(data) > limit:
-        raise TooLarge(f"{path} is larger than {_size(limit)}")
+        raise TooLarge(f"{path} is larger than {size_text(limit)}")
     return data
 
 
@@ -43,7 +43,7 @@ def read_toml(path: Path, what: str, error: type[UserError],
     except FileNotFoundError:
         raise error(f"{what} {path} does not exist") from None
     except TooLarge:
-        raise error(f"{what} {path} is larger than {_size(limit)}; a configuration is a few "
+        raise error(f"{what} {path} is larger than {size_text(limit)}; a configuration is a few "
                     "kilobytes: is it the right file?") from None
     except OSError as exc:
         raise error(f"cannot read {what} {path}: {exc}") from None
@@ -55,9 +55,9 @@ def read_toml(path: Path, what: str, error: type[UserError],
         raise error(f"{what} {path} is not valid TOML: {exc}") from None
 
 
-def _size(limit: int) -> str:
-    """`limit` bytes for a person: "1 MiB", "64 KiB", "100 bytes"."""
-    for unit, scale in (("MiB", 2**20), ("KiB", 2**10)):
-        if limit >= scale and limit % scale == 0:
-            return f"{limit // scale} {unit}"
-    return f"{limit} bytes"
+def size_text(size: float) -> str:
+    """`size` bytes for a person: "1 MiB", "64 KiB", "1024 TiB", "100 bytes"."""
+    for unit, scale in (("TiB", 2**40), ("GiB", 2**30), ("MiB", 2**20), ("KiB", 2**10)):
+        if size >= scale and size % scale == 0:
+            return f"{int(size // scale)} {unit}"
+    return f"{size:g} bytes"

@@ -196,7 +196,7 @@ def _reachable(endpoint: str, control: str) -> str:
 
 
 def client_from_args(args: argparse.Namespace) -> DaemonClient:
-    """A client for the options of `cli_args.add_client_arguments`."""
+    """A client for the options of `micam.commands.client_options.add_client_arguments`."""
     return DaemonClient(args.control, args.events, args.timeout,
                         Path(args.server_key) if args.server_key else None,
                         Path(args.client_key) if args.client_key else None)

@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from acquisition.daemon.cli_args import add_client_arguments
+from .client_options import add_client_arguments
+from .bounded import BAND_HZ, DEPTH_M, RANGE_DB, TARGET_MM, positive
 
 DEFAULT_LISTEN = "127.0.0.1:8765"
 
@@ -21,22 +22,22 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--token-file", type=Path, metavar="FILE",
                    help="a file (mode 0600) holding the token the page asks for (default "
                         "$MICAM_WEB_TOKEN; needed off loopback)")
-    p.add_argument("--target-mm", type=float, default=0.5, metavar="MM",
+    p.add_argument("--target-mm", type=TARGET_MM, default=0.5, metavar="MM",
                    help="the live calibration's predicted accuracy at which the page says "
                         "'enough poses' (default 0.5 mm)")
     live = p.add_argument_group("live acoustic view (while the daemon is in live mode)")
     live.add_argument("--geometry", type=Path, metavar="FILE",
                       help="calibration result.json: draw live acoustic maps over camera 0 "
                            "(without it the page shows no maps)")
-    live.add_argument("--band", type=float, default=4000.0, metavar="HZ",
+    live.add_argument("--band", type=BAND_HZ, default=4000.0, metavar="HZ",
                       help="band centre (default 4000)")
     live.add_argument("--fraction", type=int, choices=(1, 3), default=3,
                       help="1: octave, 3: third octave (default)")
-    live.add_argument("--depth", type=float, default=1.0, metavar="M",
+    live.add_argument("--depth", type=DEPTH_M, default=1.0, metavar="M",
                       help="the scan plane's distance in front of camera 0 (default 1 m)")
     live.add_argument("--clean-sc", action="store_true", help="deconvolve with CLEAN-SC")
-    live.add_argument("--range-db", type=float, default=15.0, help="dynamic range (default 15)")
-    live.add_argument("--live-fps", type=float, default=10.0,
+    live.add_argument("--range-db", type=RANGE_DB, default=15.0, help="dynamic range (default 15)")
+    live.add_argument("--live-fps", type=positive(60, " fps"), default=10.0,
                       help="maps per second drawn for the page (default 10)")
     add_client_arguments(p)
     p.set_defaults(run=run)
