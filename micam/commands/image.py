@@ -56,8 +56,6 @@ def run(args: argparse.Namespace) -> int:
     from calibration.report import significant
 
     check_outputs(("--out", args.out))
-    if args.range_db <= 0:
-        raise UserError(f"--range-db {args.range_db} must be positive")
     try:
         reader = SessionReader(args.session)
         geometry = load_geometry(args.geometry)
