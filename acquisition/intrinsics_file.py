@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 
 from acquisition.contracts.errors import UserError
+from acquisition.contracts.read_once import TooLarge, read_at_most
 from acquisition.contracts.rig_description import CAMERA_MODEL_COEFFICIENTS, KnownIntrinsics
 
 MAX_FILE_BYTES = 1_000_000
@@ -49,13 +50,13 @@ def read_intrinsics(path: Path, camera: str, size: tuple[int, int] | None,
     """
     path = Path(path)
     try:
-        if path.stat().st_size > MAX_FILE_BYTES:
-            raise IntrinsicsFileError(f"{path} is {path.stat().st_size} bytes, too large for "
-                                      "a camera calibration")
-        text = path.read_text(encoding="utf-8")
+        text = read_at_most(path, MAX_FILE_BYTES).decode("utf-8")  # once: it may be a pipe
+    except TooLarge:
+        raise IntrinsicsFileError(f"{path} is larger than {MAX_FILE_BYTES} bytes, too large "
+                                  "for a camera calibration") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise IntrinsicsFileError(f"cannot read the intrinsics file {path}: {exc}") from None
-    found = _from_micam_result(text, camera, path) or _from_opencv_file(path)
+    found = _from_micam_result(text, camera, path) or _from_opencv_text(text, path)
     K, dist, file_size, file_std = found
     if size is not None and file_size is not None and tuple(file_size) != tuple(size):
         raise IntrinsicsFileError(
@@ -95,10 +96,11 @@ def _from_micam_result(text: str, camera: str, path: Path) -> tuple | None:
                               f"{names}); name the camera as in that calibration")
 
 
-def _from_opencv_file(path: Path) -> tuple:
-    """(K, dist, size or None, None) from an OpenCV FileStorage or ROS camera_info file."""
+def _from_opencv_text(text: str, path: Path) -> tuple:
+    """(K, dist, size or None, None) from the text of an OpenCV FileStorage or ROS
+    camera_info file (`path` names it in errors)."""
     try:
-        storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+        storage = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
     except cv2.error as exc:
         raise IntrinsicsFileError(f"{path} is not an OpenCV YAML, JSON or XML file: "
                                   f"{str(exc).strip().splitlines()[-1]}") from None

@@ -22,14 +22,14 @@ from acquisition.daemon.security import check_exposure
 from acquisition.daemon.service import Daemon
 from acquisition.daemon.systemd import configure_logging, sd_notify
 
-from .hardware import load_daemon_config, open_hardware
+from .hardware import MicamDaemonConfig, load_daemon_config, open_hardware
 
 log = logging.getLogger("micam.daemon")
 
 
-def check_config(path: Path | None) -> str:
-    """Validate a configuration without opening anything; a one-line summary of it."""
-    config = load_daemon_config(path)
+def check_config(config: MicamDaemonConfig) -> str:
+    """Check a loaded configuration without opening anything (`load_daemon_config` has
+    validated it; this refuses sockets strangers could reach); a one-line summary of it."""
     check_exposure(config.sockets)
     what = "simulated world" if config.simulated else "real hardware"
     return (f"configuration OK: {what}, control {config.sockets.control}, events "

@@ -225,6 +225,11 @@ DAEMON_MESSAGE: TypeAdapter[DaemonMessage] = TypeAdapter(DaemonMessage)
 # -- files socket ------------------------------------------------------------------------------
 
 
+FETCH_WINDOW = 8
+"""Fetches a worker keeps in flight at most (each answered by one reply): what the two sides'
+queues of file replies are sized by."""
+
+
 class Fetch(_Msg):
     """Bytes [offset, offset + length) of `path` (a file of job `job_id`, or journal.jsonl)."""
 

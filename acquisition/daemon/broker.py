@@ -90,8 +90,10 @@ MAX_MESSAGES_PER_TURN = 100
 FLUSH_INTERVAL_S = 1.0  # how often records kept in memory are offered to the disk again
 PRUNE_INTERVAL_S = 3600.0
 JOBS_QUEUE = 16
-"""Frames queued per worker connection on the jobs socket (x `max_result_bytes`: its memory
-bound). A worker sends a handful of messages between two turns of the loop."""
+"""Messages queued per worker connection on the jobs socket, each way: received (x
+`max_result_bytes`: their memory bound; a worker sends a handful between two turns of the
+loop) and unsent (heartbeats, acks and offers of a few kilobytes, for a worker that stopped
+reading; the broker's sends then fail with `zmq.Again` and are logged)."""
 
 Publish = Callable[..., Any]
 

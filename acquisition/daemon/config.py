@@ -2,29 +2,30 @@
 
 Priority, highest first: environment (`MICAM_DAEMON_SESSION_ROOT=...`, nested sections with a
 double underscore: `MICAM_DAEMON_SOCKETS__CONTROL=ipc:///run/micam/control`), then the TOML
-file, then the defaults below. Unknown keys are refused so a misspelt option is never ignored.
-With no `[hardware]` section the daemon runs on a simulated world; its `[simulation]` section is
+file, then the defaults below. The file is read once (it may be a pipe: `--config <(...)`)
+and parsed once; the settings get the parsed document, never the path to read again. Unknown
+keys are refused so a misspelt option is never ignored. With no `[hardware]` section the daemon runs on a simulated world; its `[simulation]` section is
 added by the application that builds that world (`micam.hardware.MicamDaemonConfig`), so this
 package never imports the simulator.
 """
 
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
-from typing import ClassVar, Literal, TypeVar
+from typing import Any, ClassVar, Literal, TypeVar
 
 from pydantic import Field, ValidationError, model_validator
 from pydantic_settings import (
     BaseSettings,
+    InitSettingsSource,
     PydanticBaseSettingsSource,
     SettingsConfigDict,
-    TomlConfigSettingsSource,
 )
 
 from acquisition.contracts.capture_config import CaptureConfig
 from acquisition.contracts.config_model import ConfigModel, describe_problems
 from acquisition.contracts.errors import UserError
+from acquisition.contracts.read_once import read_toml
 from .endpoints import beside, default_control, default_events
 
 ENV_PREFIX = "MICAM_DAEMON_"
@@ -208,7 +209,7 @@ class DaemonConfig(BaseSettings):
     model_config = SettingsConfigDict(
         env_prefix=ENV_PREFIX, env_nested_delimiter="__", extra="forbid", frozen=True)
 
-    toml_path: ClassVar[Path | None] = None
+    toml_document: ClassVar[dict[str, Any] | None] = None  # the file's, parsed (load_config)
 
     session_root: Path = Field(default=Path("~/micam-sessions"),
                                description="sessions are directories under it")
@@ -236,8 +237,8 @@ class DaemonConfig(BaseSettings):
         file_secret_settings: PydanticBaseSettingsSource,
     ) -> tuple[PydanticBaseSettingsSource, ...]:
         sources: tuple[PydanticBaseSettingsSource, ...] = (init_settings, env_settings)
-        if cls.toml_path is not None:
-            sources += (TomlConfigSettingsSource(settings_cls, toml_file=cls.toml_path),)
+        if cls.toml_document is not None:  # below the environment (what TOML's source does)
+            sources += (InitSettingsSource(settings_cls, init_kwargs=cls.toml_document),)
         return sources
 
     @property
@@ -253,25 +254,27 @@ def load_config(path: Path | None, config_class: type[Config]) -> Config:
     """Read the configuration from `path` (None: defaults) and the environment.
 
     `config_class` is DaemonConfig or the application's subclass of it (the one with the
-    simulated world's section).
+    simulated world's section). The file is read once, at most 1 MiB (`read_toml`).
 
-    Raises ConfigError naming the file, then one line per problem (the key, its section and,
-    for an unknown key, the keys the section accepts), then where the keys are documented.
+    Raises ConfigError naming the file, then one line per problem (see `config_of`).
     """
-    if path is not None:
-        path = Path(path)
-        try:
-            with path.open("rb") as fh:
-                tomllib.load(fh)  # parse once here for a clear syntax error with its line
-        except FileNotFoundError:
-            raise ConfigError(f"config file {path} does not exist") from None
-        except (OSError, tomllib.TOMLDecodeError) as exc:
-            raise ConfigError(f"config file {path} is not valid TOML: {exc}") from None
-    settings_cls = type(config_class.__name__, (config_class,), {"toml_path": path})
+    if path is None:
+        return config_of(None, "the configuration", config_class)
+    return config_of(read_toml(Path(path), "config file", ConfigError), f"config file {path}",
+                     config_class)
+
+
+def config_of(document: dict[str, Any] | None, where: str, config_class: type[Config]) -> Config:
+    """The configuration of a parsed TOML `document` (None: defaults) and the environment.
+
+    Raises ConfigError naming `where` (the file), then one line per problem (the key, its
+    section and, for an unknown key, the keys the section accepts), then where the keys are
+    documented.
+    """
+    settings_cls = type(config_class.__name__, (config_class,), {"toml_document": document})
     try:
         return settings_cls()
     except ValidationError as exc:
-        where = f"config file {path}" if path else "the configuration"
         problems = describe_problems(exc, config_class)
         raise ConfigError(
             f"{where} (with {ENV_PREFIX}* overrides) is invalid:\n"

@@ -19,7 +19,14 @@ from pathlib import Path
 import zmq
 from pydantic import ValidationError
 
-from acquisition.contracts.job_messages import FETCH, Chunk, FetchError, encode, version_problem
+from acquisition.contracts.job_messages import (
+    FETCH,
+    FETCH_WINDOW,
+    Chunk,
+    FetchError,
+    encode,
+    version_problem,
+)
 from acquisition.contracts.session import SessionError
 
 from .open_beneath import check_sendable, open_beneath
@@ -29,6 +36,15 @@ log = logging.getLogger("micam.daemon")
 
 MAX_FETCH_BYTES = 4096
 """The largest frame the files socket accepts: a `fetch` is a few hundred bytes of JSON."""
+FETCH_QUEUE = 16
+"""Fetches queued per worker connection (x MAX_FETCH_BYTES)."""
+CHUNK_QUEUE = 2 * FETCH_WINDOW
+"""Replies queued per worker connection. A worker keeps at most FETCH_WINDOW fetches in
+flight, but ZeroMQ tells a queue's writer what its reader took only every half queue, so a
+queue of exactly the window can seem full with fewer in it (and a refused reply stalls the
+worker for its fetch timeout): twice the window never does. A peer that asks without reading
+holds at most 16 chunks of 1 MiB in the daemon; the replies after are refused (`zmq.Again`,
+logged)."""
 
 
 class FileServer:
@@ -37,6 +53,7 @@ class FileServer:
     def __init__(self, sock: zmq.Socket, find_job: Callable[[str], JobRecord | None],
                  max_per_turn: int = 32) -> None:
         self.sock = sock
+        sock.router_mandatory = 1  # a reply that cannot be queued is an error we can log
         self._find_job = find_job
         self._max_per_turn = max_per_turn
 
@@ -54,7 +71,7 @@ class FileServer:
                 reply = [encode(FetchError(path="", reason=f"{type(exc).__name__}: {exc}"))]
             try:
                 self.sock.send_multipart([identity, *reply], zmq.NOBLOCK)
-            except zmq.ZMQError as exc:  # the worker went away (ROUTER_MANDATORY)
+            except zmq.ZMQError as exc:  # the worker went away, or does not read its chunks
                 log.info("cannot answer a file request: %s", exc)
 
     def _answer(self, frames: list[bytes]) -> list[bytes]:

@@ -19,7 +19,7 @@ from daq import DaqError, GroupStream
 
 from acquisition.contracts.errors import UserError
 
-from ..live.mode import LiveFault, LiveMode, LiveOptions
+from ..live.mode import MAX_RING_BYTES, LiveFault, LiveMode, LiveOptions, ring_bytes
 from .hardware import Hardware
 from acquisition.contracts.protocol import (
     ErrorEvent,
@@ -67,6 +67,12 @@ class LiveControl:
                 raise Refusal("bad_request", f"no camera {', '.join(unknown)}; the daemon has "
                                              f"{', '.join(known) or 'none'}")
             cameras = [known[name] for name in dict.fromkeys(args.cameras)]
+        fs, n_columns = hw.config.sample_rate_hz, len(hw.config.columns)
+        if ring_bytes(args.seconds, fs, n_columns) > MAX_RING_BYTES:
+            most = MAX_RING_BYTES // (2 * n_columns) / fs
+            raise Refusal("bad_request", f"{args.seconds:g} s of {n_columns} columns at "
+                                         f"{fs:g} Hz do not fit the {MAX_RING_BYTES // 2**20} "
+                                         f"MiB live mode keeps; ask for at most {most:.1f} s")
         mode = LiveMode(GroupStream(hw.group, hw.config.scan_configs()), cameras, hw.config,
                         LiveOptions(args.seconds, args.camera_fps, args.samples),
                         self._publish, self._publish_frames, self._timeout_s)

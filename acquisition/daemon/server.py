@@ -11,11 +11,19 @@ machine that a failed send, or a peer speaking raw bytes (read as ZMTP 1.0 frame
 sending replies to nobody, so that the daemon goes deaf. A ROUTER reads and writes whole
 messages and has no such state; a REQ or a DEALER client works with it unchanged.
 
-Every socket gets its inbound size limit (`ZMQ_MAXMSGSIZE`, per frame) and queue length before
-`bind`: ZeroMQ copies the options into each listener at bind time, so a limit set after bind
-never applies. A frame above the socket's hard limit makes ZeroMQ drop the connection before
-the daemon sees (or buffers) it; on the control socket a request between `max_message_bytes`
-and the hard limit gets a clear `too_large` reply.
+Every socket gets its inbound size limit (`ZMQ_MAXMSGSIZE`, per frame) and both its queue
+lengths, in and out, before `bind`: ZeroMQ copies the options into each listener at bind time,
+so a limit set after bind never applies. A frame above the socket's hard limit makes ZeroMQ
+drop the connection before the daemon sees (or buffers) it; on the control socket a request
+between `max_message_bytes` and the hard limit gets a clear `too_large` reply.
+
+The outbound queues are what a peer that stops reading costs the daemon: each connection holds
+at most its socket's `outbound` messages (ZeroMQ's default, 1000, let a stalled `samples`
+subscriber hold 1000 blocks of the time data, 300 MB). A PUB socket drops what a full queue
+cannot take, a ROUTER refuses it (`zmq.Again`, logged). The time data shares the event socket:
+subscriptions are filtered at the publisher, so a subscriber's queue holds only the topics it
+asked for, and a flood of `samples` never displaces the events of a subscriber that did not
+ask for them (docs/protocol.md, Sockets).
 """
 
 from __future__ import annotations
@@ -46,9 +54,18 @@ from .security import CurveServer, check_exposure
 log = logging.getLogger("micam.daemon")
 
 SUBSCRIPTION_LIMIT = 1024  # bytes: the largest frame a PUB socket accepts (a subscription)
+SUBSCRIPTION_QUEUE = 16  # subscriptions queued per subscriber (x SUBSCRIPTION_LIMIT)
+EVENTS_QUEUE = 8
+"""Messages queued per subscriber of the event socket. The largest is a `samples` block
+(`acquisition.live.mode.BLOCK_SAMPLES` rows x the columns x 2 bytes: 299 KB for 73 columns),
+so a subscriber that stops reading holds at most 8 of them (2.3 MiB, plus the one being
+written) in the daemon; the ones after are dropped for it, as PUB does for slow subscribers."""
 MAX_TURNS = 1000  # busy turns of one `serve` call before the loop gets control back
 MAX_ROUTING_FRAMES = 8  # REQ sends none (just the delimiter); a proxy chain adds one each
-CONTROL_QUEUE = 16  # frames queued per control connection (x the hard limit: its memory bound)
+CONTROL_QUEUE = 16  # requests queued per control connection (x the hard limit: its memory bound)
+REPLY_QUEUE = 4
+"""Replies queued per control connection (a REQ client has one in flight; x the largest reply,
+a `session.file` of `session_files.MAX_FILE_BYTES` in base64, 5.6 MB, is its memory bound)."""
 UNENCODABLE_REPLY = (b'{"v": 2, "id": "", "ok": false, "result": null, "error": {"code": '
                      b'"internal", "message": "the reply could not be encoded"}}')
 """The reply of last resort, when not even an error reply can be encoded (never seen)."""
@@ -157,10 +174,11 @@ class ControlServer:
                 self._curve = CurveServer(self._context, sockets.curve)
             self._control = self.bind(zmq.ROUTER, sockets.control,
                                       control_hard_limit(sockets.max_message_bytes),
-                                      CONTROL_QUEUE)
+                                      CONTROL_QUEUE, REPLY_QUEUE)
             self._control.router_mandatory = 1  # a vanished client is an error we can log
             # A PUB socket receives only subscriptions (a flag byte and a topic).
-            self._pub = self.bind(zmq.PUB, sockets.events, SUBSCRIPTION_LIMIT)
+            self._pub = self.bind(zmq.PUB, sockets.events, SUBSCRIPTION_LIMIT,
+                                  SUBSCRIPTION_QUEUE, EVENTS_QUEUE)
         except BaseException:
             self.close()
             raise
@@ -168,18 +186,18 @@ class ControlServer:
         self._poller.register(self._control, zmq.POLLIN)
         self._watched: dict[zmq.Socket, Callable[[], None]] = {}
 
-    def bind(self, kind: int, endpoint: str, max_frame_bytes: int,
-             queue: int | None = None) -> zmq.Socket:
+    def bind(self, kind: int, endpoint: str, max_frame_bytes: int, inbound: int,
+             outbound: int) -> zmq.Socket:
         """A socket of this server's context, CURVE-secured when configured, refusing inbound
-        frames above `max_frame_bytes` and queueing at most `queue` frames per connection
-        (both set before bind, see the module docstring), bound to `endpoint` (an ipc socket
-        file with the configured mode; ConfigError if binding fails). The caller closes it
-        before `close`."""
+        frames above `max_frame_bytes` and queueing at most `inbound` received and `outbound`
+        unsent messages per connection (all set before bind, see the module docstring),
+        bound to `endpoint` (an ipc socket file with the configured mode; ConfigError if
+        binding fails). The caller closes it before `close`."""
         sock = self._context.socket(kind)
         sock.linger = 0
         sock.maxmsgsize = max_frame_bytes
-        if queue is not None:
-            sock.rcvhwm = queue
+        sock.rcvhwm = inbound
+        sock.sndhwm = outbound
         if self._curve is not None:
             self._curve.secure(sock)
         try:

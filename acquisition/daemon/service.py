@@ -35,7 +35,7 @@ from acquisition.contracts.session import write_atomic
 from acquisition.contracts.step_ids import is_pose_step
 from .broker import CALIBRATION_DIR, JOBS_QUEUE, RESULT_FILE, Broker
 from .config import DaemonConfig
-from .files import MAX_FETCH_BYTES, FileServer
+from .files import CHUNK_QUEUE, FETCH_QUEUE, MAX_FETCH_BYTES, FileServer
 from .hardware import Hardware
 from .index import SessionIndex, summarize
 from .jobs import job_for_session
@@ -133,10 +133,10 @@ class Daemon:
         requeued = outbox.load()
         sockets = self.config.sockets
         broker = Broker(self.server.bind(zmq.ROUTER, sockets.jobs_endpoint,
-                                         sockets.max_result_bytes, JOBS_QUEUE),
+                                         sockets.max_result_bytes, JOBS_QUEUE, JOBS_QUEUE),
                         workers, outbox, self.publish)
-        files = FileServer(self.server.bind(zmq.ROUTER, sockets.files_endpoint, MAX_FETCH_BYTES),
-                           outbox.jobs.get)
+        files = FileServer(self.server.bind(zmq.ROUTER, sockets.files_endpoint, MAX_FETCH_BYTES,
+                                            FETCH_QUEUE, CHUNK_QUEUE), outbox.jobs.get)
         self.server.watch(broker.sock, broker.serve)
         self.server.watch(files.sock, files.serve)
         for job in requeued:

@@ -17,6 +17,7 @@ import os
 import stat
 from pathlib import Path
 
+from acquisition.contracts.read_once import TooLarge, read_at_most
 from acquisition.contracts.session import SessionError, SessionReader
 from acquisition.contracts.safe_names import is_relative_path
 from acquisition.contracts.session._layout import attempt_dir
@@ -61,13 +62,11 @@ def session_report(path: Path, summary: SessionSummary) -> SessionReportResult:
 def _quality(path: Path) -> dict:
     """What a step's quality.json says of its images ({} when it says nothing readable)."""
     try:
-        if path.stat().st_size > MAX_QUALITY_BYTES:
-            return {}
-        data = json.loads(path.read_bytes())
+        data = json.loads(read_at_most(path, MAX_QUALITY_BYTES))
         return {"checkerboard_found": {str(k): bool(v)
                                        for k, v in data["checkerboard_found"].items()},
                 "warnings": [str(w) for w in data.get("warnings", [])]}
-    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+    except (OSError, TooLarge, ValueError, KeyError, TypeError, AttributeError):
         return {}
 
 

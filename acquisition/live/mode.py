@@ -59,6 +59,18 @@ FRAME_WIDTH = 640
 """Width of the published camera frames, pixels."""
 FRAME_QUALITY = 80
 """JPEG quality of the published camera frames."""
+MAX_FRAME_BYTES = 512 * 2**20
+"""The camera frames kept of the ring's seconds, bytes at most (full-size images: the newest
+are kept, so a recording of the longest rings with many cameras has frames of its latest part
+only)."""
+MAX_RING_BYTES = 2**30
+"""The time data kept, bytes at most: 30 s of 73 columns at 96 kS/s are 420 MB (live.start
+asking for more is refused, see `ring_bytes`)."""
+
+
+def ring_bytes(seconds: float, sample_rate_hz: float, n_columns: int) -> int:
+    """The bytes of a ring of `seconds` of `n_columns` int16 columns."""
+    return round(seconds * sample_rate_hz) * n_columns * 2
 
 
 class LiveFault(Exception):
@@ -104,7 +116,7 @@ class LiveMode:
         fs = group_stream.sample_rate_hz
         self.ring = SampleRing(group_stream.n_columns, round(options.seconds * fs))
         frames = max(1, round(options.seconds * options.camera_fps)) * max(1, len(cameras))
-        self.frames = FrameRing(frames)
+        self.frames = FrameRing(frames, MAX_FRAME_BYTES)
         self.n_frames = 0
         self.max_behind_s = 0.0
         self._t0 = 0.0

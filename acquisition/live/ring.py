@@ -3,7 +3,9 @@
 `SampleRing` keeps the newest `capacity` samples of every column (int16 codes, as the boards
 deliver them) with their stream indices; older samples are overwritten. `FrameRing` keeps the
 newest camera frames with the stream index at which each was taken, so that a recording or
-a map finds the frame that matches a time of the scan.
+a map finds the frame that matches a time of the scan; it holds at most a number of frames
+and a number of bytes (frames are full-size images: 30 s at 30 fps of two 1280 x 960 colour
+cameras would be 6.6 GB), dropping the oldest first.
 """
 
 from __future__ import annotations
@@ -61,15 +63,23 @@ class StampedFrame:
 
 
 class FrameRing:
-    """The newest camera frames (at most `capacity`), oldest first."""
+    """The newest camera frames (at most `capacity` frames of at most `max_bytes` in all, and
+    always the newest one), oldest first."""
 
-    def __init__(self, capacity: int) -> None:
+    def __init__(self, capacity: int, max_bytes: int) -> None:
         if capacity < 1:
             raise ValueError(f"a frame ring needs room for at least one frame, not {capacity}")
-        self._frames: deque[StampedFrame] = deque(maxlen=capacity)
+        self._frames: deque[StampedFrame] = deque()
+        self.capacity = int(capacity)
+        self.max_bytes = int(max_bytes)
+        self.nbytes = 0
 
     def append(self, frame: StampedFrame) -> None:
         self._frames.append(frame)
+        self.nbytes += frame.image.nbytes
+        while len(self._frames) > 1 and (len(self._frames) > self.capacity
+                                         or self.nbytes > self.max_bytes):
+            self.nbytes -= self._frames.popleft().image.nbytes
 
     def between(self, start: int, end: int, camera: str | None = None) -> list[StampedFrame]:
         """The frames (of `camera`, or every camera) taken at stream indices [start, end)."""

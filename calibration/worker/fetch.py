@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import zmq
 
 from acquisition.contracts.job_messages import (
+    FETCH_WINDOW,
     FILE_REPLY,
     Chunk,
     Fetch,
@@ -46,10 +47,8 @@ class _Transfer:
 
 CHUNK_BYTES = 1 << 20
 """Bytes asked for per `fetch` (the file server answers with at most this many)."""
-
-
 def fetch_job_files(sock: zmq.Socket, job: Job, cache: FileCache, chunk_bytes: int = CHUNK_BYTES,
-                    window: int = 8, timeout_s: float = 30.0) -> int:
+                    window: int = FETCH_WINDOW, timeout_s: float = 30.0) -> int:
     """Fetch every file of `job` the cache lacks, over the connected DEALER `sock`; returns the
     bytes fetched. Raises FetchFailed, or ChecksumMismatch if a file is wrong twice."""
     transfers: dict[str, _Transfer] = {}

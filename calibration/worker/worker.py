@@ -34,6 +34,7 @@ from pydantic import BaseModel, ValidationError
 
 from acquisition.contracts.job_messages import (
     DAEMON_MESSAGE,
+    FETCH_WINDOW,
     Ack,
     Bye,
     Done,
@@ -65,6 +66,14 @@ MAX_JOB_MESSAGE_BYTES = 16 * 2**20
 """The largest frame the worker takes from the daemon's jobs socket (a job lists its files:
 about 150 bytes each); ZeroMQ drops a connection that sends more, before it is read."""
 MAX_CHUNK_FRAME_BYTES = CHUNK_BYTES + 2**16  # a chunk's bytes, or its JSON header
+FILES_QUEUE = 2 * FETCH_WINDOW
+"""Messages queued each way on the file socket: twice the fetches in flight, because ZeroMQ
+tells a queue's writer what its reader took only every half queue, so a queue of exactly the
+window can seem full (and the daemon's reply is then refused: a 30 s stall)."""
+JOBS_QUEUE = 16
+"""Messages queued each way on the jobs socket: received (jobs, heartbeats, acks: x
+MAX_JOB_MESSAGE_BYTES at most) and unsent (for a daemon that stopped reading; `_send` then
+drops the message, as for a daemon that is not connected)."""
 
 
 @dataclass(frozen=True)
@@ -170,6 +179,7 @@ class Worker:
         sock.immediate = 1  # queue nothing for a daemon that is not there (no stale flood)
         sock.identity = f"{self.settings.name}-{uuid.uuid4().hex[:8]}".encode()
         sock.maxmsgsize = MAX_JOB_MESSAGE_BYTES  # set before connect, or it never applies
+        sock.rcvhwm = sock.sndhwm = JOBS_QUEUE
         self._secure(sock)
         sock.connect(self.settings.jobs)
         self._sock = sock
@@ -260,6 +270,7 @@ class Worker:
                 files = self._context.socket(zmq.DEALER)
                 files.linger = 0
                 files.maxmsgsize = MAX_CHUNK_FRAME_BYTES
+                files.rcvhwm = files.sndhwm = FILES_QUEUE
                 self._secure(files)
                 files.connect(self.settings.files)
                 try:

@@ -8,6 +8,7 @@ from pathlib import Path
 from acquisition.contracts.errors import UserError
 
 from ..outputs import check_outputs
+from .bounded import number, positive
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -41,23 +42,23 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="a known geometry of the array in its own frame (result.json, "
                         "truth.json or Acoular XML naming microphone k \"Point k\"): fit its "
                         "rigid transform into the camera frame (paper IV-H)")
-    p.add_argument("--prior-std-mm", type=float, default=None,
+    p.add_argument("--prior-std-mm", type=positive(1000, " mm"), default=None,
                    help="let each microphone deviate from the prior by about this much "
                         "(default: the prior is rigid)")
-    p.add_argument("--temperature", type=float, default=None, metavar="DEGC",
+    p.add_argument("--temperature", type=number(-40, 60, " degC"), default=None, metavar="DEGC",
                    help="the air temperature measured during the session, degC (with "
                         "--temperature-std); replaces the session's own")
-    p.add_argument("--temperature-std", type=float, default=None, metavar="K",
+    p.add_argument("--temperature-std", type=number(0, 20, " K"), default=None, metavar="K",
                    help="its standard deviation, kelvin")
-    p.add_argument("--humidity", type=float, default=None, metavar="RH",
+    p.add_argument("--humidity", type=number(0, 1), default=None, metavar="RH",
                    help="the relative humidity measured with --temperature, 0..1 (with "
                         "--humidity-std); without it any humidity is assumed possible "
                         "(about +-0.6 m/s at 20 degC)")
-    p.add_argument("--humidity-std", type=float, default=None, metavar="RH",
+    p.add_argument("--humidity-std", type=number(0, 1), default=None, metavar="RH",
                    help="its standard deviation, 0..1")
-    p.add_argument("--known-speed-of-sound", type=float, default=None, metavar="M_S",
+    p.add_argument("--known-speed-of-sound", type=number(300, 380, " m/s"), default=None, metavar="M_S",
                    help="a measured speed of sound, m/s (with --known-speed-of-sound-std)")
-    p.add_argument("--known-speed-of-sound-std", type=float, default=None, metavar="M_S",
+    p.add_argument("--known-speed-of-sound-std", type=number(0, 20, " m/s"), default=None, metavar="M_S",
                    help="its standard deviation, m/s")
     p.add_argument("--intrinsics", action="append", default=[], metavar="CAMERA=FILE",
                    help="a known calibration of a camera (OpenCV YAML/JSON/XML, ROS "

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from acquisition.daemon.cli_args import add_client_arguments
+from .client_options import add_client_arguments
+from .bounded import LONG_WAIT
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -13,7 +14,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Tell the daemon that the set-up it asked for is ready, then show the "
                     "step's levels and checks until it completes or is abandoned.")
     p.add_argument("--no-wait", action="store_true", help="return as soon as it is accepted")
-    p.add_argument("--wait-timeout", type=float, default=300.0, metavar="S",
+    p.add_argument("--wait-timeout", type=LONG_WAIT, default=300.0, metavar="S",
                    help="longest wait for the capture to finish (default 300 s)")
     p.add_argument("--quiet", action="store_true",
                    help="print only the outcome: one line, the step and complete or abandoned")

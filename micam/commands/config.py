@@ -4,7 +4,6 @@ and a check of a hand-edited one."""
 from __future__ import annotations
 
 import argparse
-import tomllib
 from pathlib import Path
 
 from acquisition.contracts.errors import UserError
@@ -54,23 +53,32 @@ def run_template(args: argparse.Namespace) -> int:
 
 
 def run_check(args: argparse.Namespace) -> int:
+    """Check the file as read once (it may be a pipe: `micam config check <(...)`)."""
+    from acquisition.contracts.read_once import read_toml
+    from acquisition.daemon.config import config_of
     from micam.daemon import check_config
-    from acquisition.importer import ImportSpecError, load_spec
+    from micam.hardware import MicamDaemonConfig
+
+    document = read_toml(args.file, "configuration", UserError)
+    if "recordings" in document:
+        return _check_import(document, args.file)
+    print(check_config(config_of(document, f"config file {args.file}", MicamDaemonConfig)))
+    return 0
+
+
+def _check_import(document: dict, path: Path) -> int:
+    """Validate an import description's document, as `micam import` will."""
+    from pydantic import ValidationError
+
+    from acquisition.contracts.rig_description import problem_text
+    from acquisition.importer import ImportSpec
 
     try:
-        document = tomllib.loads(args.file.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise UserError(f"{args.file} does not exist") from None
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-        raise UserError(f"{args.file} is not a readable TOML file: {exc}") from None
-    if "recordings" in document:
-        try:
-            spec = load_spec(args.file)
-        except ImportSpecError as exc:
-            raise UserError(str(exc)) from None
-        print(f"import description OK: {len(spec.recordings.poses)} poses, "
-              f"{len(spec.microphones())} microphones, {spec.n_speakers} speakers; check its "
-              f"files with `micam import {args.file} --out DIR --check`")
-        return 0
-    print(check_config(args.file))
+        spec = ImportSpec.model_validate(document)
+    except ValidationError as exc:
+        raise UserError(problem_text(f"import description {path}", exc, ImportSpec)
+                        .rstrip("\n")) from None
+    print(f"import description OK: {len(spec.recordings.poses)} poses, "
+          f"{len(spec.microphones())} microphones, {spec.n_speakers} speakers; check its "
+          f"files with `micam import {path} --out DIR --check`")
     return 0

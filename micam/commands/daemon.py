@@ -26,6 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from acquisition.contracts.protocol import json_schemas
     from micam.daemon import check_config, run_daemon
+    from micam.hardware import load_daemon_config
     from acquisition.contracts.keys import make_keys
 
     if args.schemas is not None:
@@ -39,6 +40,6 @@ def run(args: argparse.Namespace) -> int:
             print(path)
         return 0
     if args.check:
-        print(check_config(args.config))
+        print(check_config(load_daemon_config(args.config)))
         return 0
     return run_daemon(args.config, args.log_level)

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from acquisition.contracts.errors import UserError
+from .bounded import positive
 
 from . import daq_trace
 
@@ -22,7 +23,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     actions = p.add_subparsers(dest="daq_command", required=True, metavar="ACTION")
     lst = actions.add_parser("list", help="boards found: model, serial, firmware state")
     test = actions.add_parser("selftest", help="a short scan on every board: rates and levels")
-    test.add_argument("--seconds", type=float, default=0.5, help="scan length per board")
+    test.add_argument("--seconds", type=positive(60, " s"), default=0.5,
+                      help="scan length per board")
     test.add_argument("--firmware-dir", type=Path, default=None,
                       help="where the boards' firmware images are (else $MICAM_FIRMWARE_DIR)")
     for action in (lst, test):
@@ -81,8 +83,6 @@ def run_selftest(args: argparse.Namespace) -> int:
     from daq import DaqError
     from daq.usb import open_boards, selftest
 
-    if args.seconds <= 0:
-        raise UserError("--seconds must be positive")
     try:
         boards = open_boards(backend=_backend(args), firmware_dir=args.firmware_dir)
     except (usb.core.NoBackendError, usb.core.USBError) as exc:

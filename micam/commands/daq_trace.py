@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import re
 import time
 from collections.abc import Callable, Iterator
@@ -19,6 +18,11 @@ from pathlib import Path
 from typing import Any
 
 from acquisition.contracts.errors import UserError
+
+from .bounded import number
+
+TRACE_SECONDS = number(0, 1e7, " s")
+"""`trace show --from/--to`: seconds after the first record (up to 116 days)."""
 
 
 def register(actions: argparse._SubParsersAction, emulated_backend: Callable[[], Any]) -> None:
@@ -40,9 +44,9 @@ def register(actions: argparse._SubParsersAction, emulated_backend: Callable[[],
                      help="only this device (bus number and device address, as lsusb shows)")
     who.add_argument("--serial", type=_serial, metavar="SERIAL",
                      help="only the board with this EEPROM serial")
-    show.add_argument("--from", dest="start", type=_seconds, metavar="S",
+    show.add_argument("--from", dest="start", type=TRACE_SECONDS, metavar="S",
                       help="from this many seconds after the first record")
-    show.add_argument("--to", dest="end", type=_seconds, metavar="S",
+    show.add_argument("--to", dest="end", type=TRACE_SECONDS, metavar="S",
                       help="up to this many seconds after the first record")
     show.add_argument("--polls", action="store_true",
                       help="also the empty reads of the stream and message endpoints")
@@ -85,16 +89,6 @@ def _serial(text: str) -> str:
     if not text.isdigit() or int(text) >= 2**32:
         raise argparse.ArgumentTypeError(f"{text!r} is not a board serial (a decimal number)")
     return str(int(text))
-
-
-def _seconds(text: str) -> float:
-    try:
-        s = float(text)
-    except ValueError:
-        s = math.nan
-    if not math.isfinite(s) or s < 0:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds >= 0")
-    return s
 
 
 def run_show(args: argparse.Namespace) -> int:

@@ -17,6 +17,7 @@ from acquisition.contracts.errors import UserError
 
 from ..outputs import check_outputs
 from . import imaging_options
+from .bounded import BAND_HZ, FRACTION, integer, number
 
 if TYPE_CHECKING:
     from calibration.imaging.evaluate import Evaluation, Summary
@@ -39,16 +40,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     source = p.add_mutually_exclusive_group(required=True)
     source.add_argument("--geometry", type=Path, metavar="FILE",
                         help="calibration result.json, or truth.json of a simulated session")
-    source.add_argument("--folds", type=int, metavar="K",
+    source.add_argument("--folds", type=integer(2, 100), metavar="K",
                         help="calibrate the session itself and report held-out (K folds of "
                              "poses) beside in-sample localization")
     p.add_argument("--truth", type=Path, default=None, metavar="FILE",
                    help="truth.json to measure errors against the true speaker positions too "
                         "(default: SESSION/truth.json if present)")
-    p.add_argument("--band-lo", type=float, default=5000.0, help="lowest band centre, Hz")
-    p.add_argument("--band-hi", type=float, default=15000.0, help="highest band centre, Hz")
-    p.add_argument("--fraction", type=int, default=12, help="bands of 1/N octave (default 12)")
-    p.add_argument("--spacing", type=float, default=0.006, metavar="M",
+    p.add_argument("--band-lo", type=BAND_HZ, default=5000.0, help="lowest band centre, Hz")
+    p.add_argument("--band-hi", type=BAND_HZ, default=15000.0, help="highest band centre, Hz")
+    p.add_argument("--fraction", type=FRACTION, default=12, help="bands of 1/N octave (default 12)")
+    p.add_argument("--spacing", type=number(0.002, 0.1, " m"), default=0.006, metavar="M",
                    help="grid spacing on the rig plane, metres (default 0.006, the paper's)")
     p.add_argument("--aligned-grid", action="store_true",
                    help="put grid nodes on the speakers' rig coordinates instead of a random "
@@ -57,7 +58,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", type=Path, metavar="FILE", help="also write the summary as JSON")
     p.add_argument("--figure", type=Path, metavar="FILE",
                    help="also draw the errors by band and their distribution as a PNG")
-    p.add_argument("--workers", type=int, default=None, metavar="N",
+    p.add_argument("--workers", type=integer(1, 256), default=None, metavar="N",
                    help="processes the poses are shared over (default: all cores)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(run=run)

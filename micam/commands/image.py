@@ -11,6 +11,7 @@ from acquisition.contracts.errors import UserError
 
 from ..outputs import check_outputs
 from . import imaging_options
+from .bounded import BAND_HZ, FRACTION, POSE, RANGE_DB, SPEAKER, number
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -26,17 +27,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("session", type=Path, help="session directory")
     p.add_argument("--geometry", required=True, type=Path, metavar="FILE",
                    help="calibration result.json, or truth.json of a simulated session")
-    p.add_argument("--pose", required=True, type=int, help="pose number (step pose/NNNN)")
-    p.add_argument("--speaker", required=True, type=int, help="speaker recording to image")
-    p.add_argument("--band", required=True, type=float, metavar="HZ",
+    p.add_argument("--pose", required=True, type=POSE, help="pose number (step pose/NNNN)")
+    p.add_argument("--speaker", required=True, type=SPEAKER, help="speaker recording to image")
+    p.add_argument("--band", required=True, type=BAND_HZ, metavar="HZ",
                    help="band centre frequency in hertz")
-    p.add_argument("--fraction", type=int, default=12,
+    p.add_argument("--fraction", type=FRACTION, default=12,
                    help="band width as a fraction of an octave (default 12: 1/12 octave)")
     p.add_argument("--camera", default="cam0", help="camera whose image is used (default cam0)")
-    p.add_argument("--spacing", type=float, default=0.004, metavar="M",
+    p.add_argument("--spacing", type=number(0.0005, 1.0, " m"), default=0.004, metavar="M",
                    help="grid spacing on the rig plane, metres (default 0.004; coarser when "
                         "the camera's view would need more than 120000 points)")
-    p.add_argument("--range-db", type=float, default=15.0,
+    p.add_argument("--range-db", type=RANGE_DB, default=15.0,
                    help="dynamic range of the maps, dB below each map's peak (default 15)")
     p.add_argument("--steering", default="true location",
                    help="steering formulation: classic, inverse, 'true level', "
@@ -55,8 +56,6 @@ def run(args: argparse.Namespace) -> int:
     from calibration.report import significant
 
     check_outputs(("--out", args.out))
-    if args.range_db <= 0:
-        raise UserError(f"--range-db {args.range_db} must be positive")
     reader = SessionReader(args.session)
     geometry = load_geometry(args.geometry)
     settings, calibrated_from, geometry = imaging_options.corrected_settings(

@@ -8,6 +8,7 @@ import argparse
 from dataclasses import replace
 
 from acquisition.contracts.errors import UserError
+from .bounded import POSE, SEED, SPEAKER, number
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -23,24 +24,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="correct every CSM for the per-microphone responses of the geometry file "
              "(result.json's microphone_responses)")
     p.add_argument(
-        "--mic-phase-error-deg", type=float, default=0.0, metavar="DEG",
+        "--mic-phase-error-deg", type=number(0, 180, " deg"), default=0.0, metavar="DEG",
         help="simulate microphones that differ in phase: add a per-channel phase, normal with "
              "DEG degrees standard deviation and constant over frequency, to every recording's "
              "spectra (default 0: none)")
-    p.add_argument("--mic-phase-error-seed", type=int, default=0, metavar="N",
+    p.add_argument("--mic-phase-error-seed", type=SEED, default=0, metavar="N",
                    help="seed of the simulated phase error (default 0)")
 
 
 def recording(text: str) -> tuple[int, int]:
-    """POSE:SPEAKER -> (pose, speaker)."""
-    try:
-        pose, speaker = (int(x) for x in text.split(":"))
-    except ValueError:
+    """POSE:SPEAKER -> (pose, speaker), each within its range."""
+    parts = text.split(":")
+    if len(parts) != 2:
         raise argparse.ArgumentTypeError(
-            f"{text!r} is not POSE:SPEAKER, e.g. 0:4 (speaker 4 of pose 0)") from None
-    if pose < 0 or speaker < 0:
-        raise argparse.ArgumentTypeError(f"{text!r}: pose and speaker are numbers >= 0")
-    return pose, speaker
+            f"{text!r} is not POSE:SPEAKER, e.g. 0:4 (speaker 4 of pose 0)")
+    try:
+        return POSE(parts[0]), SPEAKER(parts[1])
+    except argparse.ArgumentTypeError as exc:
+        raise argparse.ArgumentTypeError(f"{text!r} (POSE:SPEAKER): {exc}") from None
 
 
 def with_simulated_error(args: argparse.Namespace, settings, n_mics: int):

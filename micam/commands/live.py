@@ -4,11 +4,21 @@ from a live recording (docs/live.md)."""
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
-from acquisition.daemon.cli_args import add_client_arguments
-
 from acquisition.contracts.errors import UserError
+
+from .client_options import add_client_arguments
+from .bounded import BAND_HZ, DEPTH_M, RANGE_DB, integer, number, positive
+
+MAX_GRID = 1000
+"""The most scan points across each side of the view (a million in all)."""
+MAX_GRID_BYTES = 2 * 2**30
+"""The ceiling of the imager's memory for the grid: its steering vectors, powers and their
+temporaries take about BYTES_PER_POINT_AND_MIC (measured: 122 at 201 x 201 points and 72
+microphones, 73 at 401 x 401), so 72 microphones allow a grid of up to 482."""
+BYTES_PER_POINT_AND_MIC = 128
 
 
 def _add_imaging_arguments(p: argparse.ArgumentParser) -> None:
@@ -16,24 +26,28 @@ def _add_imaging_arguments(p: argparse.ArgumentParser) -> None:
                    help="calibration result.json (or a simulated session's truth.json)")
     p.add_argument("--out", required=True, type=Path,
                    help="video file to write: .mp4 (MPEG-4) or .avi (MJPEG)")
-    p.add_argument("--band", type=float, default=4000.0, metavar="HZ",
+    p.add_argument("--band", type=BAND_HZ, default=4000.0, metavar="HZ",
                    help="band centre frequency (default 4000)")
     p.add_argument("--fraction", type=int, choices=(1, 3), default=3,
                    help="1: octave, 3: third octave (default)")
-    p.add_argument("--depth", type=float, default=1.0, metavar="M",
+    p.add_argument("--depth", type=DEPTH_M, default=1.0, metavar="M",
                    help="distance of the scan plane in front of the camera (default 1 m)")
-    p.add_argument("--grid", type=int, default=101, metavar="N",
-                   help="scan points across each side of the view (default 101)")
-    p.add_argument("--block", type=int, default=1024, help="Welch block length (default 1024)")
-    p.add_argument("--overlap", type=float, default=0.5, help="Welch overlap (default 0.5)")
-    p.add_argument("--window", type=float, default=0.1, metavar="S",
+    p.add_argument("--grid", type=integer(2, MAX_GRID), default=101, metavar="N",
+                   help=f"scan points across each side of the view (default 101; its points "
+                        f"x the microphones may take at most {MAX_GRID_BYTES // 2**30} GiB)")
+    p.add_argument("--block", type=integer(16, 65_536), default=1024,
+                   help="Welch block length, samples (default 1024)")
+    p.add_argument("--overlap", type=number(0, 0.95), default=0.5,
+                   help="Welch overlap (default 0.5)")
+    p.add_argument("--window", type=positive(10, " s"), default=0.1, metavar="S",
                    help="CSM averaging window (default 0.1 s)")
     p.add_argument("--clean-sc", action="store_true", help="deconvolve with CLEAN-SC")
-    p.add_argument("--range-db", type=float, default=15.0,
+    p.add_argument("--range-db", type=RANGE_DB, default=15.0,
                    help="dynamic range drawn, dB below each map's peak (default 15)")
     p.add_argument("--camera", default="cam0", help="camera drawn on (default cam0)")
-    p.add_argument("--fps", type=float, default=10.0, help="video frames per second (default 10)")
-    p.add_argument("--scale", type=float, default=0.5,
+    p.add_argument("--fps", type=positive(60, " fps"), default=10.0,
+                   help="video frames per second (default 10)")
+    p.add_argument("--scale", type=number(0.05, 2),default=0.5,
                    help="video size relative to the camera image (default 0.5)")
 
 
@@ -45,22 +59,22 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "video of it or of a recording.")
     actions = p.add_subparsers(dest="action", required=True, metavar="ACTION")
     start = actions.add_parser("start", help="enter live mode (the daemon must be idle)")
-    start.add_argument("--seconds", type=float, default=10.0,
+    start.add_argument("--seconds", type=number(1, 30, " s"), default=10.0,
                        help="seconds kept in the ring buffer (default 10)")
-    start.add_argument("--camera-fps", type=float, default=10.0,
+    start.add_argument("--camera-fps", type=positive(30, " fps"), default=10.0,
                        help="camera frames per second (default 10)")
     start.add_argument("--camera", action="append", dest="cameras", metavar="NAME",
                        help="a camera to stream (repeat for several; default: all)")
     actions.add_parser("stop", help="leave live mode")
     record = actions.add_parser("record", help="store the latest seconds (session format and "
                                                "Acoular's HDF5 time data)")
-    record.add_argument("--seconds", type=float, default=5.0,
+    record.add_argument("--seconds", type=positive(30, " s"), default=5.0,
                         help="seconds to store (default 5, at most the ring's)")
     video = actions.add_parser("video", help="an acoustic video of live mode or of a recording")
     _add_imaging_arguments(video)
     video.add_argument("--recording", type=Path, metavar="DIR",
                        help="a live recording (from `micam live record`) instead of live mode")
-    video.add_argument("--seconds", type=float, default=10.0,
+    video.add_argument("--seconds", type=positive(3600, " s"), default=10.0,
                        help="from live mode: seconds to film (default 10)")
     for action in actions.choices.values():
         add_client_arguments(action)
@@ -94,6 +108,7 @@ def _video(args: argparse.Namespace) -> int:
     from calibration.imaging.live_frames import VideoFile
 
     geometry = load_geometry(args.geometry)
+    _check_grid(args.grid, geometry.n_mics)
     settings = LiveSettings(band_hz=args.band, fraction=args.fraction,
                             block_size=args.block, overlap=args.overlap,
                             window_s=args.window, depth_m=args.depth,
@@ -107,6 +122,16 @@ def _video(args: argparse.Namespace) -> int:
         n = _video_of_live(args, geometry, settings, video)
     print(f"wrote {args.out}: {n} frames at {args.fps:g} fps")
     return 0
+
+
+def _check_grid(grid: int, n_mics: int) -> None:
+    """Refuse a grid whose imager would take more than MAX_GRID_BYTES (UserError)."""
+    need = grid * grid * n_mics * BYTES_PER_POINT_AND_MIC
+    if need > MAX_GRID_BYTES:
+        fits = math.isqrt(MAX_GRID_BYTES // (n_mics * BYTES_PER_POINT_AND_MIC))
+        raise UserError(f"--grid {grid}: {grid} x {grid} points and {n_mics} microphones need "
+                        f"about {need / 2**30:.1f} GiB; at most --grid {fits} fits in the "
+                        f"{MAX_GRID_BYTES // 2**30} GiB the live imager may take")
 
 
 def _video_of_recording(path: Path, geometry, settings, fps: float, video) -> int:

@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 import json
 
-from acquisition.daemon.cli_args import add_client_arguments
+from .client_options import add_client_arguments
+from .bounded import LONG_WAIT, integer
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -14,7 +15,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     actions = p.add_subparsers(dest="action", required=True, metavar="ACTION")
     start = actions.add_parser("start", help="open a new session (or continue an interrupted "
                                              "one with --resume)")
-    start.add_argument("--poses", type=int, help="rig poses to capture (default: the "
+    start.add_argument("--poses", type=integer(1, 10_000), help="rig poses to capture (default: the "
                                                  "daemon's configuration)")
     start.add_argument("--resume", metavar="ID",
                        help="continue the interrupted session ID ('last': the newest one)")
@@ -27,7 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
             action.add_argument("--no-wait", action="store_true",
                                 help="return at once instead of waiting for the session to "
                                      "close")
-            action.add_argument("--wait-timeout", type=float, default=120.0, metavar="S",
+            action.add_argument("--wait-timeout", type=LONG_WAIT, default=120.0, metavar="S",
                                 help="longest wait for the session to close (default 120 s)")
     status = actions.add_parser("status", help="what the daemon is doing")
     status.add_argument("--json", action="store_true", help="print the status reply as JSON")

@@ -7,7 +7,7 @@ import json
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from acquisition.daemon.cli_args import add_client_arguments
+    from .client_options import add_client_arguments
 
     p = sub.add_parser("sessions", help="list the daemon's sessions",
                        description="List every session under the daemon's session root.")

@@ -11,6 +11,7 @@ from pydantic import ValidationError
 from tqdm import tqdm
 
 from acquisition.contracts.errors import UserError
+from .bounded import SEED, integer, number
 
 if TYPE_CHECKING:
     from acquisition.sequencer import Progress
@@ -29,16 +30,16 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="continue an interrupted session in DIR with its original settings")
     p.add_argument("--array", default="sphere72",
                    help="array layout: sphere72, planar64 or scatter48 (default sphere72)")
-    p.add_argument("--poses", type=int, default=20, help="rig poses to capture (default 20)")
-    p.add_argument("--distance", type=float, nargs=2, default=(0.6, 1.0), metavar=("MIN", "MAX"),
+    p.add_argument("--poses", type=integer(1, 10_000), default=20, help="rig poses to capture (default 20)")
+    p.add_argument("--distance", type=number(0.2, 5.0, " m"), nargs=2, default=(0.6, 1.0), metavar=("MIN", "MAX"),
                    help="rig distance range from camera 0 in metres (default 0.6 1.0)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the simulated world")
-    p.add_argument("--noise", type=float, default=1.0,
+    p.add_argument("--seed", type=SEED, default=0, help="seed of the simulated world")
+    p.add_argument("--noise", type=number(0, 100), default=1.0,
                    help="scale of all noise: 1 = a real lab (default), 0 = none")
-    p.add_argument("--temperature", type=float, default=20.0, help="air temperature, degC")
-    p.add_argument("--mls-order", type=int, default=14,
+    p.add_argument("--temperature", type=number(-40, 60, " degC"), default=20.0, help="air temperature, degC")
+    p.add_argument("--mls-order", type=integer(6, 18), default=14,
                    help="MLS order of the bursts (14 = 171 ms at 96 kS/s)")
-    p.add_argument("--mls-periods", type=int, default=None,
+    p.add_argument("--mls-periods", type=integer(1, 8), default=None,
                    help="periods of the MLS per burst (default: 2, whose last, correlated "
                         "circularly, keeps a room's reflections off the direct sound; 1 for "
                         "sequences shorter than 25 ms)")

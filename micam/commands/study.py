@@ -12,6 +12,7 @@ import json
 from pathlib import Path
 
 from acquisition.contracts.errors import UserError
+from .bounded import SEED, integer
 
 DEFAULT_BANDS = ("0.4-0.6", "0.6-1.0", "1.0-1.5", "1.5-2.0")
 DEFAULT_SOURCES = (3, 6, 12, 18, 36, 48, 96, 180)
@@ -23,15 +24,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, required=True, help="directory for sessions and results")
     p.add_argument("--bands", nargs="+", default=list(DEFAULT_BANDS), metavar="MIN-MAX",
                    help="distance bands in metres (default: the paper's four)")
-    p.add_argument("--poses", type=int, default=30, help="poses simulated per band")
-    p.add_argument("--sources", type=int, nargs="+", default=list(DEFAULT_SOURCES),
+    p.add_argument("--poses", type=integer(1, 10_000), default=30, help="poses simulated per band")
+    p.add_argument("--sources", type=integer(1, 60_000), nargs="+", default=list(DEFAULT_SOURCES),
                    help="numbers of sources (up to 6, or multiples of 6)")
-    p.add_argument("--trials", type=int, default=5, help="random subsets per number")
+    p.add_argument("--trials", type=integer(1, 1000), default=5, help="random subsets per number")
     p.add_argument("--array", default="sphere72",
                    help="simulated array: sphere72 (default), planar64 or scatter48")
-    p.add_argument("--mls-order", type=int, default=14,
+    p.add_argument("--mls-order", type=integer(6, 18), default=14,
                    help="order of the MLS bursts, a period of 2**order - 1 samples (default 14)")
-    p.add_argument("--seed", type=int, default=0,
+    p.add_argument("--seed", type=SEED, default=0,
                    help="seed of the simulated world and of the subsets drawn (default 0)")
     p.set_defaults(run=run)
 

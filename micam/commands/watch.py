@@ -7,19 +7,20 @@ import argparse
 import sys
 import time
 
-from acquisition.daemon.cli_args import add_client_arguments
+from .client_options import add_client_arguments
+from .bounded import LONG_WAIT, TARGET_MM, integer
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("watch", help="follow the daemon's progress, levels and warnings live",
                        description="Print the daemon's status, then one line per event "
                                    "until interrupted (Ctrl-C).")
-    p.add_argument("--count", type=int, metavar="N", help="stop after N events")
-    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    p.add_argument("--count", type=integer(1, 10**9), metavar="N", help="stop after N events")
+    p.add_argument("--duration", type=LONG_WAIT, metavar="S", help="stop after S seconds")
     p.add_argument("--json", action="store_true",
                    help="print JSON lines only: the status first, then one event per line "
                         "(notes such as missed events go to stderr)")
-    p.add_argument("--target-mm", type=float, metavar="MM",
+    p.add_argument("--target-mm", type=TARGET_MM, metavar="MM",
                    help="say when the live calibration predicts this mean microphone accuracy")
     add_client_arguments(p)
     p.set_defaults(run=run)

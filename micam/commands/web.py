@@ -5,11 +5,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from acquisition.daemon.cli_args import add_client_arguments
+from .client_options import add_client_arguments
+from .bounded import BAND_HZ, DEPTH_M, RANGE_DB, TARGET_MM, number, positive
 
 DEFAULT_LISTEN = "127.0.0.1:8765"
 DEFAULT_REQUEST_TIMEOUT_S = 10.0
-MIN_TIMEOUT_S, MAX_TIMEOUT_S = 0.1, 3600.0
+REQUEST_TIMEOUT = number(0.1, 3600, " s")
+"""`--request-timeout`: seconds a client has for a request's head, and again for its body."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -28,26 +30,26 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "the --listen address (each with its port), e.g. a reverse proxy's "
                         "name; without a port, any port. Repeatable. Requests naming another "
                         "host are refused (421), against DNS rebinding")
-    p.add_argument("--request-timeout", type=float, default=DEFAULT_REQUEST_TIMEOUT_S,
+    p.add_argument("--request-timeout", type=REQUEST_TIMEOUT, default=DEFAULT_REQUEST_TIMEOUT_S,
                    metavar="S", help="seconds a client has to send a request's head, and again "
                                      f"its body (default {DEFAULT_REQUEST_TIMEOUT_S:g}); a "
                                      "slower one is cut off (408)")
-    p.add_argument("--target-mm", type=float, default=0.5, metavar="MM",
+    p.add_argument("--target-mm", type=TARGET_MM, default=0.5, metavar="MM",
                    help="the live calibration's predicted accuracy at which the page says "
                         "'enough poses' (default 0.5 mm)")
     live = p.add_argument_group("live acoustic view (while the daemon is in live mode)")
     live.add_argument("--geometry", type=Path, metavar="FILE",
                       help="calibration result.json: draw live acoustic maps over camera 0 "
                            "(without it the page shows no maps)")
-    live.add_argument("--band", type=float, default=4000.0, metavar="HZ",
+    live.add_argument("--band", type=BAND_HZ, default=4000.0, metavar="HZ",
                       help="band centre (default 4000)")
     live.add_argument("--fraction", type=int, choices=(1, 3), default=3,
                       help="1: octave, 3: third octave (default)")
-    live.add_argument("--depth", type=float, default=1.0, metavar="M",
+    live.add_argument("--depth", type=DEPTH_M, default=1.0, metavar="M",
                       help="the scan plane's distance in front of camera 0 (default 1 m)")
     live.add_argument("--clean-sc", action="store_true", help="deconvolve with CLEAN-SC")
-    live.add_argument("--range-db", type=float, default=15.0, help="dynamic range (default 15)")
-    live.add_argument("--live-fps", type=float, default=10.0,
+    live.add_argument("--range-db", type=RANGE_DB, default=15.0, help="dynamic range (default 15)")
+    live.add_argument("--live-fps", type=positive(60, " fps"), default=10.0,
                       help="maps per second drawn for the page (default 10)")
     add_client_arguments(p)
     p.set_defaults(run=run)
@@ -89,9 +91,6 @@ def run(args: argparse.Namespace) -> int:
     if not host or not (port.isascii() and port.isdigit()) or not 0 < int(port) < 65536:
         raise UserError(f"--listen {args.listen}: give HOST:PORT with a port from 1 to 65535, "
                         f"e.g. {DEFAULT_LISTEN}")
-    if not MIN_TIMEOUT_S <= args.request_timeout <= MAX_TIMEOUT_S:
-        raise UserError(f"--request-timeout {args.request_timeout:g}: give seconds from "
-                        f"{MIN_TIMEOUT_S:g} to {MAX_TIMEOUT_S:g}")
     served = ServedHosts(int(port), host, tuple(parse_allowed(a) for a in args.allow_host))
     token = read_token(args.token_file)
     check_listen(host, token)

@@ -8,8 +8,22 @@ import signal
 from pathlib import Path
 from types import FrameType
 
-from acquisition.daemon.cli_args import add_control_argument, endpoint
+from acquisition.contracts.read_once import size_text
 from acquisition.daemon.endpoints import beside
+
+from .client_options import add_control_argument, endpoint
+from .bounded import Bounded, integer, positive
+
+
+def _size(text: str) -> int:
+    """A size in bytes, with an optional unit (an input error if it is none)."""
+    from calibration.worker.cache import parse_size
+
+    return parse_size(text)
+
+
+CACHE_MAX = Bounded(_size, "a size (e.g. 500MiB, 4GiB, 2GB)", 2**20, 2**50, show=size_text)
+"""`--cache-max`: from 1 MiB to 1024 TiB."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -29,33 +43,22 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--cache", type=Path, default=Path("~/.cache/micam/worker"),
                    help="directory for fetched session files, one per worker "
                         "(default ~/.cache/micam/worker)")
-    p.add_argument("--cache-max", type=_size, default="4GiB", metavar="SIZE",
+    p.add_argument("--cache-max", type=CACHE_MAX, default="4GiB", metavar="SIZE",
                    help="size limit of the cache (e.g. 500MiB, 4GiB, 2GB); beyond it the least "
                         "recently used sessions are evicted, never the one a job is using "
                         "(default 4GiB)")
-    p.add_argument("--heartbeat", type=float, default=1.0, metavar="S",
+    p.add_argument("--heartbeat", type=positive(30, " s"), default=1.0, metavar="S",
                    help="heartbeat interval in seconds (default 1; match the daemon's)")
-    p.add_argument("--daemon-timeout", type=float, default=10.0, metavar="S",
+    p.add_argument("--daemon-timeout", type=positive(3600, " s"), default=10.0, metavar="S",
                    help="reconnect after this long without a word from the daemon (default 10)")
     p.add_argument("--no-joint", action="store_true",
                    help="final calibrations without the joint fit (faster, less accurate)")
-    p.add_argument("--max-jobs", type=int, metavar="N", help="exit after N jobs")
+    p.add_argument("--max-jobs", type=integer(1, 10**9), metavar="N", help="exit after N jobs")
     p.add_argument("--server-key", type=Path, default=env("MICAM_SERVER_KEY"),
                    help="CURVE: the daemon's public certificate (server.key)")
     p.add_argument("--client-key", type=Path, default=env("MICAM_CLIENT_KEY"),
                    help="CURVE: this worker's secret certificate (client.key_secret)")
     p.set_defaults(run=run)
-
-
-def _size(text: str) -> int:
-    """`--cache-max`: a size in bytes, with an optional unit (argparse's error if invalid)."""
-    from acquisition.contracts.errors import UserError
-    from calibration.worker.cache import parse_size
-
-    try:
-        return parse_size(text)
-    except UserError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def run(args: argparse.Namespace) -> int:

@@ -30,10 +30,20 @@ def test_the_ring_refuses_blocks_of_another_width() -> None:
 
 
 def test_frames_are_found_by_stream_index() -> None:
-    frames = FrameRing(3)
+    frames = FrameRing(3, 2**20)
     image = np.zeros((2, 2), dtype=np.uint8)
     for sample in (0, 100, 200, 300):
         frames.append(StampedFrame("cam0", sample, image))
     assert [f.sample for f in frames.between(0, 1000)] == [100, 200, 300]  # the oldest went
     assert [f.sample for f in frames.between(150, 300, "cam0")] == [200]
     assert frames.between(0, 1000, "cam1") == []
+
+
+def test_the_frames_kept_are_bounded_in_bytes() -> None:
+    frames = FrameRing(100, 3 * 2**20)
+    image = np.zeros((1024, 1024), dtype=np.uint8)  # 1 MiB
+    for sample in range(10):
+        frames.append(StampedFrame("cam0", sample, image))
+    assert [f.sample for f in frames.between(0, 10)] == [7, 8, 9] and frames.nbytes == 3 * 2**20
+    frames.append(StampedFrame("cam0", 10, np.zeros((4096, 1024), dtype=np.uint8)))
+    assert [f.sample for f in frames.between(0, 11)] == [10]  # the newest, even if larger

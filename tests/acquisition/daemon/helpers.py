@@ -49,6 +49,7 @@ class DaemonProcess:
     root: Path
     env: dict[str, str] = field(default_factory=dict)
     script: list[str] | None = None  # another entry point (the crash harness)
+    pass_fds: tuple[int, ...] = ()  # descriptors the daemon inherits (a config pipe, /dev/fd/N)
 
     def __post_init__(self) -> None:
         self.notify_path = self.root / f"notify-{time.monotonic_ns()}"
@@ -60,7 +61,8 @@ class DaemonProcess:
         self.log_path = self.notify_path.with_suffix(".log")  # a file: a pipe could fill up
         with self.log_path.open("w") as log:
             self.proc = subprocess.Popen([*command, str(self.config)], env=env, cwd=REPO,
-                                         stdout=log, stderr=subprocess.STDOUT)
+                                         stdout=log, stderr=subprocess.STDOUT,
+                                         pass_fds=self.pass_fds)
 
     def wait_message(self, prefix: str, timeout_s: float = WAIT_S) -> str:
         """The next notify message containing a line starting with `prefix` (others skipped)."""
@@ -97,6 +99,14 @@ class DaemonProcess:
     def close(self) -> None:
         self.notify.close()
         self.notify_path.unlink(missing_ok=True)
+
+
+def rss_bytes(pid: int) -> int:
+    """The resident memory of process `pid` (/proc/PID/status VmRSS), bytes."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) * 1024
+    raise AssertionError(f"no VmRSS for process {pid}")
 
 
 def capture(client: DaemonClient) -> StatusResult:

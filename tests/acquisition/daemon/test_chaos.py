@@ -35,7 +35,7 @@ from micam.simulated import record_simulated_session
 from calibration.pipeline import CalibrationOptions, calibrate
 from sim.capture import SimulationOptions
 
-from .helpers import REPO, SMALL_WORLD, DaemonProcess, write_toml
+from .helpers import REPO, SMALL_WORLD, DaemonProcess, rss_bytes, write_toml
 
 LONG = os.environ.get("MICAM_LONG_TESTS") == "1"
 ROUNDS = int(os.environ.get("MICAM_CHAOS_ROUNDS", "20" if LONG else "4"))
@@ -46,6 +46,8 @@ KILLS = list(itertools.product(("daemon", "worker"), (signal.SIGKILL, signal.SIG
 WORKERS = ("[workers]\nheartbeat_interval_s = 0.1\nliveness = 5\nlive_min_poses = 3\n"
            "max_attempts = 20\n")  # every killed lease is an attempt
 VOLATILE = ("session_id", "timings_s")  # what two calibrations of one capture may differ in
+MAX_RSS = {"daemon": 400 * 2**20, "worker": 400 * 2**20}
+"""Resident memory ceilings through every round (measured: 277 MiB and 165 MiB at most)."""
 
 
 def _result(document: dict) -> dict:
@@ -75,6 +77,7 @@ class Rig:
     daemon: DaemonProcess | None = None
     worker: subprocess.Popen | None = None
     log: list[str] = field(default_factory=list)
+    peak_rss: dict[str, int] = field(default_factory=lambda: {"daemon": 0, "worker": 0})
 
     @property
     def config(self) -> Path:
@@ -103,6 +106,17 @@ class Rig:
 
     def client(self) -> DaemonClient:
         return DaemonClient(f"ipc://{self.root}/control", timeout_s=3.0)
+
+    def measure(self) -> None:
+        """Note the resident memory of the daemon and the worker (the largest seen each)."""
+        for name, proc in (("daemon", self.daemon.proc if self.daemon else None),
+                           ("worker", self.worker)):
+            if proc is not None and proc.poll() is None:
+                try:
+                    rss = rss_bytes(proc.pid)
+                except (OSError, AssertionError):  # it died just now
+                    continue
+                self.peak_rss[name] = max(self.peak_rss[name], rss)
 
     def stop(self) -> None:
         for proc in (self.daemon.proc if self.daemon else None, self.worker):
@@ -175,6 +189,7 @@ def test_kills_at_random_points_lose_nothing_and_change_nothing(
                 rig.kill(*kills.pop(0), f"step {phase + 1} of {steps}" if phase < steps
                          else f"the calibration (job {job.state if job else 'not queued'})")
                 continue
+            rig.measure()
             job = _final_job(tmp_path)
             if not kills and job is not None and job.state in ("done", "failed"):
                 break
@@ -182,8 +197,10 @@ def test_kills_at_random_points_lose_nothing_and_change_nothing(
     finally:
         rig.stop()
     story = f"chaos seed {SEED}: " + "; ".join(rig.log)
-    print(story)  # shown with pytest -s: where the kills landed
+    print(story, {k: f"{v / 2**20:.0f} MiB" for k, v in rig.peak_rss.items()})  # pytest -s
     assert not kills, f"{story}: did not finish within {DEADLINE_S:g} s"
+    for name, peak in rig.peak_rss.items():
+        assert 0 < peak <= MAX_RSS[name], f"{story}: the {name} reached {peak / 2**20:.0f} MiB"
     assert session is not None
 
     reference, expected = uninterrupted

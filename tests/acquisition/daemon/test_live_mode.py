@@ -1,6 +1,7 @@
 """Live mode in the daemon: entered and left by command, refused beside a calibration
-session, the time data published and recorded (session format and Acoular's HDF5 layout),
-and a board's overrun or unplugging ending it cleanly with an event."""
+session or for a ring that would not fit, the time data published and recorded (session
+format and Acoular's HDF5 layout), and a board's overrun or unplugging ending it cleanly with
+an event."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ import numpy as np
 import pytest
 import zmq
 
+from acquisition.daemon import live_control
 from acquisition.daemon.client import DaemonError
 from acquisition.contracts.protocol import SAMPLES_TOPIC, SamplesHeader
 from acquisition.live.record import ACOULAR_FILE, RECORDING, STEP, read_live_recording
@@ -109,3 +111,14 @@ def test_a_board_fault_ends_live_mode_with_an_event(daemon: ThreadDaemon, fault:
     assert ("overrun" if fault.startswith("overrun") else "disappeared") in error.message
     assert ended.running is False and "20000" in ended.reason
     assert status.live is None
+
+
+def test_a_ring_too_large_for_the_memory_is_refused(daemon: ThreadDaemon,
+                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    """live.start's seconds are bounded (30), but the ring's bytes grow with the rig's columns:
+    a rig of hundreds of columns must not take gigabytes on a request."""
+    monkeypatch.setattr(live_control, "MAX_RING_BYTES", 2**20)
+    with daemon.client() as client:
+        with pytest.raises(DaemonError, match=r"do not fit the 1 MiB .* at most 0\.1 s") as refused:
+            client.request("live.start", seconds=1.0)
+        assert refused.value.code == "bad_request" and client.status().state == "idle"

@@ -12,7 +12,9 @@ import cv2
 import numpy as np
 import pytest
 
+from acquisition.contracts.errors import UserError
 from micam.cli import main
+from micam.commands.live import _check_grid
 from acquisition.live.record import ACOULAR_FILE, read_live_recording
 from calibration.imaging import load_geometry
 from calibration.imaging.beamform import beamform
@@ -156,3 +158,22 @@ def world_truth_of(geometry: ArrayGeometry) -> dict:
             "cameras": [{"name": c.name, "width": c.width, "height": c.height,
                          "K": c.K.tolist(), "dist": c.dist.tolist(),
                          "from_cam0": c.cam0_to_cam.to_json()} for c in geometry.cameras]}
+
+
+@pytest.mark.parametrize(("option", "value"), [("--grid", "100000"), ("--block", "0")])
+def test_a_video_of_an_impossible_size_is_a_usage_error_naming_the_option(
+        result_json: Path, recording: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str],
+        option: str, value: str) -> None:
+    """--grid 100000 asked for 74.5 GiB and --block 0 divided by zero: both were bugs (exit
+    70); now argparse refuses them before anything is read."""
+    with pytest.raises(SystemExit) as exited:
+        main(["live", "video", "--geometry", str(result_json), "--recording", str(recording),
+              "--out", str(tmp_path / "v.avi"), option, value])
+    assert exited.value.code == 2
+    assert f"error: argument {option}: {value} is not an integer from " in capsys.readouterr().err
+
+
+def test_a_grid_whose_imager_would_not_fit_is_refused() -> None:
+    _check_grid(482, 72)  # about 2 GiB
+    with pytest.raises(UserError, match=r"--grid 483: .* at most --grid 482 fits in the 2 GiB"):
+        _check_grid(483, 72)

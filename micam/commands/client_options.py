@@ -6,7 +6,9 @@ import argparse
 import os
 from pathlib import Path
 
-from .endpoints import default_control
+from acquisition.daemon.endpoints import default_control
+
+from .bounded import REPLY_TIMEOUT
 
 
 ENDPOINT_FORMS = ("tcp://HOST:PORT", "ipc://PATH")
@@ -44,7 +46,7 @@ def add_client_arguments(parser: argparse.ArgumentParser) -> None:
     add_control_argument(parser, "")
     parser.add_argument("--events", type=endpoint, default=env("MICAM_EVENTS"), metavar="ENDPOINT",
                         help="the daemon's event socket (default: as the daemon reports)")
-    parser.add_argument("--timeout", type=float, default=5.0, metavar="S",
+    parser.add_argument("--timeout", type=REPLY_TIMEOUT, default=5.0, metavar="S",
                         help="seconds to wait for each reply (default 5)")
     parser.add_argument("--server-key", type=Path, default=env("MICAM_SERVER_KEY"),
                         help="CURVE: the daemon's public certificate (server.key)")
