@@ -14,7 +14,7 @@ from types import ModuleType
 from ._errors import AudioUnavailableError
 
 INSTALL = ("install PortAudio and its Python binding: `apt-get install libportaudio2` "
-           "(Debian/Ubuntu; jackd2 too for JACK), then `pip install 'micam[audio]'`")
+           "(Debian/Ubuntu; jackd2 too for JACK) and `pip install sounddevice`")
 """What a user is told when PortAudio or sounddevice is missing."""
 
 _lock = threading.Lock()
