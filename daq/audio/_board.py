@@ -194,7 +194,7 @@ class AudioBoard(ClosesOnExit):
                 "follows the master's; start the master instead")
         stream = self.stream
         stream.wait_running()
-        window = stream.frames + stream.lead_frames()
+        window = stream.first_window()
         self.place_window(window)
         if self._clock is not None:
             self._clock.fire(self, window)

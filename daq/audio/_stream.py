@@ -36,6 +36,9 @@ FIRST_CALLBACK_S = 2.0
 """A stream that has not called back this long after its start is not running."""
 WAIT_SLICE_S = 0.1
 """A waiting reader checks this often whether the stream is still alive."""
+SETTLE_S = 0.25
+"""No recording starts in a new stream's first quarter second: a host API may flag an xrun
+while it connects the stream (JACK reorders its graph), which must not break a recording."""
 
 # PortAudio's error codes (portaudio.h) for a refused configuration or a missing device.
 _INVALID_CHANNELS = -9998
@@ -168,9 +171,10 @@ class DuplexStream:
         """False once the stream stopped by itself (device or server gone) or was closed."""
         return not self._closed and bool(self._stream.active)
 
-    def lead_frames(self) -> int:
-        """How far ahead of the stream's clock an output can still be scheduled whole."""
-        return 2 * max(self.max_block, 1024)
+    def first_window(self) -> int:
+        """The earliest frame a recording may start at now: ahead of the stream's clock by
+        far enough to schedule an output whole, and past the stream's settling."""
+        return max(self.frames + 2 * max(self.max_block, 1024), round(SETTLE_S * self.rate_hz))
 
     def play(self, start_frame: int, samples: np.ndarray | None) -> None:
         """Play float32 `samples` (n, n_outputs) from stream frame `start_frame` (None: stop
