@@ -4,7 +4,10 @@ A recording is judged on the channels that should hear the speaker: the referenc
 during a reference step, the array's microphones during a pose. Levels are in dBFS (0 dBFS =
 the full scale of the channel's range); the SNR compares the power during the burst with the
 power of the silence before it (the first `pre_samples` of every recording, before any sound
-can arrive). Each failed check carries the policy configured for it.
+can arrive). The burst is measured where it arrived, the loudest window of its length after
+the silence: it comes late by the path through the air and by the output-to-input latency of
+the hardware, microseconds on the boards but milliseconds on an audio interface (longer than
+a short burst). Each failed check carries the policy configured for it.
 """
 
 from __future__ import annotations
@@ -48,12 +51,25 @@ def _db(power_ratio: np.ndarray) -> np.ndarray:
         return np.maximum(10.0 * np.log10(power_ratio), _FLOOR_DB)
 
 
+def burst_arrival(x: np.ndarray, pre_samples: int, burst_samples: int) -> int:
+    """The first sample of the loudest `burst_samples` of `x` (n_samples, n_channels) from
+    `pre_samples` on, all channels together: where the burst arrived (module docstring)."""
+    n = x.shape[0]
+    if n - pre_samples <= burst_samples:
+        return pre_samples
+    energy = np.concatenate([[0.0], np.cumsum((x[pre_samples:] ** 2).sum(axis=1))])
+    window = energy[burst_samples:] - energy[:-burst_samples]
+    return pre_samples + int(np.argmax(window >= window.max() * (1 - 1e-9)))
+
+
 def measure(codes: np.ndarray, pre_samples: int, burst_samples: int,
             clip_fraction: float) -> Levels:
-    """Levels of raw int16 `codes` (n_samples, n_channels) whose burst starts at `pre_samples`."""
+    """Levels of raw int16 `codes` (n_samples, n_channels) whose burst is played from
+    `pre_samples` on (and arrives at `burst_arrival`)."""
     x = codes.astype(np.float64)
     full = float(CODE_FULL_SCALE)
-    burst = x[pre_samples: pre_samples + burst_samples]
+    start = burst_arrival(x, pre_samples, burst_samples)
+    burst = x[start: start + burst_samples]
     peak = np.abs(x).max(axis=0)
     clipped = np.flatnonzero(peak >= clip_fraction * full).tolist()
     if pre_samples >= _MIN_NOISE_SAMPLES:
