@@ -24,7 +24,7 @@ import threading
 import numpy as np
 import scipy.fft
 
-from .live_scene import LiveScene
+from .live_scene import CHUNK_SAMPLES, LiveScene
 from .sound import fft_length, propagate
 from .world import World
 
@@ -103,6 +103,18 @@ class RoomFilter:
         """Let the live scene's sources play from the next block (None: stop them)."""
         with self._lock:
             self._scene, self._scene_start = scene, self.frames
+
+    def prefetch(self, ahead_samples: int = 2 * CHUNK_SAMPLES) -> None:
+        """Render the live scene's next `ahead_samples` now (on another thread than the audio
+        callback's), so that the callback only reads them: a scene chunk takes milliseconds
+        to render, a whole period on a busy machine."""
+        with self._lock:
+            scene, start = self._scene, self._scene_start
+        if scene is None:
+            return
+        now = self.frames - start
+        for first in range(now, now + ahead_samples + 1, CHUNK_SAMPLES):
+            scene.mic_volts(first, 1)
 
     def process(self, drive_v: np.ndarray) -> np.ndarray:
         """Receiver volts (block, R) for the speakers' drive volts (block, S) of one block."""

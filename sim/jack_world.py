@@ -22,6 +22,7 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -85,6 +86,11 @@ def _serve(options_json: str, name: str) -> None:
     def shutdown(status: jack.Status, reason: str) -> None:
         gone.set()
 
+    def prefetch() -> None:  # the live scene rendered ahead of the callback
+        while not gone.wait(0.01):
+            room.prefetch()
+
+    threading.Thread(target=prefetch, name="micam-world-prefetch", daemon=True).start()
     with client:
         print(READY, flush=True)
         for line in sys.stdin:
@@ -98,6 +104,8 @@ def _serve(options_json: str, name: str) -> None:
                     room.set_up()
                 elif op == "live":
                     world.live_scene = demo_scene(world) if command["on"] else None
+                    if world.live_scene is not None:
+                        world.live_scene.mic_volts(0, 1)  # its first chunk, before it plays
                     room.play_scene(world.live_scene)
                 elif op == "stall":
                     stall[0] = float(command["seconds"])
@@ -112,10 +120,10 @@ def _serve(options_json: str, name: str) -> None:
 class WorldProcess:
     """The world's JACK client in a child process (module docstring); close() ends it."""
 
-    def __init__(self, options_json: str, name: str, log: Path | None = None) -> None:
+    def __init__(self, options_json: str, name: str) -> None:
         self.name = name
         repo = Path(__file__).resolve().parents[1]
-        self._log = open(log, "w") if log is not None else subprocess.DEVNULL  # noqa: SIM115
+        self._log = tempfile.TemporaryFile(mode="w+")  # noqa: SIM115 - read on failure
         self._proc = subprocess.Popen(
             [sys.executable, "-m", "sim.jack_world", options_json, name], cwd=repo,
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._log, text=True,
@@ -126,8 +134,14 @@ class WorldProcess:
             self.close()
             raise WorldStartError(
                 f"the simulated world's JACK client {name!r} did not start "
-                f"({line or 'no answer'}): is a JACK server running (jackd; JACK_DEFAULT_SERVER names it) and "
-                "JACK-Client installed (pip install JACK-Client)?")
+                f"({line or 'no answer'}; {self.stderr_tail() or 'nothing on stderr'}): is a "
+                "JACK server running (jackd; JACK_DEFAULT_SERVER names it) and JACK-Client "
+                "installed (pip install JACK-Client)?")
+
+    def stderr_tail(self, lines: int = 3) -> str:
+        """The last lines the client wrote to its standard error."""
+        self._log.seek(0)
+        return " | ".join(self._log.read()[-4000:].strip().splitlines()[-lines:])
 
     @property
     def pid(self) -> int:
@@ -174,8 +188,6 @@ class WorldProcess:
         except subprocess.TimeoutExpired:
             self._proc.kill()
             self._proc.wait(10)
-        if self._log is not subprocess.DEVNULL:
-            self._log.close()  # type: ignore[union-attr]
 
 
 if __name__ == "__main__":

@@ -198,6 +198,9 @@ class AudioBoard(ClosesOnExit):
         self.place_window(window)
         if self._clock is not None:
             self._clock.fire(self, window)
+        # return at sample 0, as a board's scan starts on its start: a caller pacing its
+        # reads by the clock from here (live mode) is then not behind by the lead
+        stream.wait_frames(window, timeout_s=1.0 + (window - stream.frames) / stream.rate_hz)
 
     def place_window(self, window_frame: int) -> None:
         """Put sample 0 of the recording (and of the output burst) at `window_frame`."""
@@ -233,7 +236,10 @@ class AudioBoard(ClosesOnExit):
             codes = stream.take(first, n_samples, timeout_s)
         except (OverrunError, DeviceDisconnectedError) as exc:
             raise type(exc)(f"{exc} (at sample index {self._next} of the recording)") from None
-        faults = stream.faults_between(self._window, first + n_samples)
+        end = first + n_samples
+        if total is not None and self._next + n_samples == total:
+            end = stream.wait_frames(end + stream.max_block, timeout_s)  # see _stream.Fault
+        faults = stream.faults_between(self._window, end)
         if faults:
             self._raise_xrun(faults[0], playing=bool(config.outputs))
         block = Block(codes=codes[:, [c.channel for c in config.inputs]],

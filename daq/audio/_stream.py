@@ -49,7 +49,11 @@ _DEVICE_UNAVAILABLE = -9985
 
 @dataclass(frozen=True)
 class Fault:
-    """An xrun PortAudio flagged: which kinds, at the first frame of the callback after it."""
+    """An xrun PortAudio flagged: which kinds, at the first frame of the callback after it.
+
+    The flag comes with the callback after the one that was late, so a recording is whole
+    only once the stream has called back past its last sample without a flag: its last read
+    waits for one more callback (`DuplexStream.wait_frames`)."""
 
     kinds: tuple[str, ...]
     frame: int
@@ -194,6 +198,18 @@ class DuplexStream:
                         f"{self.device} started but delivered no samples within {timeout_s:g} s; "
                         "is its audio server running (under JACK: jackd), is it in use?")
                 self._cond.wait(min(left, WAIT_SLICE_S))
+
+    def wait_frames(self, frame: int, timeout_s: float) -> int:
+        """Wait until the stream has delivered `frame` frames (or timeout_s passed, or it
+        died); the frames delivered then."""
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while self.frames < frame and self._stream.active:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    break
+                self._cond.wait(min(left, WAIT_SLICE_S))
+            return self.frames
 
     def take(self, first: int, n: int, timeout_s: float) -> np.ndarray:
         """int16 codes (n, n_inputs) of stream frames first .. first + n - 1, waiting for
