@@ -115,6 +115,7 @@ def _daemon(title: str, boards: list[tuple[str, str, int, int]], n_mics: int,
     columns, outputs, board_tables = [], [], []
     mic = 0
     order = 14 if rate_hz > 64_000 else 13  # a period of about 170 ms: room-proof
+    post = round(rate_hz * 0.085)  # 85 ms: an interface's latency, then the room's decay
     where = ("the label of a [hardware.audio] device" if audio
              else "this board's serial: `micam daq list`")
     for model, serial, n_inputs, n_outputs in boards:
@@ -200,7 +201,9 @@ def _daemon(title: str, boards: list[tuple[str, str, int, int]], n_mics: int,
         "periods = 2             # played back to back; the last is the room-proof one",
         "amplitude_v = 1.0",
         "pre_samples = 512       # recorded silence before the sequence",
-        "post_samples = 2048     # recorded silence after it, while it dies away",
+        (f"post_samples = {post}    # recorded after it: the interface's latency (the quality "
+         "check says if too short), then the room's decay" if audio else
+         "post_samples = 2048     # recorded silence after it, while it dies away"),
         "",
         *_RIG,
         "",

@@ -44,6 +44,10 @@ from .world import World
 
 DEVICE_LABEL = "world"
 """The board serial of the world's interface in the capture configuration."""
+LATENCY_SAMPLES = 6144
+"""Recorded after each burst on top of the simulated boards' `post_samples`: an audio server's
+output-to-input latency (64 ms at 96 kS/s; JACK's is one period here) comes before the burst's
+arrival, and a recording that ends inside the burst fails its quality check."""
 _names = count()
 
 
@@ -109,8 +113,9 @@ def build_audio_capture(options: SimulationOptions) -> SimulatedCapture:
     setups = Setups()
     cameras: list[Camera] = [SimulatedCamera(m, world, i, setups)
                              for i, m in enumerate(world.layout.cameras)]
-    config = audio_capture_config(world, options.poses, options.burst(world.sample_rate_hz),
-                                  cameras)
+    burst = options.burst(world.sample_rate_hz)
+    burst = burst.model_copy(update={"post_samples": burst.post_samples + LATENCY_SAMPLES})
+    config = audio_capture_config(world, options.poses, burst, cameras)
     name = f"micam-world-{os.getpid()}-{next(_names)}"
     process = WorldProcess(options.model_dump_json(), name)
     try:

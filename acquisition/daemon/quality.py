@@ -24,6 +24,9 @@ from .config import Policy, QualityConfig
 
 _FLOOR_DB = -200.0
 _MIN_NOISE_SAMPLES = 32
+TAIL_SAMPLES = 256
+"""A recording whose last samples are within `CUT_DB` of its burst ends inside the burst."""
+CUT_DB = 6.0
 QUICK_LOOK_PX = 640
 
 
@@ -35,6 +38,8 @@ class Levels:
     peak_dbfs: np.ndarray
     snr_db: np.ndarray | None  # None when the recording has too little silence before the burst
     clipped: list[int]
+    delay_samples: int = 0  # how late the burst arrived after it was played (all channels)
+    tail_dbfs: np.ndarray | None = None  # RMS of the recording's last TAIL_SAMPLES
 
 
 @dataclass(frozen=True)
@@ -80,8 +85,10 @@ def measure(codes: np.ndarray, pre_samples: int, burst_samples: int,
     else:
         burst_power = (burst**2).mean(axis=0)
         snr = None
+    tail = x[-min(TAIL_SAMPLES, x.shape[0]):]
     return Levels(rms_dbfs=_db(burst_power / full**2), peak_dbfs=_db(peak**2 / full**2),
-                  snr_db=snr, clipped=clipped)
+                  snr_db=snr, clipped=clipped, delay_samples=start - pre_samples,
+                  tail_dbfs=_db((tail**2).mean(axis=0) / full**2))
 
 
 def dead_channels(levels: Levels, mics: Sequence[int], config: QualityConfig) -> list[int]:
@@ -117,6 +124,13 @@ def judge_recording(levels: Levels, listening: Sequence[int], mics: Sequence[int
         failures.append(Failure("level", config.level,
                                 f"burst level {level:.1f} dBFS is below {config.min_level_dbfs} "
                                 "dBFS: check the speaker, its cable and the amplifier"))
+    elif config.level != "ignore" and levels.tail_dbfs is not None and float(np.median(
+            levels.tail_dbfs[list(listening)])) > level - CUT_DB:
+        failures.append(Failure("level", config.level,
+                                "the recording ends before the burst is over (it arrived "
+                                f"{levels.delay_samples} samples after it was played: the path "
+                                "and the hardware's output-to-input latency): raise "
+                                "[hardware.capture.burst] post_samples above that"))
     if levels.snr_db is not None:
         snr = float(np.median(levels.snr_db[list(listening)]))
         if config.snr != "ignore" and snr < config.min_snr_db:

@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 
 RATE_HZ = 96_000
-PERIOD = 1024
+PERIOD = 2048
 CAPTURE_PORTS = 16
 PLAYBACK_PORTS = 8
 APT = "apt-get install -y jackd2 libportaudio2"

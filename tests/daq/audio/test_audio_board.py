@@ -27,7 +27,7 @@ from micam.cli import main
 from sim.capture import SimulationOptions
 from sim.jack_world import WorldProcess
 
-from .jack_helpers import CAPTURE_PORTS, PERIOD, PLAYBACK_PORTS, RATE_HZ, acquire_whole, wait_for
+from .jack_helpers import CAPTURE_PORTS, PERIOD, PLAYBACK_PORTS, RATE_HZ, XRUN_RETRIES, acquire_whole, wait_for
 
 OPTIONS = SimulationOptions(array="scatter15", poses=2, mls_order=10, seed=3, backend="audio")
 PRE = 256
@@ -85,8 +85,11 @@ def test_daq_list_shows_the_dummy_interface(jack_server, capsys) -> None:  # noq
 
 
 def test_daq_selftest_scans_every_input_at_the_server_rate(jack_server, capsys) -> None:  # noqa: ANN001
-    assert main(["daq", "selftest", "--backend", "audio", "--device", "system",
-                 "--seconds", "0.2"]) == 0
+    for _ in range(XRUN_RETRIES):  # an xrun of this loaded machine fails a selftest too
+        if main(["daq", "selftest", "--backend", "audio", "--device", "system",
+                 "--seconds", "0.2"]) == 0:
+            break
+        assert "input overflow" in capsys.readouterr().out
     out = capsys.readouterr().out
     assert "19200/19200 samples on 16 inputs at 96000 S/s" in out and out.rstrip().endswith("ok")
 
