@@ -87,6 +87,10 @@ def _serve(options_json: str, name: str) -> None:
         gone.set()
 
     def prefetch() -> None:  # the live scene rendered ahead of the callback
+        try:  # as urgent as the callback (a realtime server's): it holds what the callback waits for
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+        except (AttributeError, OSError):
+            pass  # not permitted: the callback may then wait for it on a busy machine
         while not gone.wait(0.01):
             room.prefetch()
 

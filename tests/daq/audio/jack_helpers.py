@@ -11,6 +11,7 @@ tests on a fresh machine.
 from __future__ import annotations
 
 import os
+import resource
 import shutil
 import subprocess
 import time
@@ -41,17 +42,29 @@ def require_audio_stack() -> None:
                     "pip install -e '.[test]' (and {APT})")
 
 
+def realtime_permitted() -> bool:
+    """Whether this process may schedule threads realtime (root, or an rtprio limit)."""
+    try:
+        return os.geteuid() == 0 or resource.getrlimit(resource.RLIMIT_RTPRIO)[0] > 0
+    except (AttributeError, OSError):
+        return False
+
+
 class JackServer:
-    """`jackd -n NAME --no-realtime -d dummy ...` in a subprocess, ready when constructed."""
+    """`jackd -n NAME -d dummy ...` in a subprocess, ready when constructed: realtime where this
+    machine permits it (its clients' process threads then preempt the machine's other work, as
+    on a lab PC set up for audio), else --no-realtime (then a loaded machine makes xruns, which
+    the tests capture again)."""
 
     def __init__(self, name: str, log_dir: Path) -> None:
         self.name = name
         self.env = {**os.environ, "JACK_NO_AUDIO_RESERVATION": "1",
                     "JACK_DEFAULT_SERVER": name, "JACK_NO_START_SERVER": "1"}
         self.log = log_dir / f"jackd-{name}.log"
+        mode = "-R" if realtime_permitted() else "--no-realtime"
         with self.log.open("w") as log:
             self.proc = subprocess.Popen(
-                ["jackd", "-n", name, "--no-realtime", "-d", "dummy", "-r", str(RATE_HZ),
+                ["jackd", "-n", name, mode, "-d", "dummy", "-r", str(RATE_HZ),
                  "-p", str(PERIOD), "-C", str(CAPTURE_PORTS), "-P", str(PLAYBACK_PORTS)],
                 env=self.env, stdout=log, stderr=subprocess.STDOUT)
         ready = subprocess.run(["jack_wait", "-s", name, "-w", "-t", str(int(START_S))],

@@ -31,7 +31,7 @@ from .jack_helpers import CAPTURE_PORTS, PERIOD, PLAYBACK_PORTS, RATE_HZ, XRUN_R
 
 OPTIONS = SimulationOptions(array="scatter15", poses=2, mls_order=10, seed=3, backend="audio")
 PRE = 256
-N = 4096
+N = PERIOD + 4096  # the round trip (one period) and the burst
 BURST = mls_burst(10)
 
 

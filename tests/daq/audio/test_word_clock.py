@@ -15,10 +15,10 @@ from daq.audio import AudioConfig, open_audio_boards
 from daq.audio import _clock
 from sim.jack_world import WorldProcess
 
-from .jack_helpers import acquire_whole
+from .jack_helpers import PERIOD, acquire_whole
 from .test_audio_board import OPTIONS, burst_codes
 
-N = 4096
+N = PERIOD + 4096
 
 
 @pytest.fixture(scope="module")
