@@ -36,7 +36,7 @@ FIRST_CALLBACK_S = 2.0
 """A stream that has not called back this long after its start is not running."""
 WAIT_SLICE_S = 0.1
 """A waiting reader checks this often whether the stream is still alive."""
-SETTLE_S = 0.25
+SETTLE_S = 1.0
 """No recording starts in a new stream's first quarter second: a host API may flag an xrun
 while it connects the stream (JACK reorders its graph), which must not break a recording."""
 
