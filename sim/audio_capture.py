@@ -44,10 +44,11 @@ from .world import World
 
 DEVICE_LABEL = "world"
 """The board serial of the world's interface in the capture configuration."""
-LATENCY_SAMPLES = 6144
+LATENCY_SAMPLES = 4096
 """Recorded after each burst on top of the simulated boards' `post_samples`: an audio server's
-output-to-input latency (64 ms at 96 kS/s; JACK's is one period here) comes before the burst's
-arrival, and a recording that ends inside the burst fails its quality check."""
+output-to-input latency (here JACK's, one period: up to 4096 frames, 43 ms at 96 kS/s) comes
+before the burst's arrival, and a recording that ends inside the burst fails its quality
+check."""
 _names = count()
 
 

@@ -179,7 +179,8 @@ class AudioBoard(ClosesOnExit):
             n_in = max(c.channel for c in config.inputs) + 1
             n_out = max((c.channel for c in config.outputs), default=-1) + 1
             self._stream = DuplexStream(self.device, config.sample_rate_hz, n_in, n_out,
-                                        self._block_frames, self._latency)
+                                        self._block_frames, self._latency,
+                                        name=str(self._identity))
         self._window = None
         self._placed.clear()
         self._next = 0

@@ -8,6 +8,7 @@ called while none of this process's streams is open (closing PortAudio closes th
 
 from __future__ import annotations
 
+import atexit
 import threading
 from types import ModuleType
 
@@ -19,6 +20,7 @@ INSTALL = ("install PortAudio and its Python binding: `apt-get install libportau
 
 _lock = threading.Lock()
 _open_streams = 0
+_abandoned = False  # a stream died under PortAudio: it is never terminated in this process
 
 
 def portaudio() -> ModuleType:
@@ -39,10 +41,21 @@ def refresh() -> ModuleType:
     this process is open (then the device list stays what it was)."""
     sd = portaudio()
     with _lock:
-        if _open_streams == 0:
+        if _open_streams == 0 and not _abandoned:
             sd._terminate()
             sd._initialize()
     return sd
+
+
+def abandon() -> None:
+    """A stream died (its JACK server went away): PortAudio would hang closing it, in
+    `refresh` or at the interpreter's exit (sounddevice's exit handler terminates PortAudio),
+    so neither happens in this process any more; the process exits without it."""
+    global _abandoned
+    sd = portaudio()
+    with _lock:
+        _abandoned = True
+        atexit.unregister(sd._exit_handler)
 
 
 def stream_opened() -> None:

@@ -28,7 +28,7 @@ import numpy as np
 from daq import CODE_FULL_SCALE, ConfigurationError, DeviceDisconnectedError, OverrunError
 
 from ._devices import AudioDeviceInfo
-from ._portaudio import portaudio, stream_closed, stream_opened
+from ._portaudio import abandon, portaudio, stream_closed, stream_opened
 
 RING_S = 4.0
 """Seconds of input the ring keeps: a reader may trail the device by this much."""
@@ -96,12 +96,15 @@ class DuplexStream:
             input-only stream).
         block_frames: frames per callback, 0 for the host's choice.
         latency: PortAudio's suggested latency ("low", "high" or seconds).
+        name: how errors name it (the board's identity; default the device).
     """
 
     def __init__(self, device: AudioDeviceInfo, rate_hz: float, n_inputs: int, n_outputs: int,
-                 block_frames: int = 0, latency: str | float = "high") -> None:
+                 block_frames: int = 0, latency: str | float = "high",
+                 name: str | None = None) -> None:
         sd = portaudio()
         self.device = device
+        self.name = name or str(device)
         self.rate_hz = float(rate_hz)
         self.n_inputs, self.n_outputs = n_inputs, n_outputs
         self._ring = np.zeros((max(int(RING_S * rate_hz), 65_536), n_inputs), dtype=np.int16)
@@ -176,9 +179,10 @@ class DuplexStream:
         return not self._closed and bool(self._stream.active)
 
     def first_window(self) -> int:
-        """The earliest frame a recording may start at now: ahead of the stream's clock by
-        far enough to schedule an output whole, and past the stream's settling."""
-        return max(self.frames + 2 * max(self.max_block, 1024), round(SETTLE_S * self.rate_hz))
+        """The earliest frame a recording may start at now: past the callback that may be
+        running (it began at `frames` at the latest), so that an output scheduled now plays
+        whole, and past the stream's settling."""
+        return max(self.frames + max(self.max_block, 1024) + 256, round(SETTLE_S * self.rate_hz))
 
     def play(self, start_frame: int, samples: np.ndarray | None) -> None:
         """Play float32 `samples` (n, n_outputs) from stream frame `start_frame` (None: stop
@@ -195,7 +199,7 @@ class DuplexStream:
                 left = deadline - time.monotonic()
                 if left <= 0:
                     raise DeviceDisconnectedError(
-                        f"{self.device} started but delivered no samples within {timeout_s:g} s; "
+                        f"{self.name} started but delivered no samples within {timeout_s:g} s; "
                         "is its audio server running (under JACK: jackd), is it in use?")
                 self._cond.wait(min(left, WAIT_SLICE_S))
 
@@ -222,7 +226,7 @@ class DuplexStream:
                 left = deadline - time.monotonic()
                 if left <= 0:
                     raise DeviceDisconnectedError(
-                        f"{self.device} delivered no samples for {timeout_s:g} s (it stopped "
+                        f"{self.name} delivered no samples for {timeout_s:g} s (it stopped "
                         f"at stream frame {self.frames}): the device was unplugged or taken by "
                         "another program, or its audio server stopped")
                 before = self.frames
@@ -234,7 +238,7 @@ class DuplexStream:
         out = self._ring[index]
         if first < self.frames + 2 * self.max_block - size:  # overwritten while waiting or copying
             raise OverrunError(
-                f"{self.device}: samples from stream frame {first} were overwritten before they "
+                f"{self.name}: samples from stream frame {first} were overwritten before they "
                 f"were read (the reader fell more than {size / self.rate_hz:.1f} s behind)")
         return out
 
@@ -246,7 +250,7 @@ class DuplexStream:
     def _check_alive(self) -> None:
         if not self._stream.active and not self._closed:
             raise DeviceDisconnectedError(
-                f"{self.device} stopped at stream frame {self.frames}: the device was "
+                f"{self.name} stopped at stream frame {self.frames}: the device was "
                 "unplugged or taken by another program, or its audio server went away; "
                 "reconnect it (or restart the server), then restart the daemon and resume")
 
@@ -257,11 +261,13 @@ class DuplexStream:
             return
         dead = not self._stream.active
         self._closed = True
-        if not dead:
-            try:
-                self._stream.close()
-            except Exception:  # a device gone between the check and the call: nothing to free
-                pass
+        if dead:
+            abandon()
+            return
+        try:
+            self._stream.close()
+        except Exception:  # a device gone between the check and the call: nothing to free
+            pass
         stream_closed()
 
     def _release(self) -> None:
