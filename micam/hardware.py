@@ -41,10 +41,11 @@ def load_daemon_config(path: Path | None = None) -> MicamDaemonConfig:
 
 
 def _simulated(options: SimulationConfig) -> Hardware:
-    from sim.capture import build_simulated_capture, truth_document
+    from sim.backends import build_capture
+    from sim.capture import truth_document
     from sim.live_scene import demo_scene
 
-    sim = build_simulated_capture(options)
+    sim = build_capture(options)
     world = sim.world
     process = sim.world_process
 

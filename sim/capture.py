@@ -229,13 +229,11 @@ def world_for(options: SimulationOptions) -> tuple[World, list[RigidTransform]]:
 def build_simulated_capture(options: SimulationOptions) -> SimulatedCapture:
     """Build the simulated world for `options` and the hardware to capture it: plain simulated
     boards, or (backend "usb-emulated") the real USB driver talking to emulated boards, both
-    wired to the same bench, so that both record the same samples for the same seed; or
-    (backend "audio") the audio backend on a JACK server with the world as a JACK client
-    (sim.audio_capture)."""
+    wired to the same bench, so that both record the same samples for the same seed. The
+    audio backend's capture is `sim.audio_capture` (`sim.backends.build_capture` chooses)."""
     if options.backend == "audio":
-        from .audio_capture import build_audio_capture
-
-        return build_audio_capture(options)
+        raise ValueError("the audio backend's simulated capture is built by "
+                         "sim.backends.build_capture (sim.audio_capture)")
     world, poses = world_for(options)
     layout, rig = world.layout, world.rig
     setups = Setups()  # the noise is keyed by what is captured (sim.setups)

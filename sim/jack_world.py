@@ -153,8 +153,9 @@ class WorldProcess:
 
     def _line(self, timeout_s: float) -> str:
         result: list[str] = []
-        reader = threading.Thread(target=lambda: result.append(self._proc.stdout.readline()),
-                                  daemon=True)  # type: ignore[union-attr]
+        stdout = self._proc.stdout
+        assert stdout is not None  # a pipe
+        reader = threading.Thread(target=lambda: result.append(stdout.readline()), daemon=True)
         reader.start()
         reader.join(timeout_s)
         return result[0].strip() if result else ""
