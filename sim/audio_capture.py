@@ -25,7 +25,6 @@ from acquisition.contracts.capture_config import (
     CaptureConfig,
     ColumnEntry,
     ReferenceMicEntry,
-    RigEntry,
     SpeakerEntry,
 )
 from acquisition.contracts.instructions import Instruction
@@ -35,8 +34,8 @@ from daq.audio import AudioConfig, AudioDeviceConfig, open_audio_boards
 from .analog_bench import AcousticBench
 from .audio_world import RANGE_V
 from .cameras import SimulatedCamera
-from .capture import SimulatedCapture, SimulationOptions, world_for
-from .geometry import Rig, RigidTransform
+from .capture import SimulatedCapture, SimulationOptions, rig_entry, world_for
+from .geometry import RigidTransform
 from .jack_world import MIC_PORTS, SPEAKER_PORTS, WorldProcess
 from .setups import Setups
 from .simulated_operator import SimulatedOperator, reference_stand_position
@@ -90,17 +89,10 @@ def audio_capture_config(world: World, n_poses: int, burst: BurstConfig,
                        for k in range(n_speakers)),
         reference=ReferenceMicEntry(board=label, channel=n_mics),
         burst=burst,
-        rig=_rig_entry(rig),
+        rig=rig_entry(rig),
         cameras=tuple(CameraEntry(name=c.name, device_id=c.device_id) for c in cameras),
         n_poses=n_poses,
     )
-
-
-def _rig_entry(rig: Rig) -> RigEntry:
-    return RigEntry(corners_x=rig.corners_x, corners_y=rig.corners_y, square_m=rig.square_m,
-                    speakers_m=tuple(tuple(p) for p in rig.speakers_m),
-                    reference_mark_m=tuple(rig.reference_mark_m),
-                    speaker_diameter_m=rig.speaker_diameter_m, origin_square=rig.origin_square)
 
 
 def build_audio_capture(options: SimulationOptions) -> SimulatedCapture:

@@ -157,6 +157,14 @@ class SimulatedCapture:
             self.world_process.close()
 
 
+def rig_entry(rig: Rig) -> RigEntry:
+    """The capture configuration's description of the simulated rig."""
+    return RigEntry(corners_x=rig.corners_x, corners_y=rig.corners_y, square_m=rig.square_m,
+                    speakers_m=tuple(tuple(p) for p in rig.speakers_m),
+                    reference_mark_m=tuple(rig.reference_mark_m),
+                    speaker_diameter_m=rig.speaker_diameter_m, origin_square=rig.origin_square)
+
+
 def capture_config_for(layout: ArrayLayout, rig: Rig, n_poses: int, sample_rate_hz: float,
                        burst: BurstConfig, cameras: list[Camera]) -> CaptureConfig:
     """The capture configuration of a simulated array: every wired input, in board order."""
@@ -193,11 +201,7 @@ def capture_config_for(layout: ArrayLayout, rig: Rig, n_poses: int, sample_rate_
         speakers=speakers,
         reference=ReferenceMicEntry(board=layout.boards[ref.board].serial, channel=ref.channel),
         burst=burst,
-        rig=RigEntry(corners_x=rig.corners_x, corners_y=rig.corners_y, square_m=rig.square_m,
-                     speakers_m=tuple(tuple(p) for p in rig.speakers_m),
-                     reference_mark_m=tuple(rig.reference_mark_m),
-                     speaker_diameter_m=rig.speaker_diameter_m,
-                     origin_square=rig.origin_square),
+        rig=rig_entry(rig),
         cameras=tuple(CameraEntry(name=c.name, device_id=c.device_id) for c in cameras),
         n_poses=n_poses,
     )
