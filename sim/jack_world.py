@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from acquisition.contracts.errors import UserError
 from acquisition.contracts.instructions import Instruction
 
 from .audio_world import RANGE_V, RoomFilter
@@ -41,8 +42,9 @@ START_TIMEOUT_S = 60.0
 REPLY_TIMEOUT_S = 30.0
 
 
-class WorldStartError(RuntimeError):
-    """The world's JACK client did not start (no server, JACK-Client missing); says why."""
+class WorldStartError(UserError):
+    """The world's JACK client did not start (no server, JACK-Client missing) or ended; says
+    why and what to do."""
 
 
 def _serve(options_json: str, name: str) -> None:
@@ -139,10 +141,11 @@ class WorldProcess:
             raise WorldStartError(
                 f"the simulated world's JACK client {name!r} did not start "
                 f"({line or 'no answer'}; {self.stderr_tail() or 'nothing on stderr'}): is a "
-                "JACK server running (jackd; JACK_DEFAULT_SERVER names it) and JACK-Client "
-                "installed (pip install JACK-Client)?")
+                "JACK server running at 96 kS/s (e.g. `jackd -d dummy -r 96000 -C 16 -P 8`; "
+                "JACK_DEFAULT_SERVER names it) and JACK-Client installed (pip install "
+                "JACK-Client)?")
 
-    def stderr_tail(self, lines: int = 3) -> str:
+    def stderr_tail(self, lines: int = 1) -> str:
         """The last lines the client wrote to its standard error."""
         self._log.seek(0)
         return " | ".join(self._log.read()[-4000:].strip().splitlines()[-lines:])

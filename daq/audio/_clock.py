@@ -70,7 +70,7 @@ class WordClock:
     def _offset(self, master: AudioBoard, board: AudioBoard, ms: DuplexStream,
                 fs: DuplexStream) -> int:
         measured = frame_offset(ms, fs)
-        faults = len(ms.faults) + len(fs.faults)
+        faults = ms.fault_count + fs.fault_count
         key = str(board.identity.serial)
         kept = self._offsets.get(key)
         if kept is None or kept[2] != faults:

@@ -112,7 +112,8 @@ class DuplexStream:
         self.frames = 0  # input frames delivered so far: the stream's sample clock
         self.anchor: tuple[int, float] | None = None  # (first frame of a callback, its time)
         self.max_block = 0
-        self.faults: list[Fault] = []
+        self.faults: list[Fault] = []  # the latest ones
+        self.fault_count = 0  # every one since the start
         self._playing: tuple[int, np.ndarray] | None = None  # (first frame, float32 samples)
         self._closed = False
         self.started_s = time.monotonic()
@@ -166,6 +167,7 @@ class DuplexStream:
         with self._cond:
             if kinds:
                 self.faults = [*self.faults[-31:], Fault(kinds, f0)]
+                self.fault_count += 1
             self.frames = f0 + frames
             self.anchor = (f0, now)
             self.max_block = max(self.max_block, frames)

@@ -20,9 +20,18 @@ from daq import (
     OverrunError,
     ScanConfig,
     SyncGroup,
+    UnderrunError,
     volts_to_codes,
 )
-from daq.audio import AudioConfig, DeviceNotFoundError, find_device, open_audio_boards
+from daq.audio import (
+    AudioBoard,
+    AudioConfig,
+    AudioDeviceInfo,
+    DeviceNotFoundError,
+    find_device,
+    open_audio_boards,
+)
+from daq.audio._stream import Fault
 from micam.cli import main
 from sim.capture import SimulationOptions
 from sim.jack_world import WorldProcess
@@ -125,6 +134,16 @@ def test_an_xrun_is_an_overrun_naming_the_device_and_the_sample(group: SyncGroup
         assert acquire_whole(group, {0: burst_codes(n)}).codes.shape == (n, 16)
     finally:
         group.configure([scan()])
+
+
+def test_an_output_underflow_alone_is_an_underrun() -> None:
+    """JACK flags both on every xrun; a host API that flags only the output's (ALSA's playback
+    ran dry) makes an UnderrunError, named the same way (the flags as PortAudio hands them)."""
+    board = AudioBoard(AudioDeviceInfo(0, "USB Audio", "ALSA", 2, 2, 48_000.0), "A")
+    board._window = 1000  # a recording from stream frame 1000
+    with pytest.raises(UnderrunError, match=r'audio interface A \("USB Audio", ALSA\): output '
+                                            r"underflow at sample index 24 \(an xrun"):
+        board._raise_xrun(Fault(("output underflow",), 1024), playing=True)
 
 
 def test_a_rate_the_device_refuses_is_a_configuration_error(world: WorldProcess) -> None:
