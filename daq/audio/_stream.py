@@ -37,8 +37,10 @@ FIRST_CALLBACK_S = 2.0
 WAIT_SLICE_S = 0.1
 """A waiting reader checks this often whether the stream is still alive."""
 SETTLE_S = 1.0
-"""No recording starts in a new stream's first quarter second: a host API may flag an xrun
-while it connects the stream (JACK reorders its graph), which must not break a recording."""
+"""No recording starts in a new stream's first second, nor before its `SETTLE_CALLBACKS`th
+callback: a host API may flag xruns while it connects the stream (JACK reorders its graph; one
+came 24 periods after the start, whatever the period), which must not break a recording."""
+SETTLE_CALLBACKS = 32
 
 # PortAudio's error codes (portaudio.h) for a refused configuration or a missing device.
 _INVALID_CHANNELS = -9998
@@ -184,7 +186,8 @@ class DuplexStream:
         """The earliest frame a recording may start at now: past the callback that may be
         running (it began at `frames` at the latest), so that an output scheduled now plays
         whole, and past the stream's settling."""
-        return max(self.frames + max(self.max_block, 1024) + 256, round(SETTLE_S * self.rate_hz))
+        settled = max(round(SETTLE_S * self.rate_hz), SETTLE_CALLBACKS * self.max_block)
+        return max(self.frames + max(self.max_block, 1024) + 256, settled)
 
     def play(self, start_frame: int, samples: np.ndarray | None) -> None:
         """Play float32 `samples` (n, n_outputs) from stream frame `start_frame` (None: stop
