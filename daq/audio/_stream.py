@@ -28,6 +28,7 @@ import numpy as np
 from daq import CODE_FULL_SCALE, ConfigurationError, DeviceDisconnectedError, OverrunError
 
 from ._devices import AudioDeviceInfo
+from ._jack_watch import JackWatch
 from ._portaudio import abandon, portaudio, stream_closed, stream_opened
 
 RING_S = 4.0
@@ -132,6 +133,7 @@ class DuplexStream:
         except sd.PortAudioError as exc:
             raise refused(device, rate_hz, n_inputs, n_outputs, exc) from None
         stream_opened()
+        self._watch = JackWatch(device.name) if "JACK" in device.host_api else None
         try:
             self._stream.start()
         except sd.PortAudioError as exc:
@@ -179,8 +181,10 @@ class DuplexStream:
 
     @property
     def alive(self) -> bool:
-        """False once the stream stopped by itself (device or server gone) or was closed."""
-        return not self._closed and bool(self._stream.active)
+        """False once the stream stopped by itself (device or server gone), its JACK device
+        left, or it was closed."""
+        gone = self._watch is not None and self._watch.gone is not None
+        return not self._closed and bool(self._stream.active) and not gone
 
     def first_window(self) -> int:
         """The earliest frame a recording may start at now: past the callback that may be
@@ -238,6 +242,7 @@ class DuplexStream:
                 self._cond.wait(min(left, WAIT_SLICE_S))
                 if self.frames > before:
                     deadline = time.monotonic() + timeout_s
+        self._check_alive()  # a JACK device that left: its frames still come, silent
         size = self._ring.shape[0]
         index = np.arange(first, first + n) % size
         out = self._ring[index]
@@ -253,6 +258,11 @@ class DuplexStream:
             return [f for f in self.faults if start < f.frame <= stop]
 
     def _check_alive(self) -> None:
+        if self._watch is not None and self._watch.gone is not None and not self._closed:
+            raise DeviceDisconnectedError(
+                f"{self.name} went away at stream frame {self.frames}: {self._watch.gone}; "
+                "reconnect it (or restart the server), then capture again (after a server "
+                "restart, restart the daemon and resume)")
         if not self._stream.active and not self._closed:
             raise DeviceDisconnectedError(
                 f"{self.name} stopped at stream frame {self.frames}: the device was "
@@ -266,9 +276,11 @@ class DuplexStream:
             return
         dead = not self._stream.active
         self._closed = True
-        if dead:
+        if dead:  # its watch too: leaving a server that died may hang as well
             abandon()
             return
+        if self._watch is not None:
+            self._watch.close()
         try:
             self._stream.close()
         except Exception:  # a device gone between the check and the call: nothing to free
@@ -277,6 +289,8 @@ class DuplexStream:
 
     def _release(self) -> None:
         self._closed = True
+        if self._watch is not None:
+            self._watch.close()
         try:
             self._stream.close()
         finally:

@@ -5,6 +5,8 @@ microphones on one device clock, the interface's latency measured, and every fau
 
 from __future__ import annotations
 
+import os
+import signal
 import threading
 from collections.abc import Iterator
 
@@ -15,6 +17,7 @@ from acquisition.contracts.instructions import Instruction, InstructionKind
 from acquisition.contracts.stimulus import mls_burst
 from daq import (
     ConfigurationError,
+    DeviceDisconnectedError,
     InputChannel,
     OutputChannel,
     OverrunError,
@@ -171,3 +174,17 @@ def test_an_interface_that_is_not_there_is_named(jack_server) -> None:  # noqa: 
 def test_several_interfaces_need_one_word_clock() -> None:
     with pytest.raises(ValueError, match="2 interfaces need one word clock"):
         AudioConfig(devices=[{"label": "A", "name": "x"}, {"label": "B", "name": "y"}])
+
+
+def test_a_jack_device_that_quits_is_a_disconnection_not_silence(group: SyncGroup,
+                                                                 world: WorldProcess) -> None:
+    """The world's JACK client is the interface here: killed (a program that crashed, a USB
+    interface's bridge that quit), PortAudio would go on reading silence; the recording fails
+    naming the interface instead. (Last in this module: it ends the module's world.)"""
+    acquire_whole(group, {0: burst_codes()})
+    os.kill(world.pid, signal.SIGKILL)
+    with pytest.raises(DeviceDisconnectedError, match=r'audio interface A \("micam-test-world"'
+                       r".*went away at stream frame \d+: its JACK client 'micam-test-world' "
+                       r"left the server"):
+        for _ in range(50):  # bounded: the server tells the watch within a period or two
+            group.acquire({0: burst_codes()})

@@ -7,6 +7,7 @@ systemd restarts it (docs/hardware.md)."""
 from __future__ import annotations
 
 import os
+import re
 import signal
 import subprocess
 from pathlib import Path
@@ -48,7 +49,7 @@ def test_a_vanished_server_leaves_the_session_resumable(tmp_path: Path) -> None:
         last = status.last_capture
         assert last is not None and last.outcome == "abandoned"
         assert "DeviceDisconnectedError: audio interface world" in last.reason
-        assert "audio server went away" in last.reason
+        assert re.search(r"the JACK server shut down|its audio server went away", last.reason)
     finally:
         _stop(daemon)
     reader = SessionReader(path)
