@@ -41,7 +41,7 @@ def missing_audio_stack() -> str | None:
         import jack  # noqa: F401
     except (ImportError, OSError) as exc:
         return (f"the simulated world's JACK client needs JACK-Client ({exc}): "
-                f"pip install -e '.[test]' (and {APT})")
+                f"pip install JACK-Client (and {APT})")
     return None
 
 
