@@ -51,7 +51,7 @@ def cpu_seconds(pid: int) -> float:
 def start_daemon(tmp: Path, options: SimulationOptions) -> tuple[subprocess.Popen, socket.socket]:
     config = tmp / "daemon.toml"
     world = "\n".join(f"{k} = {json.dumps(v)}" for k, v in options.model_dump().items()
-                      if k in ("array", "poses", "mls_order", "seed"))
+                      if k in ("array", "poses", "mls_order", "seed", "backend"))
     config.write_text(f'session_root = "{tmp}/sessions"\n[sockets]\ncontrol = "ipc://{tmp}/c"\n'
                       f'events = "ipc://{tmp}/e"\n[simulation]\n{world}\n')
     notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)

@@ -1,7 +1,7 @@
 """micam's driver layer: board models, scan configurations, the board interface, sync groups.
 
-The USB driver for real Data Translation boards lives in `daq.usb`; the simulated boards in
-`sim.boards`. Everything above this layer talks to the `Board` protocol only.
+The USB driver for real Data Translation boards lives in `daq.usb`, the audio-interface backend
+(any device PortAudio reaches) in `daq.audio`; the simulated boards in `sim.boards`. Everything above this layer talks to the `Board` protocol only.
 """
 
 from ._config import ClockSource, InputChannel, OutputChannel, ScanConfig, TriggerSource
@@ -26,6 +26,7 @@ from ._interface import (
     volts_to_codes,
 )
 from ._models import BOARD_MODELS, BoardModel, board_model
+from ._selftest import ChannelLevel, SelftestReport, selftest
 from ._stream import GroupStream
 from ._sync import GroupRecording, SyncGroup
 
@@ -38,6 +39,7 @@ __all__ = [
     "ClosesOnExit",
     "BoardModel",
     "BoardStateError",
+    "ChannelLevel",
     "ClockSource",
     "ConfigurationError",
     "DaqError",
@@ -48,6 +50,7 @@ __all__ = [
     "OutputChannel",
     "OutputBoard",
     "OverrunError",
+    "SelftestReport",
     "ScanConfig",
     "SyncError",
     "SyncGroup",
@@ -56,5 +59,6 @@ __all__ = [
     "UnderrunError",
     "board_model",
     "codes_to_volts",
+    "selftest",
     "volts_to_codes",
 ]

@@ -16,7 +16,7 @@ from typing import Literal
 
 from ._errors import ConfigurationError
 
-BoardFamily = Literal["DT9836", "DT9816"]
+BoardFamily = Literal["DT9836", "DT9816", "audio"]
 
 
 @dataclass(frozen=True)
@@ -25,7 +25,8 @@ class BoardModel:
 
     Attributes:
         name: the variant as Data Translation names it, e.g. "DT9836-12-2".
-        family: "DT9836" or "DT9816"; selects the wire protocol in the USB driver.
+        family: "DT9836" or "DT9816" (selects the wire protocol in the USB driver), or "audio"
+            for an audio interface of `daq.audio` (its model is built from what PortAudio says).
         n_inputs: simultaneous analog input channels.
         n_outputs: analog output channels (0 for a DT9816).
         input_ranges_v: the bipolar full-scale input ranges the board offers, in volts

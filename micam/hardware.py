@@ -41,21 +41,27 @@ def load_daemon_config(path: Path | None = None) -> MicamDaemonConfig:
 
 
 def _simulated(options: SimulationConfig) -> Hardware:
-    from sim.capture import build_simulated_capture, truth_document
+    from sim.backends import build_capture
+    from sim.capture import truth_document
     from sim.live_scene import demo_scene
 
-    sim = build_simulated_capture(options)
+    sim = build_capture(options)
     world = sim.world
+    process = sim.world_process
 
     def live_scene(playing: bool) -> None:
         world.live_scene = demo_scene(world) if playing else None
+        if process is not None:  # the audio backend: the sound is the JACK client's
+            process.live(playing)
 
+    on = " through the audio backend" if process is not None else ""
     return Hardware(
         config=sim.config, group=sim.group, cameras=sim.cameras, world_operator=sim.operator,
         max_poses=options.poses, session_files={TRUTH_FILE: truth_document(sim)},
         air_sensor=sim.air_sensor, live_scene=live_scene,
+        closers=[process.close] if process is not None else [],
         description=f"simulated world ({options.array}, {options.poses} poses, seed "
-                    f"{options.seed})")
+                    f"{options.seed}){on}")
 
 
 def open_hardware(config: MicamDaemonConfig) -> Hardware:

@@ -12,7 +12,8 @@ import shutil
 from collections.abc import Callable
 from pathlib import Path
 
-from sim.capture import SimulatedCapture, SimulationOptions, build_simulated_capture, truth_document
+from sim.backends import build_capture
+from sim.capture import SimulatedCapture, SimulationOptions, truth_document
 
 from acquisition.sequencer import CaptureSequencer, Progress
 from acquisition.contracts.session import SessionError, SessionWriter, write_atomic
@@ -42,10 +43,10 @@ def prepare_simulated_capture(out: Path, options: SimulationOptions | None,
                 f"{out} holds no simulated session ({TRUTH_FILE} is missing); only sessions "
                 "made by `micam simulate` can be resumed this way")
         options = SimulationOptions(**json.loads(truth_path.read_text())["simulation"])
-        sim = build_simulated_capture(options)
+        sim = build_capture(options)
         writer = SessionWriter.resume(out)
     else:
-        sim = build_simulated_capture(options)
+        sim = build_capture(options)
         writer = SessionWriter.create(out, capture=sim.config.model_dump(mode="json"))
         try:
             _write_json_atomic(out / TRUTH_FILE, truth_document(sim))

@@ -5,6 +5,11 @@
   on a DT9816-A of its own, 3 cameras;
 - `generic`: the daemon on a smaller rig: 3 x DT9836-12-2, 35 microphones and the reference
   microphone on the last input of the third board, one camera;
+- `audio`: the daemon on an audio interface (any device PortAudio reaches: RME, MOTU,
+  Focusrite, Behringer, ...): 15 microphones and the reference microphone on its 16 inputs,
+  the six speakers on its outputs, one camera (docs/hardware.md);
+- `uma16`: the daemon on a miniDSP UMA-16 USB array (16 MEMS microphones, 4 x 4) with a
+  second interface for the reference microphone and the speakers, on one word clock;
 - `import`: `micam import` of another recorder's files (docs/import.md).
 
 Each validates as written (tests/acquisition/test_templates.py); the values a person must
@@ -19,7 +24,7 @@ import textwrap
 from acquisition.contracts.errors import UserError
 from sim.geometry import PAPER_SPEAKERS_MM
 
-TEMPLATES = ("paper", "generic", "import")
+TEMPLATES = ("paper", "generic", "audio", "uma16", "import")
 
 _SPEAKERS_M = [[round(v / 1000.0, 4) for v in p] for p in PAPER_SPEAKERS_MM]
 
@@ -42,6 +47,21 @@ def template(name: str) -> str:
             [("DT9836-12-2", "36001", 12, 2), ("DT9836-12-2", "36002", 12, 2),
              ("DT9836-12-2", "36003", 12, 2)],
             n_mics=35, reference=("36003", 11), cameras=["cam0"])
+    if name == "audio":
+        return _daemon(
+            "one audio interface with 16 inputs and 6 or more outputs (an RME, MOTU, "
+            "Focusrite, Behringer, ...): 15 microphones and the reference microphone on its "
+            "inputs, the six speakers on its outputs, one camera",
+            [("audio", "interface", 16, 6)], n_mics=15, reference=("interface", 15),
+            cameras=["cam0"], audio=([("interface", "CHANGE-ME", None)], False))
+    if name == "uma16":
+        return _daemon(
+            "a miniDSP UMA-16 USB array (16 MEMS microphones) and an audio interface for the "
+            "reference microphone and the six speakers, on one word clock, one camera",
+            [("audio", "uma16", 16, 0), ("audio", "interface", 1, 6)], n_mics=16,
+            reference=("interface", 0), cameras=["cam0"],
+            audio=([("uma16", "UMA16", None), ("interface", "CHANGE-ME", None)], True),
+            notes=_UMA16, rate_hz=48_000.0)
     if name == "import":
         return _IMPORT
     raise UserError(f"unknown template {name!r}; choose one of {', '.join(TEMPLATES)}")
@@ -52,19 +72,58 @@ def _toml(value: object) -> str:
     return json.dumps(value)
 
 
+AudioDevices = tuple[list[tuple[str, str, str | None]], bool]
+"""The audio interfaces of a template: (label, name, host API) each, and the word clock."""
+
+
+def _audio_section(audio: AudioDevices) -> list[str]:
+    """[hardware]'s backend and [hardware.audio] for the interfaces `audio`."""
+    devices, word_clock = audio
+    lines = [
+        'backend = "audio"        # audio interfaces through PortAudio (docs/hardware.md)',
+        "",
+        "[hardware.audio]",
+        f"word_clock = {'true' if word_clock else 'false'}"
+        + ("        # the interfaces share one word clock: the first is its master"
+           if word_clock else "       # one interface: its own clock"),
+        'latency = "high"         # PortAudio\'s buffer; the latency itself is measured',
+        "block_frames = 0         # frames per callback; 0: the host API's choice",
+        "",
+    ]
+    for label, name, host_api in devices:
+        lines += [
+            "[[hardware.audio.devices]]",
+            f'label = "{label}"' + " " * max(1, 15 - len(label))
+            + "# the serial of its [[hardware.capture.boards]] entry",
+            f'name = "{name}"' + " " * max(1, 16 - len(name))
+            + "# its name, or a part of it: `micam daq list --backend audio`",
+            (f'host_api = "{host_api}"' if host_api else
+             '# host_api = "ALSA"      # where it appears under several: ALSA, JACK, ASIO, ...'),
+            "",
+        ]
+    return lines
+
+
 def _daemon(title: str, boards: list[tuple[str, str, int, int]], n_mics: int,
-            reference: tuple[str, int], cameras: list[str]) -> str:
-    """A daemon configuration: sockets, quality, the hardware's capture and its cameras.
+            reference: tuple[str, int], cameras: list[str],
+            audio: AudioDevices | None = None, notes: tuple[str, ...] = (),
+            rate_hz: float = 96_000.0) -> str:
+    """A daemon configuration: sockets, quality, the hardware's capture and its cameras (on
+    the audio backend with `audio`; `notes` are comment lines after the title).
 
     TOML puts every key after a table header into that table, so [hardware.capture]'s own
     keys (columns, speakers, cameras) come before its sub-tables (boards, reference, ...)."""
     columns, outputs, board_tables = [], [], []
     mic = 0
+    order = 14 if rate_hz > 64_000 else 13  # a period of about 170 ms: room-proof
+    post = round(rate_hz * 0.085)  # 85 ms: an interface's latency, then the room's decay
+    where = ("the label of a [hardware.audio] device" if audio
+             else "this board's serial: `micam daq list`")
     for model, serial, n_inputs, n_outputs in boards:
         board_tables += [
             "[[hardware.capture.boards]]",
             f'model = "{model}"',
-            f'serial = "{serial}"          # this board\'s serial: `micam daq list`',
+            f'serial = "{serial}"' + " " * max(1, 10 + 7 - len(serial)) + f"# {where}",
             "inputs = [",
             *[f"  {{ channel = {c}, range_v = 10.0 }}," for c in range(n_inputs)],
             "]",
@@ -85,6 +144,7 @@ def _daemon(title: str, boards: list[tuple[str, str, int, int]], n_mics: int,
     lines = [
         *textwrap.wrap(f"micam daemon configuration: {title}.", 92, initial_indent="# ",
                        subsequent_indent="# "),
+        *notes,
         "# Check it with `micam config check FILE`, run it with `micam daemon --config FILE`.",
         "# Every key is described in docs/protocol.md (Configuration); [hardware.capture] in",
         "# acquisition/contracts/capture_config.py, its rig in acquisition/contracts/rig_description.py.",
@@ -99,10 +159,12 @@ def _daemon(title: str, boards: list[tuple[str, str, int, int]], n_mics: int,
         'snr = "retry"',
         "",
         "[hardware]",
-        '# firmware_dir = "/opt/micam/firmware"   # the boards\' firmware images, if they need it',
-        "",
+        *(_audio_section(audio) if audio else [
+            '# firmware_dir = "/opt/micam/firmware"   # the boards\' firmware images, if they '
+            "need it", ""]),
         "[hardware.capture]",
-        "sample_rate_hz = 96000.0  # one external clock for every board",
+        (f"sample_rate_hz = {rate_hz:.1f}  # a rate every interface offers" if audio
+         else "sample_rate_hz = 96000.0  # one external clock for every board"),
         "n_poses = 20             # rig poses per session (micam session start --poses N)",
         "",
         "# Column j of every recording: the boards' inputs (below), board after board, in",
@@ -122,8 +184,12 @@ def _daemon(title: str, boards: list[tuple[str, str, int, int]], n_mics: int,
         *[f'  {{ name = "{c}", device_id = "usb-camera-{c}" }},' for c in cameras],
         "]",
         "",
-        "# The boards of the sync group, the clock and trigger master first; input ranges in",
-        "# volts (the DT9836 also offers 2.0).",
+        *(["# The interfaces, the clock master first; range_v is the voltage that reaches",
+           "# digital full scale at the interface's gain setting (its outputs: the voltage its",
+           "# full scale drives). Measure it, or leave 10.0: the calibration needs only the",
+           "# times, the levels are for the quality checks."] if audio else
+          ["# The boards of the sync group, the clock and trigger master first; input ranges in",
+           "# volts (the DT9836 also offers 2.0)."]),
         *board_tables,
         "[hardware.capture.reference]   # the reference microphone (paper IV-C)",
         f'board = "{reference[0]}"',
@@ -131,11 +197,14 @@ def _daemon(title: str, boards: list[tuple[str, str, int, int]], n_mics: int,
         "distance_from_speaker_m = 0.002   # how far from each speaker in its reference recording",
         "",
         "[hardware.capture.burst]       # what each speaker plays per recording",
-        "mls_order = 14          # 16383 samples, 171 ms at 96 kS/s",
+        (f"mls_order = {order}          # {2**order - 1} samples, "
+         f"{1e3 * (2**order - 1) / rate_hz:.0f} ms at {rate_hz / 1000:.0f} kS/s"),
         "periods = 2             # played back to back; the last is the room-proof one",
         "amplitude_v = 1.0",
         "pre_samples = 512       # recorded silence before the sequence",
-        "post_samples = 2048     # recorded silence after it, while it dies away",
+        (f"post_samples = {post}    # recorded after it: the interface's latency (the quality "
+         "check says if too short), then the room's decay" if audio else
+         "post_samples = 2048     # recorded silence after it, while it dies away"),
         "",
         *_RIG,
         "",
@@ -153,6 +222,28 @@ def _daemon(title: str, boards: list[tuple[str, str, int, int]], n_mics: int,
         ]
     return "\n".join(lines)
 
+
+# The UMA-16's microphones, from Acoular's published geometry file of the array
+# (acoular/xml/minidsp_uma-16.xml, positions corrected in Acoular 24.03 after its GitHub issue
+# #63): a 4 x 4 grid at 42 mm pitch, metres, in the array's own frame, channel order.
+_UMA16_MM = [(21, -63), (63, -63), (21, -21), (63, -21), (21, 21), (63, 21), (21, 63),
+             (63, 63), (-63, 63), (-21, 63), (-63, 21), (-21, 21), (-63, -21), (-21, -21),
+             (-63, -63), (-21, -63)]
+_UMA16 = (
+    "#",
+    "# The array's published geometry (Acoular's acoular/xml/minidsp_uma-16.xml, corrected",
+    "# after Acoular's GitHub issue #63): channel k at (x, y) mm, z = 0; the calibration",
+    "# finds the positions as built, compare them with these:",
+    *("#   " + ", ".join(f"ch {k}: ({x:+d}, {y:+d})" for k, (x, y) in
+                          list(enumerate(_UMA16_MM))[i: i + 4]) for i in range(0, 16, 4)),
+    "#",
+    "# WHAT MUST HOLD: the UMA-16 and the interface sample on ONE clock. The UMA-16 shows no",
+    "# word-clock input, so the interface must follow the array's (or both one clock, e.g. as",
+    "# one aggregate device whose clock source is one of them, drift correction off). On two",
+    "# free-running clocks the delays grow along every recording (tens of ppm: millimetres);",
+    "# micam stops a capture whose interfaces drift apart (daq/audio/_clock.py), but only",
+    "# beyond its tolerance: check the calibration's residuals (docs/hardware.md).",
+)
 
 _RIG = [
     "[hardware.capture.rig]   # the calibration rig as built (acquisition/contracts/rig_description.py)",

@@ -22,8 +22,8 @@ REFERENCE_BOARD_SERIAL = "16099"
 """Serial of the extra DT9816-A that records the reference microphone. Serials are decimal, as
 the boards' own 32-bit serial numbers are."""
 
-ArrayKind = Literal["sphere72", "planar64", "scatter48"]
-ARRAY_KINDS: tuple[str, ...] = ("sphere72", "planar64", "scatter48")
+ArrayKind = Literal["sphere72", "planar64", "scatter48", "scatter15"]
+ARRAY_KINDS: tuple[str, ...] = ("sphere72", "planar64", "scatter48", "scatter15")
 
 
 @dataclass(frozen=True)
@@ -157,24 +157,42 @@ def planar64(n_speakers: int = 6, pitch_m: float = 0.04) -> ArrayLayout:
     return ArrayLayout("planar64", pos, normals, (pinhole("cam0"),), boards, mics, spk, ref)
 
 
-def scatter48(n_speakers: int = 6, seed: int = 7) -> ArrayLayout:
-    """An ad-hoc scatter of 48 microphones in a 0.6 m x 0.6 m x 0.15 m box around the camera,
-    facing forward; at least 3 cm from the camera."""
+def _scatter(n: int, seed: int) -> np.ndarray:
+    """n microphone positions scattered in a 0.6 m x 0.6 m x 0.15 m box around the camera, at
+    least 3 cm from it."""
     rng = np.random.default_rng(seed)
     pos: list[np.ndarray] = []
-    while len(pos) < 48:
+    while len(pos) < n:
         p = rng.uniform([-0.3, -0.3, -0.1], [0.3, 0.3, 0.05])
         if np.linalg.norm(p) > 0.03:
             pos.append(p)
+    return np.array(pos)
+
+
+def scatter48(n_speakers: int = 6, seed: int = 7) -> ArrayLayout:
+    """An ad-hoc scatter of 48 microphones in a 0.6 m x 0.6 m x 0.15 m box around the camera,
+    facing forward; at least 3 cm from the camera."""
     normals = np.tile([0.0, 0.0, 1.0], (48, 1))
     boards, mics, spk, ref = _wire(48, _paper_boards(3, 2), _INPUTS, n_speakers)
-    return ArrayLayout("scatter48", np.array(pos), normals, (pinhole("cam0"),), boards, mics,
-                       spk, ref)
+    return ArrayLayout("scatter48", _scatter(48, seed), normals, (pinhole("cam0"),), boards,
+                       mics, spk, ref)
+
+
+def scatter15(n_speakers: int = 6, seed: int = 7) -> ArrayLayout:
+    """The first 15 microphones of scatter48: with the reference microphone, 16 inputs, what
+    one 16-input audio interface records (sim.audio_world). On simulated boards: three
+    DT9836-6-2 (6 inputs, 2 outputs each: the six speakers) and the reference DT9816-A."""
+    normals = np.tile([0.0, 0.0, 1.0], (15, 1))
+    boards, mics, spk, ref = _wire(15, [BoardSpec("DT9836-6-2", str(36001 + i))
+                                        for i in range(3)], {"DT9836-6-2": 6}, n_speakers)
+    return ArrayLayout("scatter15", _scatter(15, seed), normals, (pinhole("cam0"),), boards,
+                       mics, spk, ref)
 
 
 def array_layout(kind: str, n_speakers: int = 6) -> ArrayLayout:
     """The layout named `kind` (one of ARRAY_KINDS), with a clear error for unknown names."""
-    builders = {"sphere72": sphere72, "planar64": planar64, "scatter48": scatter48}
+    builders = {"sphere72": sphere72, "planar64": planar64, "scatter48": scatter48,
+                "scatter15": scatter15}
     if kind not in builders:
         raise SimulationInputError(
             f"unknown array {kind!r}; choose one of {', '.join(ARRAY_KINDS)}")

@@ -7,7 +7,7 @@ writes a session.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
@@ -38,6 +38,9 @@ from .poses import sample_poses
 from .setups import Setups
 from .world import NoiseModel, World
 
+if TYPE_CHECKING:
+    from .jack_world import WorldProcess
+
 
 class SimulationOptions(BaseModel):
     """The knobs of a simulated capture (all of them, so that a session can be resumed)."""
@@ -56,9 +59,11 @@ class SimulationOptions(BaseModel):
         description="periods of the sequence per burst (BurstConfig); None: 2 where the "
                     "period is long enough for it (MIN_STEADY_PERIOD_S), 1 for shorter ones")
     body_diffraction: bool = False
-    backend: Literal["sim", "usb-emulated"] = Field(
+    backend: Literal["sim", "usb-emulated", "audio"] = Field(
         default="sim",
-        description="plain simulated boards, or the real USB driver on emulated USB boards",
+        description="plain simulated boards, the real USB driver on emulated USB boards, or "
+                    "the audio backend on a real audio server, the world a JACK client "
+                    "between its ports (sim.jack_world: needs jackd and JACK-Client)",
     )
     lab: Literal["ideal", "realistic"] = Field(
         default="ideal",
@@ -129,7 +134,8 @@ class SimulationOptions(BaseModel):
 
 @dataclass
 class SimulatedCapture:
-    """Everything the capture sequencer needs, plus the world that holds the truth."""
+    """Everything the capture sequencer needs, plus the world that holds the truth (and, on
+    the audio backend, the JACK client that plays it: `close` ends it)."""
 
     options: SimulationOptions
     world: World
@@ -140,6 +146,23 @@ class SimulatedCapture:
     config: CaptureConfig
     poses: list[RigidTransform]
     air_sensor: SimulatedAirSensor | None = None
+    world_process: WorldProcess | None = None
+
+    def close(self) -> None:
+        """Close the boards and cameras (and end the world's JACK client)."""
+        self.group.close()
+        for camera in self.cameras:
+            camera.close()
+        if self.world_process is not None:
+            self.world_process.close()
+
+
+def rig_entry(rig: Rig) -> RigEntry:
+    """The capture configuration's description of the simulated rig."""
+    return RigEntry(corners_x=rig.corners_x, corners_y=rig.corners_y, square_m=rig.square_m,
+                    speakers_m=tuple(tuple(p) for p in rig.speakers_m),
+                    reference_mark_m=tuple(rig.reference_mark_m),
+                    speaker_diameter_m=rig.speaker_diameter_m, origin_square=rig.origin_square)
 
 
 def capture_config_for(layout: ArrayLayout, rig: Rig, n_poses: int, sample_rate_hz: float,
@@ -178,11 +201,7 @@ def capture_config_for(layout: ArrayLayout, rig: Rig, n_poses: int, sample_rate_
         speakers=speakers,
         reference=ReferenceMicEntry(board=layout.boards[ref.board].serial, channel=ref.channel),
         burst=burst,
-        rig=RigEntry(corners_x=rig.corners_x, corners_y=rig.corners_y, square_m=rig.square_m,
-                     speakers_m=tuple(tuple(p) for p in rig.speakers_m),
-                     reference_mark_m=tuple(rig.reference_mark_m),
-                     speaker_diameter_m=rig.speaker_diameter_m,
-                     origin_square=rig.origin_square),
+        rig=rig_entry(rig),
         cameras=tuple(CameraEntry(name=c.name, device_id=c.device_id) for c in cameras),
         n_poses=n_poses,
     )
@@ -198,22 +217,34 @@ def _boards_for(options: SimulationOptions, layout: ArrayLayout,
     return [SimulatedBoard(spec, bench) for spec in layout.boards]
 
 
-def build_simulated_capture(options: SimulationOptions) -> SimulatedCapture:
-    """Build the simulated world for `options` and the hardware to capture it: plain simulated
-    boards, or (backend "usb-emulated") the real USB driver talking to emulated boards, both
-    wired to the same bench, so that both record the same samples for the same seed."""
+def world_for(options: SimulationOptions) -> tuple[World, list[RigidTransform]]:
+    """The world of `options` and its rig poses (the same for the same options, in any
+    process: the audio backend's JACK client builds its own)."""
     layout = array_layout(options.array)
     rig = Rig()
     world = World(layout=layout, rig=rig, temperature_c=options.temperature_c,
                   noise=NoiseModel(scale=options.noise), seed=options.seed,
                   body_diffraction=options.body_diffraction, lab=options.lab_effects())
+    poses = sample_poses(layout.cameras[0], rig, options.poses, options.distance_m,
+                         np.random.default_rng([options.seed, 4]))
+    return world, poses
+
+
+def build_simulated_capture(options: SimulationOptions) -> SimulatedCapture:
+    """Build the simulated world for `options` and the hardware to capture it: plain simulated
+    boards, or (backend "usb-emulated") the real USB driver talking to emulated boards, both
+    wired to the same bench, so that both record the same samples for the same seed. The
+    audio backend's capture is `sim.audio_capture` (`sim.backends.build_capture` chooses)."""
+    if options.backend == "audio":
+        raise ValueError("the audio backend's simulated capture is built by "
+                         "sim.backends.build_capture (sim.audio_capture)")
+    world, poses = world_for(options)
+    layout, rig = world.layout, world.rig
     setups = Setups()  # the noise is keyed by what is captured (sim.setups)
     bench = AcousticBench(world, setups)
     hardware = _boards_for(options, layout, bench)
     cameras: list[Camera] = [SimulatedCamera(m, world, i, setups)
                              for i, m in enumerate(layout.cameras)]
-    poses = sample_poses(layout.cameras[0], rig, options.poses, options.distance_m,
-                         np.random.default_rng([options.seed, 4]))
     operator = SimulatedOperator(world, poses, reference_stand_position(layout.cameras[0]),
                                  setups)
     stated_rig = rig.turned() if options.description_mistake == "turned-pattern" else rig

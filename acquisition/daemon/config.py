@@ -22,6 +22,8 @@ from pydantic_settings import (
     SettingsConfigDict,
 )
 
+from daq.audio import AudioConfig
+
 from acquisition.contracts.capture_config import CaptureConfig
 from acquisition.contracts.config_model import ConfigModel, describe_problems
 from acquisition.contracts.errors import UserError
@@ -136,12 +138,39 @@ class V4L2CameraConfig(ConfigModel):
 
 
 class HardwareConfig(ConfigModel):
-    """Real boards and cameras: the capture configuration plus how to open the devices."""
+    """Real boards and cameras: the capture configuration plus how to open the devices.
+
+    `backend` chooses the boards: Data Translation boards on USB (`usb`, the boards' serials),
+    or audio interfaces through PortAudio (`audio`: `[hardware.audio]` names the devices, each
+    capture board has model "audio" and a device's label as its serial; docs/hardware.md)."""
 
     capture: CaptureConfig = Field(
         description="boards and serials, channel map, speakers, sample rate, burst, rig, cameras")
     cameras: tuple[V4L2CameraConfig, ...]
     firmware_dir: Path | None = None
+    backend: Literal["usb", "audio"] = Field(
+        default="usb", description="usb: DT9836/DT9816 boards; audio: audio interfaces")
+    audio: AudioConfig | None = Field(
+        default=None, description="the audio interfaces (backend = \"audio\")")
+
+    @model_validator(mode="after")
+    def _backend_configured(self) -> HardwareConfig:
+        models = {b.model for b in self.capture.boards}
+        if self.backend == "usb":
+            if self.audio is not None or "audio" in models:
+                raise ValueError("[hardware.audio] and boards of model 'audio' need "
+                                 'backend = "audio"')
+            return self
+        if self.audio is None:
+            raise ValueError('backend = "audio" needs a [hardware.audio] section naming the '
+                             "interfaces (docs/hardware.md)")
+        labels = [d.label for d in self.audio.devices]
+        for b in self.capture.boards:
+            if b.model != "audio" or b.serial not in labels:
+                raise ValueError(f"capture board {b.serial!r}: on the audio backend every board "
+                                 f'has model = "audio" and the label of one of [hardware.audio]'
+                                 f"'s devices as its serial ({', '.join(labels)})")
+        return self
 
     @model_validator(mode="after")
     def _cameras_match(self) -> HardwareConfig:

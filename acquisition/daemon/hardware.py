@@ -1,4 +1,5 @@
-"""The hardware the daemon drives, and how the real kind is opened (boards and V4L2 cameras).
+"""The hardware the daemon drives, and how the real kind is opened (boards or audio interfaces,
+and V4L2 cameras).
 
 Either way the daemon gets a sync group, cameras and a capture configuration. The simulated
 world, built by the application (`micam.hardware`), also brings its operator (who moves the
@@ -11,7 +12,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from daq import SyncGroup
+from daq import Board, SyncGroup
 
 from acquisition.contracts.air import AirSensor
 from acquisition.contracts.camera import Camera
@@ -35,6 +36,7 @@ class Hardware:
         air_sensor: reads the air beside the array at every pose (None: no sensor).
         live_scene: the simulated world's sources start (True) or stop (False) playing, for
             live mode; None on real hardware (the room plays what it plays).
+        closers: called last by `close` (the simulated world's JACK client ends).
     """
 
     config: CaptureConfig
@@ -46,6 +48,7 @@ class Hardware:
     description: str = ""
     air_sensor: AirSensor | None = None
     live_scene: Callable[[bool], None] | None = None
+    closers: list[Callable[[], None]] = field(default_factory=list)
 
     @property
     def simulated(self) -> bool:
@@ -55,6 +58,8 @@ class Hardware:
         self.group.close()
         for camera in self.cameras:
             camera.close()
+        for close in self.closers:
+            close()
 
     def __enter__(self) -> Hardware:
         return self
@@ -63,13 +68,24 @@ class Hardware:
         self.close()
 
 
-def open_real_hardware(hw: HardwareConfig) -> Hardware:
-    """Open the configured boards (one sync group) and V4L2 cameras; nothing stays open on error."""
+def _open_boards(hw: HardwareConfig) -> list[Board]:
+    """The configured boards, in the capture configuration's order, on the chosen backend."""
+    serials = [b.serial for b in hw.capture.boards]
+    if hw.backend == "audio":
+        from daq.audio import open_audio_boards
+
+        assert hw.audio is not None  # HardwareConfig's validator
+        return list(open_audio_boards(hw.audio, serials))
     from daq.usb import open_boards
 
+    return list(open_boards(serials, firmware_dir=hw.firmware_dir))
+
+
+def open_real_hardware(hw: HardwareConfig) -> Hardware:
+    """Open the configured boards (one sync group) and V4L2 cameras; nothing stays open on error."""
     from ..cameras_v4l2 import V4L2Camera
 
-    boards = open_boards([b.serial for b in hw.capture.boards], firmware_dir=hw.firmware_dir)
+    boards = _open_boards(hw)
     cameras: list[Camera] = []
     try:
         for c in hw.cameras:
@@ -81,5 +97,6 @@ def open_real_hardware(hw: HardwareConfig) -> Hardware:
         for camera in cameras:
             camera.close()
         raise
+    kind = "audio interfaces" if hw.backend == "audio" else "boards"
     return Hardware(config=hw.capture, group=SyncGroup(boards), cameras=cameras,
-                    description=f"{len(boards)} boards, {len(cameras)} V4L2 cameras")
+                    description=f"{len(boards)} {kind}, {len(cameras)} V4L2 cameras")

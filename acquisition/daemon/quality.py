@@ -4,7 +4,10 @@ A recording is judged on the channels that should hear the speaker: the referenc
 during a reference step, the array's microphones during a pose. Levels are in dBFS (0 dBFS =
 the full scale of the channel's range); the SNR compares the power during the burst with the
 power of the silence before it (the first `pre_samples` of every recording, before any sound
-can arrive). Each failed check carries the policy configured for it.
+can arrive). The burst is measured where it arrived, the loudest window of its length after
+the silence: it comes late by the path through the air and by the output-to-input latency of
+the hardware, microseconds on the boards but milliseconds on an audio interface (longer than
+a short burst). Each failed check carries the policy configured for it.
 """
 
 from __future__ import annotations
@@ -21,6 +24,9 @@ from .config import Policy, QualityConfig
 
 _FLOOR_DB = -200.0
 _MIN_NOISE_SAMPLES = 32
+TAIL_SAMPLES = 256
+"""A recording whose last samples are within `CUT_DB` of its burst ends inside the burst."""
+CUT_DB = 6.0
 QUICK_LOOK_PX = 640
 
 
@@ -32,6 +38,8 @@ class Levels:
     peak_dbfs: np.ndarray
     snr_db: np.ndarray | None  # None when the recording has too little silence before the burst
     clipped: list[int]
+    delay_samples: int = 0  # how late the burst arrived after it was played (all channels)
+    tail_dbfs: np.ndarray | None = None  # RMS of the recording's last TAIL_SAMPLES
 
 
 @dataclass(frozen=True)
@@ -48,12 +56,25 @@ def _db(power_ratio: np.ndarray) -> np.ndarray:
         return np.maximum(10.0 * np.log10(power_ratio), _FLOOR_DB)
 
 
+def burst_arrival(x: np.ndarray, pre_samples: int, burst_samples: int) -> int:
+    """The first sample of the loudest `burst_samples` of `x` (n_samples, n_channels) from
+    `pre_samples` on, all channels together: where the burst arrived (module docstring)."""
+    n = x.shape[0]
+    if n - pre_samples <= burst_samples:
+        return pre_samples
+    energy = np.concatenate([[0.0], np.cumsum((x[pre_samples:] ** 2).sum(axis=1))])
+    window = energy[burst_samples:] - energy[:-burst_samples]
+    return pre_samples + int(np.argmax(window >= window.max() * (1 - 1e-9)))
+
+
 def measure(codes: np.ndarray, pre_samples: int, burst_samples: int,
             clip_fraction: float) -> Levels:
-    """Levels of raw int16 `codes` (n_samples, n_channels) whose burst starts at `pre_samples`."""
+    """Levels of raw int16 `codes` (n_samples, n_channels) whose burst is played from
+    `pre_samples` on (and arrives at `burst_arrival`)."""
     x = codes.astype(np.float64)
     full = float(CODE_FULL_SCALE)
-    burst = x[pre_samples: pre_samples + burst_samples]
+    start = burst_arrival(x, pre_samples, burst_samples)
+    burst = x[start: start + burst_samples]
     peak = np.abs(x).max(axis=0)
     clipped = np.flatnonzero(peak >= clip_fraction * full).tolist()
     if pre_samples >= _MIN_NOISE_SAMPLES:
@@ -64,8 +85,10 @@ def measure(codes: np.ndarray, pre_samples: int, burst_samples: int,
     else:
         burst_power = (burst**2).mean(axis=0)
         snr = None
+    tail = x[-min(TAIL_SAMPLES, x.shape[0]):]
     return Levels(rms_dbfs=_db(burst_power / full**2), peak_dbfs=_db(peak**2 / full**2),
-                  snr_db=snr, clipped=clipped)
+                  snr_db=snr, clipped=clipped, delay_samples=start - pre_samples,
+                  tail_dbfs=_db((tail**2).mean(axis=0) / full**2))
 
 
 def dead_channels(levels: Levels, mics: Sequence[int], config: QualityConfig) -> list[int]:
@@ -101,6 +124,13 @@ def judge_recording(levels: Levels, listening: Sequence[int], mics: Sequence[int
         failures.append(Failure("level", config.level,
                                 f"burst level {level:.1f} dBFS is below {config.min_level_dbfs} "
                                 "dBFS: check the speaker, its cable and the amplifier"))
+    elif config.level != "ignore" and levels.tail_dbfs is not None and float(np.median(
+            levels.tail_dbfs[list(listening)])) > level - CUT_DB:
+        failures.append(Failure("level", config.level,
+                                "the recording ends before the burst is over (it arrived "
+                                f"{levels.delay_samples} samples after it was played: the path "
+                                "and the hardware's output-to-input latency): raise "
+                                "[hardware.capture.burst] post_samples above that"))
     if levels.snr_db is not None:
         snr = float(np.median(levels.snr_db[list(listening)]))
         if config.snr != "ignore" and snr < config.min_snr_db:

@@ -17,6 +17,8 @@ Typical use: `boards = open_boards(["12345", "12346"], firmware_dir=...)`, then 
 bus of `sim.usb` as `backend`.
 """
 
+from daq import ChannelLevel, SelftestReport, selftest
+
 from ._board import UsbBoard, identify
 from ._discovery import BoardInfo, download_firmware, find_devices, list_boards, open_boards
 from ._errors import (
@@ -28,7 +30,6 @@ from ._errors import (
 )
 from ._families import DT9816, DT9836, FAMILIES, Family
 from ._images import FIRMWARE_DIR_ENV, FirmwareImage, load_image, write_ihex
-from ._selftest import ChannelLevel, SelftestReport, selftest
 from ._trace import TransferTrace
 from ._transport import UsbTransport
 

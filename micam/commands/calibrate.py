@@ -56,9 +56,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "(about +-0.6 m/s at 20 degC)")
     p.add_argument("--humidity-std", type=number(0, 1), default=None, metavar="RH",
                    help="its standard deviation, 0..1")
-    p.add_argument("--known-speed-of-sound", type=number(300, 380, " m/s"), default=None, metavar="M_S",
+    p.add_argument("--known-speed-of-sound", type=number(300, 380, " m/s"), default=None,
+                   metavar="M_S",
                    help="a measured speed of sound, m/s (with --known-speed-of-sound-std)")
-    p.add_argument("--known-speed-of-sound-std", type=number(0, 20, " m/s"), default=None, metavar="M_S",
+    p.add_argument("--known-speed-of-sound-std", type=number(0, 20, " m/s"), default=None,
+                   metavar="M_S",
                    help="its standard deviation, m/s")
     p.add_argument("--intrinsics", action="append", default=[], metavar="CAMERA=FILE",
                    help="a known calibration of a camera (OpenCV YAML/JSON/XML, ROS "

@@ -20,9 +20,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                            description="paper: the daemon on 3 x DT9836 + 6 x DT9816-A + the "
                                        "reference board, 3 cameras; generic: the daemon on a "
                                        "smaller rig, one camera; import: `micam import`.")
-    t.add_argument("name", choices=("paper", "generic", "import"),
+    t.add_argument("name", choices=("paper", "generic", "audio", "uma16", "import"),
                    help="paper (the paper's 9 boards, 3 cameras), generic (3 DT9836, one "
-                        "camera) or import (a session from another recorder's files)")
+                        "camera), audio (one audio interface: 15 microphones, the reference, "
+                        "6 speakers), uma16 (a miniDSP UMA-16 USB array and an interface) or "
+                        "import (a session from another recorder's files)")
     t.add_argument("--out", type=Path, default=None, metavar="FILE",
                    help="write it to FILE (never over an existing file); default: print it")
     t.set_defaults(run=run_template)

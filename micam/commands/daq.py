@@ -2,7 +2,9 @@
 (`trace` and `probe`, the bring-up kit, are in `daq_trace`).
 
 With `--emulate`, the same commands run the real driver against emulated boards (the
-simulated 72-microphone sphere's ten boards), which is how they are tested here.
+simulated 72-microphone sphere's ten boards), which is how they are tested here. With
+`--backend audio`, they list the audio interfaces PortAudio reaches (host API, channel counts,
+default rate) and scan every input of each (`--device` picks one).
 """
 
 from __future__ import annotations
@@ -19,7 +21,8 @@ from . import daq_trace
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("daq", help="list the boards and test them",
-                       description="Data Translation boards on the USB bus.")
+                       description="Data Translation boards on the USB bus, or (--backend "
+                                   "audio) the audio interfaces PortAudio reaches.")
     actions = p.add_subparsers(dest="daq_command", required=True, metavar="ACTION")
     lst = actions.add_parser("list", help="boards found: model, serial, firmware state")
     test = actions.add_parser("selftest", help="a short scan on every board: rates and levels")
@@ -30,6 +33,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     for action in (lst, test):
         action.add_argument("--emulate", action="store_true",
                             help="use emulated boards instead of the USB bus")
+        action.add_argument("--backend", choices=("usb", "audio"), default="usb",
+                            help="usb: Data Translation boards (default); audio: the audio "
+                                 "interfaces PortAudio reaches (ALSA, JACK, ...)")
+    test.add_argument("--device", default=None, metavar="NAME",
+                      help="with --backend audio: only this interface (a part of its name)")
     lst.set_defaults(run=run_list)
     test.set_defaults(run=run_selftest)
     daq_trace.register(actions, _emulated_backend)
@@ -50,7 +58,58 @@ def _backend(args: argparse.Namespace) -> Any:
     return _emulated_backend() if args.emulate else None
 
 
+def _audio_unusable(exc: Exception) -> UserError:
+    return UserError(str(exc).splitlines()[0])
+
+
+def run_audio_list() -> int:
+    from daq import DaqError
+    from daq.audio import list_devices
+
+    try:
+        devices = list_devices()
+    except DaqError as exc:
+        raise _audio_unusable(exc) from None
+    if not devices:
+        print("no audio interface found (is it plugged in; for JACK, is the server running?)")
+        return 1
+    print(f"{'host API':26s} {'inputs':>6s} {'outputs':>7s} {'rate':>8s}  name")
+    for d in devices:
+        print(f"{d.host_api:26s} {d.inputs:6d} {d.outputs:7d} {d.default_rate_hz:8.0f}  {d.name}")
+    return 0
+
+
+def run_audio_selftest(args: argparse.Namespace) -> int:
+    import math
+
+    from daq import DaqError, selftest
+    from daq.audio import AudioBoard, find_device, list_devices
+
+    try:
+        devices = ([find_device(args.device)] if args.device is not None
+                   else [d for d in list_devices() if d.inputs > 0])
+    except DaqError as exc:
+        raise _audio_unusable(exc) from None
+    if not devices:
+        print("no audio interface with inputs found")
+        return 1
+    failed = 0
+    for device in devices:
+        with AudioBoard(device, label=str(device.index)) as board:
+            report = selftest(board, args.seconds)
+        peak = max((max(abs(c.min_code), abs(c.max_code)) for c in report.channels), default=0)
+        dbfs = 20 * math.log10(peak / 32768) if peak else -math.inf
+        status = "ok" if report.ok else f"FAILED: {report.error}"
+        print(f"{device}: {report.received}/{report.samples} samples on {len(report.channels)} "
+              f"inputs at {report.rate_hz:.0f} S/s (achieved {report.achieved_rate_hz:.0f} "
+              f"S/s), peak {dbfs:.1f} dBFS: {status}")
+        failed += not report.ok
+    return 1 if failed else 0
+
+
 def run_list(args: argparse.Namespace) -> int:
+    if args.backend == "audio":
+        return run_audio_list()
     import usb.core
 
     from daq.usb import list_boards
@@ -83,6 +142,8 @@ def run_selftest(args: argparse.Namespace) -> int:
     from daq import DaqError
     from daq.usb import open_boards, selftest
 
+    if args.backend == "audio":
+        return run_audio_selftest(args)
     try:
         boards = open_boards(backend=_backend(args), firmware_dir=args.firmware_dir)
     except (usb.core.NoBackendError, usb.core.USBError) as exc:

@@ -45,7 +45,11 @@ def _truth_line(path: Path) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from acquisition.contracts.capture_config import CaptureConfig
-    from acquisition.contracts.rig_description import DESCRIPTION_KIND, DescriptionError, validate_description
+    from acquisition.contracts.rig_description import (
+        DESCRIPTION_KIND,
+        DescriptionError,
+        validate_description,
+    )
     from acquisition.contracts.session import SessionError, SessionReader
     from acquisition.contracts.step_ids import REFMIC_STEP, is_pose_step, is_reference_step
 

@@ -15,8 +15,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     actions = p.add_subparsers(dest="action", required=True, metavar="ACTION")
     start = actions.add_parser("start", help="open a new session (or continue an interrupted "
                                              "one with --resume)")
-    start.add_argument("--poses", type=integer(1, 10_000), help="rig poses to capture (default: the "
-                                                 "daemon's configuration)")
+    start.add_argument("--poses", type=integer(1, 10_000),
+                       help="rig poses to capture (default: the daemon's configuration)")
     start.add_argument("--resume", metavar="ID",
                        help="continue the interrupted session ID ('last': the newest one)")
     for name, text in (("stop", "end after the current step, as complete (references needed)"),

@@ -29,14 +29,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--resume", action="store_true",
                    help="continue an interrupted session in DIR with its original settings")
     p.add_argument("--array", default="sphere72",
-                   help="array layout: sphere72, planar64 or scatter48 (default sphere72)")
-    p.add_argument("--poses", type=integer(1, 10_000), default=20, help="rig poses to capture (default 20)")
-    p.add_argument("--distance", type=number(0.2, 5.0, " m"), nargs=2, default=(0.6, 1.0), metavar=("MIN", "MAX"),
+                   help="array layout: sphere72, planar64, scatter48 or scatter15 (15 "
+                        "microphones and the reference: one 16-input audio interface; default "
+                        "sphere72)")
+    p.add_argument("--poses", type=integer(1, 10_000), default=20,
+                   help="rig poses to capture (default 20)")
+    p.add_argument("--distance", type=number(0.2, 5.0, " m"), nargs=2, default=(0.6, 1.0),
+                   metavar=("MIN", "MAX"),
                    help="rig distance range from camera 0 in metres (default 0.6 1.0)")
     p.add_argument("--seed", type=SEED, default=0, help="seed of the simulated world")
     p.add_argument("--noise", type=number(0, 100), default=1.0,
                    help="scale of all noise: 1 = a real lab (default), 0 = none")
-    p.add_argument("--temperature", type=number(-40, 60, " degC"), default=20.0, help="air temperature, degC")
+    p.add_argument("--temperature", type=number(-40, 60, " degC"), default=20.0,
+                   help="air temperature, degC")
     p.add_argument("--mls-order", type=integer(6, 18), default=14,
                    help="MLS order of the bursts (14 = 171 ms at 96 kS/s)")
     p.add_argument("--mls-periods", type=integer(1, 8), default=None,
@@ -55,9 +60,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "ambient-noise, directivity")
     p.add_argument("--without", action="append", default=[], metavar="NAME",
                    help="remove one lab effect from the profile (repeatable)")
-    p.add_argument("--backend", choices=("sim", "usb-emulated"), default="sim",
-                   help="plain simulated boards (default) or the real USB driver on emulated "
-                        "USB boards")
+    p.add_argument("--backend", choices=("sim", "usb-emulated", "audio"), default="sim",
+                   help="plain simulated boards (default), the real USB driver on emulated "
+                        "USB boards, or the audio backend on a running JACK server with the "
+                        "world as a JACK client (docs/hardware.md; --array scatter15)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(run=run)
 

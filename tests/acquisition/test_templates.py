@@ -107,3 +107,24 @@ def test_a_daemon_template_drives_a_first_capture(tmp_path: Path, name: str) -> 
     recordings = data.pose_recordings("pose/0000")
     assert recordings.shape[:2] == (6, len(capture.columns))
     assert np.all(np.abs(recordings[:, data.mic_columns]).max(axis=2) > 10)  # every mic hears
+
+
+def test_the_audio_templates_name_their_interfaces(tmp_path: Path) -> None:
+    """`audio`: one 16-input interface, 15 microphones and the reference, the speakers on its
+    outputs; `uma16`: the array's 16 microphones and an interface for the reference and the
+    speakers, which needs one word clock (and says where the geometry comes from)."""
+    hw = load_config(_written(tmp_path, "audio")).hardware
+    assert hw is not None and hw.backend == "audio" and hw.audio is not None
+    assert [d.label for d in hw.audio.devices] == ["interface"] and not hw.audio.word_clock
+    capture = hw.capture
+    assert sum(c.role == "mic" for c in capture.columns) == 15
+    assert (capture.reference.board, capture.reference.channel) == ("interface", 15)
+    assert {s.board for s in capture.speakers} == {"interface"}
+    assert capture.burst.post_samples > 2048  # the interface's latency comes first
+    text = template("uma16")
+    hw = load_config(_written(tmp_path, "uma16")).hardware
+    assert hw is not None and hw.audio is not None and hw.audio.word_clock
+    assert [d.label for d in hw.audio.devices] == ["uma16", "interface"]
+    assert [c.mic_id for c in hw.capture.columns if c.board == "uma16"] == list(range(16))
+    assert hw.capture.sample_rate_hz == 48_000.0
+    assert "acoular/xml/minidsp_uma-16.xml" in text and "ch 15: (-21, -63)" in text

@@ -31,6 +31,29 @@ def _recording(amplitudes: list[float], noise: float = 30.0, seed: int = 0) -> n
     return np.clip(np.round(x), -32768, 32767).astype(np.int16)
 
 
+def test_a_burst_late_by_an_interfaces_latency_is_measured_where_it_arrived() -> None:
+    """An audio interface's output-to-input latency (here 1024 samples, one JACK period) is
+    longer than a short burst: the burst is judged where it arrives, not where it was played."""
+    late = np.zeros((PRE + 1024 + BURST + 500, 2), dtype=np.int16)
+    on_time = _recording([3000.0, 300.0])
+    late[: PRE] = on_time[: PRE]
+    late[PRE + 1024:] = on_time[PRE: PRE + late.shape[0] - PRE - 1024]
+    levels = measure(late, PRE, BURST, clip_fraction=0.999)
+    assert levels.rms_dbfs[0] == pytest.approx(20 * np.log10(3000 / 32768), abs=0.3)
+    assert levels.snr_db[1] == pytest.approx(20 * np.log10(300 / 30), abs=0.5)
+
+
+def test_a_burst_cut_off_by_the_end_of_the_recording_fails_with_the_cause() -> None:
+    """A latency longer than the recording's silence after the burst: the recording ends in
+    the burst, which calibration would read as a shorter, wrong one."""
+    cut = _recording([3000.0, 3000.0])[: PRE + BURST // 2]
+    failures = judge_recording(measure(cut, PRE, BURST, clip_fraction=0.999), [0, 1], [0, 1],
+                               check_dead=False, config=QualityConfig(), names=NAMES)
+    assert [f.check for f in failures] == ["level"]
+    assert "the recording ends before the burst is over" in failures[0].message
+    assert "raise [hardware.capture.burst] post_samples" in failures[0].message
+
+
 def test_levels_and_snr_match_the_signal() -> None:
     levels = measure(_recording([3000.0, 300.0, 0.0]), PRE, BURST, clip_fraction=0.999)
     assert levels.rms_dbfs[0] == pytest.approx(20 * np.log10(3000 / 32768), abs=0.2)

@@ -1,4 +1,8 @@
-"""A short scan on one board, reporting rates, levels and any error (`micam daq selftest`)."""
+"""A short scan on one board, reporting rates, levels and any error (`micam daq selftest`).
+
+It knows the board through the `Board` protocol only, so the USB driver and the audio backend
+(`daq.audio`) share it.
+"""
 
 from __future__ import annotations
 
@@ -7,7 +11,9 @@ import time
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
-from daq import Board, DaqError, InputChannel, ScanConfig, codes_to_volts
+from ._config import InputChannel, ScanConfig
+from ._errors import DaqError
+from ._interface import Board, codes_to_volts
 
 SELFTEST_RATE_HZ = 96_000.0
 """The array's real-time rate; boards slower than this are tested at their own maximum."""
