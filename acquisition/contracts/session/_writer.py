@@ -193,6 +193,9 @@ class SessionWriter(ClosesOnExit):
     @staticmethod
     def _claim_directory(path: Path) -> None:
         """Make `path` the new session's directory, or say why it cannot be."""
+        if path.is_symlink() and not path.exists():
+            raise SessionError(f"{path} is a symbolic link to a path that does not exist; "
+                               "remove the link or choose another session path")
         if not path.exists():
             make_dirs(path)
             return
