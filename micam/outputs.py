@@ -12,6 +12,8 @@ import os
 from pathlib import Path
 
 from acquisition.contracts.errors import UserError
+from acquisition.contracts.output_paths import dangling_link_problem, new_directory_problem
+from acquisition.contracts.session import JOURNAL_NAME
 
 
 def check_outputs(*outputs: tuple[str, Path | None]) -> None:
@@ -21,7 +23,9 @@ def check_outputs(*outputs: tuple[str, Path | None]) -> None:
     for flag, path in outputs:
         if path is None:
             continue
-        _refuse_dangling_link(flag, path)
+        dangling = dangling_link_problem(path)
+        if dangling:
+            raise UserError(f"{flag} {path} {dangling}")
         parent = path.absolute().parent
         if not parent.is_dir():
             raise UserError(f"the directory of {flag} ({parent}) does not exist; create it "
@@ -32,38 +36,18 @@ def check_outputs(*outputs: tuple[str, Path | None]) -> None:
             raise UserError(f"{flag}: cannot write in {parent} (no permission)")
 
 
-def check_output_dirs(*outputs: tuple[str, Path | None], session_hint: str = "") -> None:
+def check_output_dirs(*outputs: tuple[str, Path | None], session_hint: str = "",
+                      reuse: bool = False) -> None:
     """UserError naming the option when a new directory (`(flag, path)`, None: not asked for)
-    cannot be made at `path`: a dangling symbolic link, a file, a directory that is not
-    empty (one that holds a session: `session_hint` says what to do instead), or a missing
-    path whose nearest existing ancestor is a file or read-only (missing parents are made)."""
-    from acquisition.contracts.session import JOURNAL_NAME
-
+    cannot be made at `path` (`new_directory_problem`; with `reuse` an existing directory is
+    accepted, its files replaced). A directory that holds a session is named as such, with
+    `session_hint` saying what to do instead."""
     for flag, path in outputs:
         if path is None:
             continue
-        _refuse_dangling_link(flag, path)
-        if path.exists():
-            if not path.is_dir():
-                raise UserError(f"{flag} {path} is a file, not a directory; name a new "
-                                "directory")
-            if (path / JOURNAL_NAME).exists():
-                raise UserError(f"{path} already holds a session, which is never "
-                                f"overwritten: {session_hint or ''}choose a new {flag}")
-            if any(path.iterdir()):
-                raise UserError(f"{flag} {path} is not empty; name a new or empty directory "
-                                "(nothing in an existing one is overwritten)")
-            continue
-        ancestor = next(p for p in path.absolute().parents if p.exists() or p.is_symlink())
-        _refuse_dangling_link(flag, ancestor)
-        if not ancestor.is_dir():
-            raise UserError(f"{flag} {path}: {ancestor} is a file, not a directory; name a "
-                            "path under a directory")
-        if not os.access(ancestor, os.W_OK | os.X_OK):
-            raise UserError(f"{flag} {path}: cannot create it in {ancestor} (no permission)")
-
-
-def _refuse_dangling_link(flag: str, path: Path) -> None:
-    if path.is_symlink() and not path.exists():
-        raise UserError(f"{flag} {path} is a symbolic link to {os.readlink(path)}, which does "
-                        "not exist; remove the link or name another path")
+        if not reuse and (path / JOURNAL_NAME).exists():
+            raise UserError(f"{path} already holds a session, which is never overwritten: "
+                            f"{session_hint}choose a new {flag}")
+        problem = new_directory_problem(path, reuse)
+        if problem:
+            raise UserError(f"{flag} {path} {problem}")

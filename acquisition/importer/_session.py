@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 from pydantic import ValidationError
 
+from acquisition.contracts.output_paths import new_directory_problem
 from acquisition.contracts.rig_description import (
     CameraDescription,
     RigArrayDescription,
@@ -222,17 +223,11 @@ def import_session(spec_path: Path, out: Path,
 
 def _check_out(out: Path) -> None:
     """Refuse an `out` that cannot become the new session directory, before any work."""
-    if out.is_symlink() and not out.exists():
-        raise SessionError(f"--out {out} is a symbolic link to {os.readlink(out)}, which does "
-                           "not exist; remove the link or choose another --out")
-    if not out.exists():
-        return
-    if not out.is_dir():
-        raise SessionError(f"--out {out} is a file, not a directory; choose a new --out")
     if (out / JOURNAL_NAME).exists():
         raise SessionExistsError(f"{out} already holds a session")
-    if any(out.iterdir()):
-        raise SessionError(f"--out {out} is not empty; choose a new or empty directory")
+    problem = new_directory_problem(out)
+    if problem:
+        raise SessionError(f"{out} {problem}")
 
 
 def _write(p: Prepared, spec_path: Path, session: Path,
@@ -276,7 +271,7 @@ def _move_into_place(session: Path, out: Path) -> None:
         os.rename(session, out)  # replaces an empty directory, never a file or anything else
     except OSError as exc:
         if exc.errno in (errno.ENOTEMPTY, errno.EEXIST, errno.ENOTDIR, errno.EISDIR):
-            raise SessionError(f"--out {out} was filled or replaced while the import ran; "
+            raise SessionError(f"{out} was filled or replaced while the import ran; "
                                "nothing of it was changed: choose a new --out") from None
         raise SessionError(f"cannot move the session into {out}: {exc}") from None
     fsync_dir(out.parent)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from acquisition.contracts.errors import UserError
 
-from ..outputs import check_outputs
+from ..outputs import check_output_dirs, check_outputs
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -175,6 +175,11 @@ def _truth(args: argparse.Namespace, data) -> dict | None:
         raise UserError(str(exc)) from None
 
 
+def _report_dir(out: Path) -> Path:
+    """The report's directory when --report is not given: beside the result."""
+    return out.parent / (out.stem + "-report")
+
+
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
@@ -185,10 +190,11 @@ def run(args: argparse.Namespace) -> int:
     from calibration.session_data import load_session
 
     out: Path = args.out
-    if out.exists() and not args.force:
-        raise UserError(f"{out} exists; choose another --out or pass --force to overwrite it")
     check_outputs(("--out", out), ("--acoular-xml", args.acoular_xml),
                   ("--acoular-calib", args.acoular_calib))
+    if out.exists() and not args.force:
+        raise UserError(f"{out} exists; choose another --out or pass --force to overwrite it")
+    check_output_dirs(("--report", args.report or _report_dir(out)), reuse=True)
     if args.acoular_calib is not None and (args.no_joint or args.method == "paper"):
         raise UserError("--acoular-calib needs the joint fit (it estimates the responses); "
                         "leave out --no-joint and --method paper")
@@ -221,7 +227,7 @@ def run(args: argparse.Namespace) -> int:
         bar.n = len(stages)
         bar.refresh()
     run_.result.write(out)
-    report = write_report(run_, args.report or out.parent / (out.stem + "-report"), truth,
+    report = write_report(run_, args.report or _report_dir(out), truth,
                           None if prior is None else prior.positions_m)
     if args.acoular_xml is not None:
         write_acoular_xml(run_.result, args.acoular_xml)

@@ -9,6 +9,8 @@ from pathlib import Path
 
 from acquisition.contracts.errors import UserError
 
+from ..outputs import check_outputs
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -41,6 +43,7 @@ def run_template(args: argparse.Namespace) -> int:
     if args.out is None:
         print(text, end="")
         return 0
+    check_outputs(("--out", args.out))
     if args.out.exists():
         raise UserError(f"{args.out} exists; choose another --out (a configuration is never "
                         "overwritten)")

@@ -10,6 +10,8 @@ from acquisition.daemon.cli_args import add_client_arguments
 
 from acquisition.contracts.errors import UserError
 
+from ..outputs import check_outputs
+
 
 def _add_imaging_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--geometry", required=True, type=Path, metavar="FILE",
@@ -93,6 +95,7 @@ def _video(args: argparse.Namespace) -> int:
     from calibration.imaging.live import LiveSettings
     from calibration.imaging.live_frames import VideoFile
 
+    check_outputs(("--out", args.out))
     try:
         geometry = load_geometry(args.geometry)
         settings = LiveSettings(band_hz=args.band, fraction=args.fraction,

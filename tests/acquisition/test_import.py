@@ -281,7 +281,7 @@ def test_a_failed_import_into_an_empty_directory_leaves_it_empty(tmp_path: Path)
     (lambda out: out.symlink_to(out.parent / "nowhere"), "is a symbolic link to"),
     (lambda out: out.write_text("x"), "is a file, not a directory"),
     (lambda out: (out.mkdir(), (out / "notes.txt").write_text("x")), "is not empty"),
-    (lambda out: out.parent.joinpath("f").write_text("x"), "is a file, not a directory"),
+    (lambda out: out.parent.joinpath("f").write_text("x"), "which is not a directory"),
 ])
 def test_an_output_that_cannot_be_a_new_session_is_refused_first(
         tmp_path: Path, make, words: str, capsys: pytest.CaptureFixture) -> None:

@@ -25,6 +25,7 @@ import soundfile as sf
 from daq import ClosesOnExit
 
 from ..media_headers import MAX_IMAGE_PIXELS, MAX_RECORDING_VALUES
+from ..output_paths import dangling_link_problem
 from ..safe_names import is_name, is_step_id
 from ._atomic import PARTIAL_SUFFIX, fsync_dir, make_dirs, remove_partials, write_atomic
 from ._journal import JournalWriter, SessionState, journal_path, load_state, scan_journal
@@ -193,9 +194,9 @@ class SessionWriter(ClosesOnExit):
     @staticmethod
     def _claim_directory(path: Path) -> None:
         """Make `path` the new session's directory, or say why it cannot be."""
-        if path.is_symlink() and not path.exists():
-            raise SessionError(f"{path} is a symbolic link to a path that does not exist; "
-                               "remove the link or choose another session path")
+        dangling = dangling_link_problem(path)
+        if dangling:
+            raise SessionError(f"{path} {dangling}")
         if not path.exists():
             make_dirs(path)
             return
