@@ -11,6 +11,7 @@ from typing import Literal
 
 from pydantic import Field, ValidationError, model_validator
 
+from acquisition.contracts.bounded_files import UnreadableFile, read_bounded_text
 from acquisition.contracts.config_model import ConfigModel
 from acquisition.contracts.rig_description import (
     CameraDescription,
@@ -154,16 +155,14 @@ def load_spec(path: Path) -> ImportSpec:
         ImportSpecError: unreadable, not TOML, or invalid (one line per problem).
     """
     path = Path(path)
+    if not (path.exists() or path.is_symlink()):
+        raise ImportSpecError(f"import description {path} does not exist")
     try:
-        if path.exists() and not path.is_file():
-            raise ImportSpecError(f"{path} is not a file; write the path of the import TOML")
-        if path.stat().st_size > MAX_SPEC_BYTES:
-            raise ImportSpecError(f"{path} is larger than {MAX_SPEC_BYTES} bytes; an import "
-                                  "description is a few kilobytes")
-        document = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ImportSpecError(f"import description {path} does not exist") from None
-    except (OSError, UnicodeDecodeError, RecursionError, tomllib.TOMLDecodeError) as exc:
+        document = tomllib.loads(read_bounded_text(path, MAX_SPEC_BYTES))
+    except UnreadableFile as exc:
+        raise ImportSpecError(f"import description: {exc}; an import description is a few "
+                              "kilobytes of TOML") from None
+    except (RecursionError, tomllib.TOMLDecodeError) as exc:
         raise ImportSpecError(f"{path} is not a readable TOML file: {exc}") from None
     try:
         return ImportSpec.model_validate(document)

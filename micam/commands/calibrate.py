@@ -88,7 +88,7 @@ def _prior(args: argparse.Namespace):
             raise UserError("--prior-std-mm needs --prior")
         return None
     from acquisition.contracts.session import SessionError
-    from calibration.result import load_prior_positions
+    from calibration.result import PriorFileError, load_prior_positions
     from calibration.session_data import load_session
     from calibration.solver import PriorGeometry
 
@@ -98,9 +98,12 @@ def _prior(args: argparse.Namespace):
         raise UserError("--prior-std-mm must be positive")
     try:
         data = load_session(args.session, args.allow_interrupted)
-        positions = load_prior_positions(args.prior, data.mic_ids)
     except (ValueError, SessionError) as exc:
         raise UserError(str(exc)) from None
+    try:
+        positions = load_prior_positions(args.prior, data.mic_ids)
+    except PriorFileError as exc:
+        raise UserError(f"--prior: {exc}") from None
     std = None if args.prior_std_mm is None else args.prior_std_mm / 1000.0
     return PriorGeometry(positions, std)
 
@@ -155,7 +158,7 @@ def _known_intrinsics(args: argparse.Namespace, data) -> dict:
         try:
             known[camera] = read_intrinsics(Path(file), camera, sizes[camera],
                                             args.intrinsics_use)
-        except (IntrinsicsFileError, ValueError) as exc:
+        except IntrinsicsFileError as exc:
             raise UserError(f"--intrinsics {item!r}: {exc}") from None
     return known
 
@@ -172,7 +175,8 @@ def _truth(args: argparse.Namespace, data) -> dict | None:
     try:
         return load_truth(path, [int(i) for i in data.mic_ids], list(data.camera_names))
     except TruthError as exc:
-        raise UserError(str(exc)) from None
+        flag = "--truth" if args.truth is not None else "the session's truth.json"
+        raise UserError(f"{flag}: {exc}") from None
 
 
 def _report_dir(out: Path) -> Path:

@@ -49,7 +49,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from acquisition.contracts.session import SessionError, SessionReader
     from calibration.figures.style import save
-    from calibration.imaging import load_geometry
     from calibration.imaging.evaluate import ImagingSettings
     from calibration.figures.recording_map import recording_map
     from calibration.report import significant
@@ -57,9 +56,9 @@ def run(args: argparse.Namespace) -> int:
     check_outputs(("--out", args.out))
     if args.range_db <= 0:
         raise UserError(f"--range-db {args.range_db} must be positive")
+    geometry = imaging_options.geometry_file("--geometry", args.geometry)
     try:
         reader = SessionReader(args.session)
-        geometry = load_geometry(args.geometry)
         settings, calibrated_from, geometry = imaging_options.corrected_settings(
             args, reader, geometry, ImagingSettings(fraction=args.fraction,
                                                     bands_hz=(args.band,)))

@@ -11,6 +11,7 @@ from acquisition.daemon.cli_args import add_client_arguments
 from acquisition.contracts.errors import UserError
 
 from ..outputs import check_outputs
+from .imaging_options import geometry_file
 
 
 def _add_imaging_arguments(p: argparse.ArgumentParser) -> None:
@@ -91,13 +92,12 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _video(args: argparse.Namespace) -> int:
-    from calibration.imaging import load_geometry
     from calibration.imaging.live import LiveSettings
     from calibration.imaging.live_frames import VideoFile
 
     check_outputs(("--out", args.out))
+    geometry = geometry_file("--geometry", args.geometry)
     try:
-        geometry = load_geometry(args.geometry)
         settings = LiveSettings(band_hz=args.band, fraction=args.fraction,
                                 block_size=args.block, overlap=args.overlap,
                                 window_s=args.window, depth_m=args.depth,
