@@ -130,6 +130,21 @@ def test_inspect_reports_damage_without_a_traceback(session: Path,
 # Sizes from an untrusted session are bounded before they cost memory
 
 
+def _refusal_in_fresh_process(session: Path, call: str) -> tuple[int, str]:
+    """The peak memory growth, bytes, of `SessionReader(session)` followed by `call` (on the
+    reader `r`) in a new interpreter, and the SessionError's message it printed."""
+    grown, done = peak_growth(
+        "from acquisition.contracts.session import SessionError, SessionReader",
+        f"""
+        try:
+            r = SessionReader(Path({str(session)!r}))
+            {call}
+        except SessionError as exc:
+            print(exc)
+        """)
+    return grown, done.stdout + done.stderr
+
+
 def test_a_huge_png_that_matches_the_journal_is_refused_before_decoding(
         session: Path, tmp_path: Path) -> None:
     """A 16000 x 16000 PNG of one colour is 250 kB on disk and 256 MB decoded: with the journal
@@ -137,15 +152,8 @@ def test_a_huge_png_that_matches_the_journal_is_refused_before_decoding(
     path = _file(session, "pose/0000", "cam0.png")
     path.write_bytes(blank_png(16000, 16000))
     _rejournal(session, path)
-    grown, done = peak_growth(
-        "from acquisition.contracts.session import SessionError, SessionReader",
-        f"""
-        try:
-            SessionReader(Path({str(session)!r})).read_image("pose/0000", "cam0.png")
-        except SessionError as exc:
-            print(exc)
-        """)
-    assert "its header states more than the 100000000 pixels micam decodes" in done.stdout, done
+    grown, said = _refusal_in_fresh_process(session, 'r.read_image("pose/0000", "cam0.png")')
+    assert "its header states more than the 100000000 pixels micam decodes" in said, said
     assert grown < 64 * 2**20, f"reading it grew the peak memory by {grown / 2**20:.0f} MiB"
 
 
@@ -162,15 +170,9 @@ def test_a_compressed_recording_that_matches_the_journal_is_refused_before_decod
         for _ in range(40):  # 42 million frames: 168 MB of codes decoded
             f.write(block)
     _rejournal(session, path)
-    grown, done = peak_growth(
-        "from acquisition.contracts.session import SessionError, SessionReader",
-        f"""
-        try:
-            SessionReader(Path({str(session)!r})).read_recording("reference/1", "speaker_1.wav")
-        except SessionError as exc:
-            print(exc)
-        """)
-    assert "it is FLAC PCM_16, the session store writes 16-bit PCM WAV" in done.stdout, done
+    grown, said = _refusal_in_fresh_process(session,
+                                            'r.read_recording("reference/1", "speaker_1.wav")')
+    assert "it is FLAC PCM_16, the session store writes 16-bit PCM WAV" in said, said
     assert grown < 64 * 2**20, f"reading it grew the peak memory by {grown / 2**20:.0f} MiB"
 
 
@@ -211,15 +213,8 @@ def test_a_200_mb_line_is_refused_without_being_read(session: Path) -> None:
         for _ in range(200):
             fh.write(b"x" * 2**20)
         fh.write(b"\n")
-    grown, done = peak_growth(
-        "from acquisition.contracts.session import SessionError, SessionReader",
-        f"""
-        try:
-            SessionReader(Path({str(session)!r}))
-        except SessionError as exc:
-            print(exc)
-        """)
-    assert "line 51: longer than 1048576 bytes" in done.stdout, done
+    grown, said = _refusal_in_fresh_process(session, "pass")
+    assert "line 51: longer than 1048576 bytes" in said, said
     assert grown < 16 * 2**20, f"reading it grew the peak memory by {grown / 2**20:.0f} MiB"
 
 

@@ -72,9 +72,14 @@ def _run(tmp_path: Path, argv: list[str], file: Path, session: Path) -> int:
     return main([word(w) for w in argv])
 
 
-def _file_of(argv: list[str], tmp_path: Path) -> Path:
+def _option(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, option: str
+            ) -> tuple[list[str], str, Path]:
+    """The command line of `option`, its flag and where its file goes (the test runs in
+    `tmp_path`)."""
+    monkeypatch.chdir(tmp_path)
+    argv, flag = OPTIONS[option]
     name = next(w for w in argv if "FILE" in w).split("=")[-1]
-    return tmp_path / name.replace("FILE", "option-file")
+    return argv, flag, tmp_path / name.replace("FILE", "option-file")
 
 
 def _assert_named(err: str, flag: str, file: Path) -> None:
@@ -88,9 +93,7 @@ def _assert_named(err: str, flag: str, file: Path) -> None:
 def test_a_malformed_option_file_names_the_option_and_the_file(
         tmp_path: Path, session: Path, monkeypatch: pytest.MonkeyPatch,
         capsys: pytest.CaptureFixture, option: str, content: str) -> None:
-    monkeypatch.chdir(tmp_path)
-    argv, flag = OPTIONS[option]
-    file = _file_of(argv, tmp_path)
+    argv, flag, file = _option(tmp_path, monkeypatch, option)
     file.write_text(CONTENTS[content], errors="surrogateescape")
     assert _run(tmp_path, argv, file, session) == 2
     _assert_named(capsys.readouterr().err, flag, file)
@@ -101,9 +104,7 @@ def test_a_malformed_option_file_names_the_option_and_the_file(
 def test_an_option_file_is_refused_before_it_is_read(
         tmp_path: Path, session: Path, monkeypatch: pytest.MonkeyPatch,
         capsys: pytest.CaptureFixture, option: str, kind: str) -> None:
-    monkeypatch.chdir(tmp_path)
-    argv, flag = OPTIONS[option]
-    file = _file_of(argv, tmp_path)
+    argv, flag, file = _option(tmp_path, monkeypatch, option)
     if kind == "too large":
         with file.open("wb") as fh:
             fh.truncate(2**31)  # sparse: 2 GiB that take no disk space and are never read
@@ -138,7 +139,8 @@ def _documents() -> st.SearchStrategy:
     return st.dictionaries(keys, shaped, max_size=6)
 
 
-@settings(max_examples=EXAMPLES, deadline=None, database=None,
+@pytest.mark.timeout(4 * 3600 if LONG else 300)
+@settings(max_examples=EXAMPLES, deadline=None, database=None, derandomize=not LONG,
           suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 @given(document=_documents())
 def test_the_option_file_loaders_raise_only_their_input_error(tmp_path: Path,
