@@ -24,7 +24,6 @@ from acquisition.contracts.errors import UserError
 from acquisition.contracts.session import write_atomic
 
 
-
 class PriorFileError(UserError, ValueError):
     """A prior geometry file cannot be read, or lacks the session's microphones; the message
     names the file and what is wrong. (Also a ValueError, as callers caught it before input

@@ -28,7 +28,8 @@ finally:
 """
 
 
-def peak_growth(setup: str, call: str, timeout: float = 120) -> tuple[int, subprocess.CompletedProcess]:
+def peak_growth(setup: str, call: str,
+                timeout: float = 120) -> tuple[int, subprocess.CompletedProcess]:
     """Run `setup` (imports, data) then `call` in a new interpreter; return the growth of its
     resident memory's peak during `call`, bytes, and the finished process (its output)."""
     script = (_PROLOGUE + textwrap.dedent(setup)

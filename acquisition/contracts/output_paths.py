@@ -41,5 +41,6 @@ def new_directory_problem(path: Path, reuse: bool = False) -> str | None:
     if dangling_link_problem(ancestor) or not ancestor.is_dir():
         return f"lies under {ancestor}, which is not a directory; name a path under a directory"
     if not os.access(ancestor, os.W_OK | os.X_OK):
-        return f"cannot be created in {ancestor} (no permission)"
+        return (f"cannot be created in {ancestor}: it is not writable (a read-only disk, or no "
+                "permission); name a path on a writable disk")
     return None

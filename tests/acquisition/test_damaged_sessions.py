@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from micam.cli import main
 from acquisition.contracts.session import SessionError, SessionReader
+from micam.cli import main
 from tests.peak_memory import blank_png, peak_growth
 
 

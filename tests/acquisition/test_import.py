@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 import soundfile as sf
 
-from micam.cli import main
+from acquisition.contracts.session import SessionReader
 from acquisition.importer import ImportSpecError, import_session, prepare
 from acquisition.intrinsics_file import IntrinsicsFileError, read_intrinsics
-from acquisition.contracts.session import SessionReader
+from micam.cli import main
 from tests.peak_memory import blank_png, peak_growth
 
 FS = 8000
