@@ -6,6 +6,10 @@ write it (`camera_matrix` or `K`, `distortion_coefficients` or `D`, optionally `
 micam result.json (the camera of that name). micam's lens model has OpenCV's first five
 coefficients (k1, k2, p1, p2, k3); a file with more non-zero ones (the rational or thin-prism
 model) describes another lens model and is refused rather than cut.
+
+The file is untrusted input: its size is bounded before it is read (it is read once, and
+OpenCV parses the text from memory), and whatever its parsers make of damaged content ends in
+an `IntrinsicsFileError` naming the file, never in one of their own exceptions.
 """
 
 from __future__ import annotations
@@ -17,8 +21,8 @@ from typing import Literal
 import cv2
 import numpy as np
 
+from acquisition.contracts.bounded_files import UnreadableFile, read_bounded_text
 from acquisition.contracts.errors import UserError
-from acquisition.contracts.read_once import TooLarge, read_at_most
 from acquisition.contracts.rig_description import CAMERA_MODEL_COEFFICIENTS, KnownIntrinsics
 
 MAX_FILE_BYTES = 1_000_000
@@ -50,12 +54,9 @@ def read_intrinsics(path: Path, camera: str, size: tuple[int, int] | None,
     """
     path = Path(path)
     try:
-        text = read_at_most(path, MAX_FILE_BYTES).decode("utf-8")  # once: it may be a pipe
-    except TooLarge:
-        raise IntrinsicsFileError(f"{path} is larger than {MAX_FILE_BYTES} bytes, too large "
-                                  "for a camera calibration") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise IntrinsicsFileError(f"cannot read the intrinsics file {path}: {exc}") from None
+        text = read_bounded_text(path, MAX_FILE_BYTES)
+    except UnreadableFile as exc:
+        raise IntrinsicsFileError(f"cannot read the intrinsics file: {exc}") from None
     found = _from_micam_result(text, camera, path) or _from_opencv_text(text, path)
     K, dist, file_size, file_std = found
     if size is not None and file_size is not None and tuple(file_size) != tuple(size):
@@ -77,7 +78,7 @@ def _from_micam_result(text: str, camera: str, path: Path) -> tuple | None:
     """(K, dist, size, std) of `camera` in a micam result.json, or None for another file."""
     try:
         doc = json.loads(text)
-    except json.JSONDecodeError:
+    except (json.JSONDecodeError, RecursionError):
         return None
     if not (isinstance(doc, dict) and isinstance(doc.get("cameras"), list)):
         return None
@@ -87,10 +88,12 @@ def _from_micam_result(text: str, camera: str, path: Path) -> tuple | None:
                 K = np.array(entry["K"], dtype=float).reshape(3, 3)
                 dist = np.array(entry["dist"], dtype=float).ravel()
                 size = (int(entry["width"]), int(entry["height"]))
-            except (KeyError, TypeError, ValueError) as exc:
-                raise IntrinsicsFileError(f"{path}: camera {camera} lacks {exc}") from None
-            std = entry.get("intrinsics_std")
-            return K, dist, size, None if std is None else tuple(float(s) for s in std)
+                std = entry.get("intrinsics_std")
+                std = None if std is None else tuple(float(s) for s in std)
+            except (KeyError, TypeError, ValueError, OverflowError) as exc:
+                raise IntrinsicsFileError(f"{path}: camera {camera} lacks {exc} or holds "
+                                          "something other than numbers there") from None
+            return K, dist, size, std
     names = [e.get("name") for e in doc["cameras"] if isinstance(e, dict)]
     raise IntrinsicsFileError(f"{path} is a micam result without camera {camera!r} (it has "
                               f"{names}); name the camera as in that calibration")
@@ -98,24 +101,35 @@ def _from_micam_result(text: str, camera: str, path: Path) -> tuple | None:
 
 def _from_opencv_text(text: str, path: Path) -> tuple:
     """(K, dist, size or None, None) from the text of an OpenCV FileStorage or ROS
-    camera_info file (`path` names it in errors)."""
+    camera_info file."""
     try:
         storage = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
-    except cv2.error as exc:
+    except (cv2.error, SystemError) as exc:  # OpenCV's parse errors surface as either
         raise IntrinsicsFileError(f"{path} is not an OpenCV YAML, JSON or XML file: "
-                                  f"{str(exc).strip().splitlines()[-1]}") from None
+                                  f"{_last_line(exc)}") from None
     try:
         K = _first_values(storage, _MATRIX_KEYS)
         dist = _first_values(storage, _DISTORTION_KEYS)
         width, height = (storage.getNode(k) for k in ("image_width", "image_height"))
         size = (None if width.empty() or height.empty()
                 else (int(width.real()), int(height.real())))
+    except (cv2.error, SystemError, ValueError, OverflowError) as exc:
+        raise IntrinsicsFileError(f"{path}: its calibration cannot be read: "
+                                  f"{_last_line(exc)}") from None
     finally:
         storage.release()
     if K is None or K.size != 9:
         raise IntrinsicsFileError(f"{path} has no 3 x 3 camera matrix under any of "
                                   f"{', '.join(_MATRIX_KEYS)}")
     return K.reshape(3, 3), np.zeros(5) if dist is None else dist, size, None
+
+
+def _last_line(exc: BaseException) -> str:
+    """OpenCV's own words (a SystemError wraps the cv2.error that says them), on one line."""
+    cause = exc.__cause__ or exc.__context__
+    text = str(cause if isinstance(exc, SystemError) and cause is not None else exc)
+    lines = text.strip().splitlines()
+    return lines[-1].split(" error: ", 1)[-1] if lines else type(exc).__name__
 
 
 def _first_values(storage: cv2.FileStorage, keys: tuple[str, ...]) -> np.ndarray | None:

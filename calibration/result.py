@@ -15,9 +15,19 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from acquisition.contracts.bounded_files import (
+    MAX_DOCUMENT_BYTES,
+    UnreadableFile,
+    read_bounded_text,
+)
 from acquisition.contracts.session import write_atomic
 
 from .errors import CalibrationInputError
+
+
+class PriorFileError(CalibrationInputError):
+    """A prior geometry file cannot be read, or lacks the session's microphones; the message
+    names the file and what is wrong."""
 
 Vector3 = tuple[float, float, float]
 
@@ -239,9 +249,8 @@ def write_acoular_calib_xml(result: CalibrationResult, path: Path,
         ValueError: the result has no microphone responses.
     """
     if result.microphone_responses is None:
-        raise CalibrationInputError(
-            "the result has no microphone responses (calibrate with the joint "
-            "fit to estimate them)")
+        raise ValueError("the result has no microphone responses (calibrate with the joint "
+                         "fit to estimate them)")
     gain = {r.id: float(np.median(r.gain)) for r in result.microphone_responses.microphones}
     lines = ['<?xml version="1.0" encoding="utf-8"?>', f"<Calib name={quoteattr(name)}>"]
     for mic in sorted(result.microphones, key=lambda m: m.id):
@@ -260,8 +269,7 @@ def compare_with_truth(result: CalibrationResult, truth: dict,
     focal = {c.name: (c.K[0][0], c.K[1][1]) for c in result.cameras}
     if camera_frozen:
         if result.camera_frozen is None:
-            raise CalibrationInputError(
-                "the result has no camera-frozen solution (joint fit switched off)")
+            raise ValueError("the result has no camera-frozen solution (joint fit switched off)")
         part = result.camera_frozen
         focal = dict(result.camera_frozen.focal_px)
     true_pos = {m["id"]: np.array(m["position_m"]) for m in truth["microphones"]}
@@ -290,28 +298,40 @@ def load_prior_positions(path: Path, mic_ids: np.ndarray) -> np.ndarray:
 
     Reads a result.json or truth.json (`microphones[].id / position_m`) or Acoular's MicGeom
     XML (`<pos Name="Point k" x y z/>`, Point k being microphone id k, as written by
-    `write_acoular_xml`). Raises CalibrationInputError naming the file and the missing
-    microphones.
+    `write_acoular_xml`), of at most MAX_DOCUMENT_BYTES.
+
+    Raises:
+        PriorFileError: naming the file and what is wrong (unreadable, not one of those
+            formats, a position that is not three finite numbers, missing microphones).
     """
     path = Path(path)
     is_xml = path.suffix.lower() == ".xml"
     try:
+        text = read_bounded_text(path, MAX_DOCUMENT_BYTES)
         if is_xml:
-            points = ET.parse(path).getroot().findall("pos")
+            points = ET.fromstring(text).findall("pos")
             by_id = {int(p.get("Name", "").split()[-1]):
                      [float(p.get(axis, "")) for axis in "xyz"] for p in points}
         else:
-            doc = json.loads(path.read_text())
+            doc = json.loads(text)
             by_id = {int(m["id"]): m["position_m"] for m in doc["microphones"]}
-    except (OSError, ValueError, KeyError, TypeError, IndexError, ET.ParseError) as exc:
-        raise CalibrationInputError(f"cannot read the prior geometry {path}: {exc}; give a "
-                                    "result.json, a truth.json or an Acoular MicGeom XML"
-                                    ) from None
-    missing = [int(i) for i in mic_ids if int(i) not in by_id]
+        positions = {i: np.array(p, dtype=np.float64) for i, p in by_id.items()}
+    except UnreadableFile as exc:
+        raise PriorFileError(f"cannot read the prior geometry: {exc}") from None
+    except (ValueError, KeyError, TypeError, IndexError, OverflowError, RecursionError,
+            ET.ParseError) as exc:
+        raise PriorFileError(f"cannot read the prior geometry {path}: {exc}; give a "
+                             "result.json, a truth.json or an Acoular MicGeom XML") from None
+    bad = [i for i, p in positions.items() if p.shape != (3,) or not np.all(np.isfinite(p))]
+    if bad:
+        raise PriorFileError(f"the prior geometry {path} gives microphone {bad[0]} the "
+                             f"position {by_id[bad[0]]}; give each microphone three finite "
+                             "coordinates, metres")
+    missing = [int(i) for i in mic_ids if int(i) not in positions]
     if missing:
         hint = ('; micam names microphone k "Point k", from 0: an XML counting from '
                 '"Point 1" (as Acoular\'s export_mpos and earlier micam versions write it) '
                 'needs its names lowered by 1' if is_xml else "")
-        raise CalibrationInputError(f"the prior geometry {path} lacks microphones "
-                                    f"{missing[:10]}{' ...' if len(missing) > 10 else ''}{hint}")
-    return np.array([by_id[int(i)] for i in mic_ids], dtype=np.float64)
+        raise PriorFileError(f"the prior geometry {path} lacks microphones {missing[:10]}"
+                             f"{' ...' if len(missing) > 10 else ''}{hint}")
+    return np.array([positions[int(i)] for i in mic_ids], dtype=np.float64)

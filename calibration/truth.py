@@ -15,6 +15,11 @@ from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from acquisition.contracts.bounded_files import (
+    MAX_DOCUMENT_BYTES,
+    UnreadableFile,
+    read_bounded_text,
+)
 from acquisition.contracts.config_model import dotted
 
 from .errors import CalibrationInputError
@@ -58,10 +63,10 @@ def load_truth(path: Path, mic_ids: list[int], camera_names: list[str]) -> dict:
             microphones or cameras.
     """
     try:
-        document = json.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError) as exc:
-        raise TruthError(f"truth file {path} cannot be read: {exc}") from None
-    except json.JSONDecodeError as exc:
+        document = json.loads(read_bounded_text(Path(path), MAX_DOCUMENT_BYTES))
+    except UnreadableFile as exc:
+        raise TruthError(f"truth file: {exc}") from None
+    except (json.JSONDecodeError, RecursionError) as exc:
         raise TruthError(f"truth file {path} is not JSON ({exc}); {SHAPE}") from None
     try:
         truth = TruthDocument.model_validate(document)

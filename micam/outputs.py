@@ -1,8 +1,9 @@
-"""Checks of the files a command will write, made before the work starts.
+"""Checks of the files and directories a command will write, made before the work starts.
 
-A calibration or an imaging run takes minutes; an output that cannot be written must fail at
-once with a one-line error, not after the work with a traceback (and half of its outputs
-written).
+A calibration, an import or an imaging run takes minutes; an output that cannot be written
+must fail at once with a one-line error naming the option, not after the work with a
+traceback (and half of its outputs written). Every `--out`-like option goes through one of
+the two checks here: `check_outputs` for files, `check_output_dirs` for new directories.
 """
 
 from __future__ import annotations
@@ -11,14 +12,20 @@ import os
 from pathlib import Path
 
 from acquisition.contracts.errors import UserError
+from acquisition.contracts.output_paths import dangling_link_problem, new_directory_problem
+from acquisition.contracts.session import JOURNAL_NAME
 
 
 def check_outputs(*outputs: tuple[str, Path | None]) -> None:
-    """UserError naming the option when an output (`(flag, path)`, None: not asked for) cannot
-    be written: its directory is missing or read-only, or the path is a directory."""
+    """UserError naming the option when an output file (`(flag, path)`, None: not asked for)
+    cannot be written: a dangling symbolic link, a directory, or a directory that is missing
+    or read-only."""
     for flag, path in outputs:
         if path is None:
             continue
+        dangling = dangling_link_problem(path)
+        if dangling:
+            raise UserError(f"{flag} {path} {dangling}")
         parent = path.absolute().parent
         if not parent.is_dir():
             raise UserError(f"the directory of {flag} ({parent}) does not exist; create it "
@@ -27,3 +34,20 @@ def check_outputs(*outputs: tuple[str, Path | None]) -> None:
             raise UserError(f"{flag} {path} is a directory; name a file")
         if not os.access(parent, os.W_OK):
             raise UserError(f"{flag}: cannot write in {parent} (no permission)")
+
+
+def check_output_dirs(*outputs: tuple[str, Path | None], session_hint: str = "",
+                      reuse: bool = False) -> None:
+    """UserError naming the option when a new directory (`(flag, path)`, None: not asked for)
+    cannot be made at `path` (`new_directory_problem`; with `reuse` an existing directory is
+    accepted, its files replaced). A directory that holds a session is named as such, with
+    `session_hint` saying what to do instead."""
+    for flag, path in outputs:
+        if path is None:
+            continue
+        if not reuse and (path / JOURNAL_NAME).exists():
+            raise UserError(f"{path} already holds a session, which is never overwritten: "
+                            f"{session_hint}choose a new {flag}")
+        problem = new_directory_problem(path, reuse)
+        if problem:
+            raise UserError(f"{flag} {path} {problem}")

@@ -27,7 +27,7 @@ from daq.audio import AudioConfig
 from acquisition.contracts.capture_config import CaptureConfig
 from acquisition.contracts.config_model import ConfigModel, describe_problems
 from acquisition.contracts.errors import UserError
-from acquisition.contracts.read_once import read_toml
+from acquisition.contracts.bounded_files import read_toml
 from .endpoints import beside, default_control, default_events
 
 ENV_PREFIX = "MICAM_DAEMON_"

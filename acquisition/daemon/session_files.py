@@ -17,7 +17,6 @@ import os
 import stat
 from pathlib import Path
 
-from acquisition.contracts.read_once import TooLarge, read_at_most
 from acquisition.contracts.session import SessionError, SessionReader
 from acquisition.contracts.safe_names import is_relative_path
 from acquisition.contracts.session._layout import attempt_dir
@@ -54,19 +53,25 @@ def session_report(path: Path, summary: SessionSummary) -> SessionReportResult:
     reader = SessionReader(path)
     steps = []
     for step, record in reader.steps().items():
-        quality = _quality(path / attempt_dir(step, record.attempt) / QUALITY_FILE)
+        quality = _quality(path, f"{attempt_dir(step, record.attempt)}/{QUALITY_FILE}")
         steps.append(PoseQuality(step=step, **quality))
     return SessionReportResult(session=summary, steps=steps, files=_calibration_files(path))
 
 
-def _quality(path: Path) -> dict:
-    """What a step's quality.json says of its images ({} when it says nothing readable)."""
+def _quality(session: Path, relative: str) -> dict:
+    """What a step's quality.json (`relative` in `session`, opened as `session_file` opens
+    what it sends) says of its images ({} when it says nothing readable)."""
     try:
-        data = json.loads(read_at_most(path, MAX_QUALITY_BYTES))
+        fd = open_beneath(session, relative)
+        try:
+            info = check_sendable(fd, relative, MAX_QUALITY_BYTES)
+            data = json.loads(os.pread(fd, info.st_size, 0))
+        finally:
+            os.close(fd)
         return {"checkerboard_found": {str(k): bool(v)
                                        for k, v in data["checkerboard_found"].items()},
                 "warnings": [str(w) for w in data.get("warnings", [])]}
-    except (OSError, TooLarge, ValueError, KeyError, TypeError, AttributeError):
+    except (SessionError, OSError, ValueError, KeyError, TypeError, AttributeError):
         return {}
 
 

@@ -29,6 +29,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from acquisition.contracts.bounded_files import (
+    MAX_DOCUMENT_BYTES,
+    UnreadableFile,
+    read_bounded_text,
+)
 from acquisition.contracts.rigid import RigidTransform
 
 from ..errors import CalibrationInputError
@@ -36,6 +41,11 @@ from .csm_calibration import ChannelResponses, responses_from_document
 
 MAX_LATENCY_S = 0.01
 """Largest channel latency or delay a geometry file may state (a board's is microseconds)."""
+
+
+class GeometryFileError(CalibrationInputError):
+    """A geometry document cannot be read or is not one; the message names the file and what
+    is wrong."""
 
 
 @dataclass(frozen=True)
@@ -143,20 +153,31 @@ def geometry_from_dict(doc: dict, source: str = "geometry") -> ArrayGeometry:
         board_latency = {str(k): float(v) for k, v in by_board.items()}
         own = np.array([float(m.get("delay_s") or 0.0) for m in mics])
         latencies = np.array([board_latency.get(str(m.get("board")), 0.0) for m in mics]) + own
-    except (KeyError, TypeError, ValueError) as exc:
-        raise CalibrationInputError(
-            f"{source}: not a calibration result or truth document ({exc!r}); it needs "
-            "microphones[].id/position_m, speed_of_sound_m_s and cameras[]") from None
-    if positions.ndim != 2 or positions.shape[1] != 3 or len(set(ids)) != len(ids):
-        raise CalibrationInputError(f"{source}: microphone positions must be (M, 3) with "
-                                    "unique ids")
-    if not np.all(np.isfinite(positions)):
-        raise CalibrationInputError(f"{source}: microphone positions must be finite")
-    if not (np.isfinite(c) and c > 0):
-        raise CalibrationInputError(f"{source}: speed of sound {c} m/s must be positive")
+    except (KeyError, TypeError, ValueError, AttributeError, IndexError, OverflowError) as exc:
+        raise GeometryFileError(f"{source}: not a calibration result or truth document "
+                                f"({exc!r}); it needs microphones[].id/position_m, "
+                                "speed_of_sound_m_s and cameras[]") from None
+    if (positions.ndim != 2 or positions.shape[1] != 3 or len(set(ids)) != len(ids)
+            or not np.all(np.isfinite(positions))):
+        raise GeometryFileError(f"{source}: microphone positions must be (M, 3) finite numbers "
+                                "with unique ids")
+    if not 0 < c < np.inf:
+        raise GeometryFileError(f"{source}: speed of sound {c} m/s must be positive and finite")
     if not np.all(np.abs(latencies) < MAX_LATENCY_S):
-        raise CalibrationInputError(f"{source}: channel latencies and delays must be finite "
-                                    f"and below {1e3 * MAX_LATENCY_S:g} ms")
+        raise GeometryFileError(f"{source}: channel latencies and delays must be finite and "
+                                f"below {1e3 * MAX_LATENCY_S:g} ms")
+    for cam in cameras:
+        if (cam.K.shape != (3, 3) or cam.dist.ndim != 1 or not 4 <= cam.dist.size <= 14
+                or not (np.all(np.isfinite(cam.K)) and np.all(np.isfinite(cam.dist)))
+                or not (0 < cam.width <= 100_000 and 0 < cam.height <= 100_000)):
+            raise GeometryFileError(f"{source}: camera {cam.name!r} needs a finite 3 x 3 K, "
+                                    "4 to 14 finite distortion coefficients and a size in "
+                                    "pixels")
+    for pose in poses.values():
+        if (pose.speakers_m.ndim != 2 or pose.speakers_m.shape[1] != 3
+                or not np.all(np.isfinite(pose.speakers_m))):
+            raise GeometryFileError(f"{source}: pose {pose.index} needs speakers_m as (n, 3) "
+                                    "finite numbers")
     return ArrayGeometry(ids, positions, c, cameras, poses, latencies,
                          responses_from_document(doc, ids, source),
                          own if np.any(own) else None)
@@ -168,10 +189,18 @@ def _transform(doc: dict) -> RigidTransform:
 
 
 def load_geometry(path: Path) -> ArrayGeometry:
-    """Read a calibration result.json or a simulation's truth.json."""
+    """Read a calibration result.json or a simulation's truth.json (of at most
+    MAX_DOCUMENT_BYTES).
+
+    Raises:
+        GeometryFileError: unreadable, not JSON, or not a geometry (see `geometry_from_dict`).
+    """
     path = Path(path)
     try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as exc:
-        raise CalibrationInputError(f"cannot read the geometry {path}: {exc}") from None
+        doc = json.loads(read_bounded_text(path, MAX_DOCUMENT_BYTES))
+    except UnreadableFile as exc:
+        raise GeometryFileError(f"cannot read the geometry: {exc}") from None
+    except (json.JSONDecodeError, RecursionError) as exc:
+        raise GeometryFileError(f"cannot read the geometry {path}: it is not JSON "
+                                f"({exc})") from None
     return geometry_from_dict(doc, str(path))

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from acquisition.contracts.errors import UserError
 
-from ..outputs import check_outputs
+from ..outputs import check_output_dirs, check_outputs
 from .bounded import number, positive
 
 
@@ -90,7 +90,7 @@ def _prior(args: argparse.Namespace):
         if args.prior_std_mm is not None:
             raise UserError("--prior-std-mm needs --prior")
         return None
-    from calibration.result import load_prior_positions
+    from calibration.result import PriorFileError, load_prior_positions
     from calibration.session_data import load_session
     from calibration.solver import PriorGeometry
 
@@ -99,7 +99,10 @@ def _prior(args: argparse.Namespace):
     if args.prior_std_mm is not None and args.prior_std_mm <= 0:
         raise UserError("--prior-std-mm must be positive")
     data = load_session(args.session, args.allow_interrupted)
-    positions = load_prior_positions(args.prior, data.mic_ids)
+    try:
+        positions = load_prior_positions(args.prior, data.mic_ids)
+    except PriorFileError as exc:
+        raise UserError(f"--prior: {exc}") from None
     std = None if args.prior_std_mm is None else args.prior_std_mm / 1000.0
     return PriorGeometry(positions, std)
 
@@ -171,7 +174,13 @@ def _truth(args: argparse.Namespace, data) -> dict | None:
     try:
         return load_truth(path, [int(i) for i in data.mic_ids], list(data.camera_names))
     except TruthError as exc:
-        raise UserError(str(exc)) from None
+        flag = "--truth" if args.truth is not None else "the session's truth.json"
+        raise UserError(f"{flag}: {exc}") from None
+
+
+def _report_dir(out: Path) -> Path:
+    """The report's directory when --report is not given: beside the result."""
+    return out.parent / (out.stem + "-report")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -183,10 +192,11 @@ def run(args: argparse.Namespace) -> int:
     from calibration.session_data import load_session
 
     out: Path = args.out
-    if out.exists() and not args.force:
-        raise UserError(f"{out} exists; choose another --out or pass --force to overwrite it")
     check_outputs(("--out", out), ("--acoular-xml", args.acoular_xml),
                   ("--acoular-calib", args.acoular_calib))
+    if out.exists() and not args.force:
+        raise UserError(f"{out} exists; choose another --out or pass --force to overwrite it")
+    check_output_dirs(("--report", args.report or _report_dir(out)), reuse=True)
     if args.acoular_calib is not None and (args.no_joint or args.method == "paper"):
         raise UserError("--acoular-calib needs the joint fit (it estimates the responses); "
                         "leave out --no-joint and --method paper")
@@ -211,7 +221,7 @@ def run(args: argparse.Namespace) -> int:
         bar.n = len(stages)
         bar.refresh()
     run_.result.write(out)
-    report = write_report(run_, args.report or out.parent / (out.stem + "-report"), truth,
+    report = write_report(run_, args.report or _report_dir(out), truth,
                           None if prior is None else prior.positions_m)
     if args.acoular_xml is not None:
         write_acoular_xml(run_.result, args.acoular_xml)

@@ -8,6 +8,8 @@ from pathlib import Path
 
 from acquisition.contracts.errors import UserError
 
+from ..outputs import check_outputs
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -42,6 +44,7 @@ def run_template(args: argparse.Namespace) -> int:
     if args.out is None:
         print(text, end="")
         return 0
+    check_outputs(("--out", args.out))
     if args.out.exists():
         raise UserError(f"{args.out} exists; choose another --out (a configuration is never "
                         "overwritten)")
@@ -56,7 +59,7 @@ def run_template(args: argparse.Namespace) -> int:
 
 def run_check(args: argparse.Namespace) -> int:
     """Check the file as read once (it may be a pipe: `micam config check <(...)`)."""
-    from acquisition.contracts.read_once import read_toml
+    from acquisition.contracts.bounded_files import read_toml
     from acquisition.daemon.config import config_of
     from micam.daemon import check_config
     from micam.hardware import MicamDaemonConfig

@@ -119,7 +119,6 @@ def run(args: argparse.Namespace) -> int:
     from acquisition.contracts.session import SessionReader
     from calibration.figures.evaluation import localization_figure
     from calibration.figures.style import save
-    from calibration.imaging import load_geometry
     from calibration.imaging.evaluate import ImagingSettings, evaluate_session
     from calibration.imaging.holdout import cross_validate
 
@@ -130,8 +129,11 @@ def run(args: argparse.Namespace) -> int:
     if args.folds is not None and (args.responses or args.csm_calibration is not None):
         raise UserError("--responses and --csm-calibration need one calibration: use them "
                         "with --geometry, not --folds")
+    truth = (imaging_options.geometry_file("--truth", truth_path) if truth_path.is_file()
+             else None)
+    geometry = (imaging_options.geometry_file("--geometry", args.geometry)
+                if args.geometry is not None else None)
     reader = SessionReader(args.session)
-    truth = load_geometry(truth_path) if truth_path.is_file() else None
     settings = ImagingSettings(fraction=args.fraction, band_lo_hz=args.band_lo,
                                band_hi_hz=args.band_hi, spacing_m=args.spacing,
                                offset_seed=None if args.aligned_grid else 0)
@@ -150,7 +152,6 @@ def run(args: argparse.Namespace) -> int:
                        cv.held_out}
             document = cv.to_json()
         else:
-            geometry = load_geometry(args.geometry)
             settings, skip, geometry = imaging_options.corrected_settings(
                 args, reader, geometry, settings)
             result = evaluate_session(reader, geometry, settings, progress, args.workers,

@@ -50,14 +50,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from acquisition.contracts.session import SessionReader
     from calibration.figures.style import save
-    from calibration.imaging import load_geometry
     from calibration.imaging.evaluate import ImagingSettings
     from calibration.figures.recording_map import recording_map
     from calibration.report import significant
 
     check_outputs(("--out", args.out))
+    geometry = imaging_options.geometry_file("--geometry", args.geometry)
     reader = SessionReader(args.session)
-    geometry = load_geometry(args.geometry)
     settings, calibrated_from, geometry = imaging_options.corrected_settings(
         args, reader, geometry, ImagingSettings(fraction=args.fraction,
                                                 bands_hz=(args.band,)))

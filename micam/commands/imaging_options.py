@@ -1,11 +1,13 @@
 """Options `micam image` and `micam evaluate-imaging` share: the correction of the channels'
 responses in the CSM (paper VI: Dougherty's eigenvalue calibration, or the responses of the
-calibration result) and a simulated microphone phase error."""
+calibration result) and a simulated microphone phase error; and the geometry file that they
+and `micam live video` read."""
 
 from __future__ import annotations
 
 import argparse
 from dataclasses import replace
+from pathlib import Path
 
 from acquisition.contracts.errors import UserError
 from .bounded import POSE, SEED, SPEAKER, number
@@ -30,6 +32,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
              "spectra (default 0: none)")
     p.add_argument("--mic-phase-error-seed", type=SEED, default=0, metavar="N",
                    help="seed of the simulated phase error (default 0)")
+
+
+def geometry_file(flag: str, path: Path):
+    """The geometry in `path` (`calibration.imaging.load_geometry`), read before any work; a
+    malformed or oversized file is a UserError naming `flag`, the file and what is wrong."""
+    from calibration.imaging.geometry import GeometryFileError, load_geometry
+
+    try:
+        return load_geometry(path)
+    except GeometryFileError as exc:
+        raise UserError(f"{flag}: {exc}") from None
 
 
 def recording(text: str) -> tuple[int, int]:

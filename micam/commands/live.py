@@ -9,8 +9,10 @@ from pathlib import Path
 
 from acquisition.contracts.errors import UserError
 
+from ..outputs import check_outputs
 from .client_options import add_client_arguments
 from .bounded import BAND_HZ, DEPTH_M, RANGE_DB, integer, number, positive
+from .imaging_options import geometry_file
 
 MAX_GRID = 1000
 """The most scan points across each side of the view (a million in all)."""
@@ -103,11 +105,11 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _video(args: argparse.Namespace) -> int:
-    from calibration.imaging import load_geometry
     from calibration.imaging.live import LiveSettings
     from calibration.imaging.live_frames import VideoFile
 
-    geometry = load_geometry(args.geometry)
+    check_outputs(("--out", args.out))
+    geometry = geometry_file("--geometry", args.geometry)
     _check_grid(args.grid, geometry.n_mics)
     settings = LiveSettings(band_hz=args.band, fraction=args.fraction,
                             block_size=args.block, overlap=args.overlap,

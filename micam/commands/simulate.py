@@ -13,6 +13,8 @@ from tqdm import tqdm
 from acquisition.contracts.errors import UserError
 from .bounded import SEED, integer, number
 
+from ..outputs import check_output_dirs
+
 if TYPE_CHECKING:
     from acquisition.sequencer import Progress
 
@@ -97,6 +99,9 @@ def run(args: argparse.Namespace) -> int:
     from daq import DaqError
 
     out: Path = args.out
+    if not args.resume:
+        check_output_dirs(("--out", out), session_hint="continue an interrupted one with "
+                          f"`micam simulate --resume --out {out}`, or ")
     options = None if args.resume else _options_from_args(args)
     try:
         sim, sequencer = prepare_simulated_capture(out, options)

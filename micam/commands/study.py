@@ -14,6 +14,8 @@ from pathlib import Path
 from acquisition.contracts.errors import UserError
 from .bounded import SEED, integer
 
+from ..outputs import check_output_dirs
+
 DEFAULT_BANDS = ("0.4-0.6", "0.6-1.0", "1.0-1.5", "1.5-2.0")
 DEFAULT_SOURCES = (3, 6, 12, 18, 36, 48, 96, 180)
 
@@ -61,8 +63,7 @@ def run(args: argparse.Namespace) -> int:
     too_many = [n for n in args.sources if n > 6 * args.poses]
     if too_many:
         raise UserError(f"--sources {too_many} need more than the {args.poses} poses simulated")
-    if args.out.exists() and any(args.out.iterdir()):
-        raise UserError(f"{args.out} is not empty; choose a new directory")
+    check_output_dirs(("--out", args.out))
     args.out.mkdir(parents=True, exist_ok=True)
     results = []
     for i, band in enumerate(tqdm(bands, desc="bands", unit="band")):

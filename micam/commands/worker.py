@@ -8,7 +8,7 @@ import signal
 from pathlib import Path
 from types import FrameType
 
-from acquisition.contracts.read_once import size_text
+from acquisition.contracts.bounded_files import size_text
 from acquisition.daemon.endpoints import beside
 
 from .client_options import add_control_argument, endpoint

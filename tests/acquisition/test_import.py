@@ -11,10 +11,11 @@ import numpy as np
 import pytest
 import soundfile as sf
 
-from micam.cli import main
+from acquisition.contracts.session import SessionReader
 from acquisition.importer import ImportSpecError, import_session, prepare
 from acquisition.intrinsics_file import IntrinsicsFileError, read_intrinsics
-from acquisition.contracts.session import SessionReader
+from micam.cli import main
+from tests.peak_memory import blank_png, peak_growth
 
 FS = 8000
 N = 4 + 63 + 5  # silence before, MLS order 6, silence after
@@ -160,7 +161,7 @@ def test_check_reads_every_file_and_writes_nothing(tmp_path: Path,
     assert "every file checked" in capsys.readouterr().out
     assert not (tmp_path / "s").exists()
     (tmp_path / "p0.png").write_bytes(b"not a png")
-    with pytest.raises(ImportSpecError, match=r"recordings.poses\[0\].images.cam0: 'p0.png' is "
+    with pytest.raises(ImportSpecError, match=r"recordings.poses\[0\].images.cam0: 'p0.png': "
                                               "not an image"):
         prepare(spec)
 
@@ -220,3 +221,127 @@ def test_ros_and_micam_result_intrinsics(tmp_path: Path) -> None:
     assert known.use == "prior" and known.std == (0.1,) * 9
     with pytest.raises(IntrinsicsFileError, match="without camera 'cam1'"):
         read_intrinsics(result, "cam1", (W, H))
+
+
+# ---------------------------------------------------------------------------------------------
+# --check checks what the import would; a failed import leaves nothing behind
+
+
+def _float_wav(path: Path, bad: float) -> None:
+    x = np.zeros((N, 3))
+    x[5, 1] = bad
+    sf.write(path, x, FS, subtype="FLOAT")
+
+
+def _truncated_png(path: Path) -> None:
+    data = path.read_bytes()
+    path.write_bytes(data[:len(data) // 2])  # the header is whole, the pixels are not
+
+
+CONTENT_FAULTS = {
+    # a fault only the file's content shows: (spoil the folder, the words of the message)
+    "NaN sample": (lambda d: _float_wav(d / "p0s1.wav", np.nan),
+                   "recordings.poses[0].bursts[1]: the recording holds NaN or infinite"),
+    "infinite sample": (lambda d: _float_wav(d / "p0s0.wav", np.inf),
+                        "recordings.poses[0].bursts[0]: the recording holds NaN or infinite"),
+    "pixels cut off": (lambda d: _truncated_png(d / "p0.png"),
+                       "recordings.poses[0].images.cam0: 'p0.png' is not an image OpenCV"),
+}
+
+
+@pytest.mark.parametrize("fault", sorted(CONTENT_FAULTS))
+def test_check_checks_what_the_import_would_and_a_failed_import_can_be_retried(
+        tmp_path: Path, fault: str, capsys: pytest.CaptureFixture) -> None:
+    spec = _folder(tmp_path)
+    spoil, words = CONTENT_FAULTS[fault]
+    spoil(tmp_path)
+    out = tmp_path / "session"
+    before = sorted(tmp_path.iterdir())
+    assert main(["import", str(spec), "--out", str(out), "--check"]) == 2
+    assert words in capsys.readouterr().err
+    assert main(["import", str(spec), "--out", str(out)]) == 2
+    assert words in capsys.readouterr().err
+    assert sorted(tmp_path.iterdir()) == before  # no session, no staging directory left
+    _folder(tmp_path)  # the files mended: the same command now succeeds
+    assert main(["import", str(spec), "--out", str(out)]) == 0
+    assert SessionReader(out).status == "complete"
+
+
+def test_a_failed_import_into_an_empty_directory_leaves_it_empty(tmp_path: Path) -> None:
+    spec = _folder(tmp_path)
+    CONTENT_FAULTS["NaN sample"][0](tmp_path)
+    out = tmp_path / "empty"
+    out.mkdir()
+    with pytest.raises(ImportSpecError):
+        import_session(spec, out)
+    assert out.is_dir() and not any(out.iterdir())
+
+
+@pytest.mark.parametrize(("make", "words"), [
+    (lambda out: out.symlink_to(out.parent / "nowhere"), "is a symbolic link to"),
+    (lambda out: out.write_text("x"), "is a file, not a directory"),
+    (lambda out: (out.mkdir(), (out / "notes.txt").write_text("x")), "is not empty"),
+    (lambda out: out.parent.joinpath("f").write_text("x"), "which is not a directory"),
+])
+def test_an_output_that_cannot_be_a_new_session_is_refused_first(
+        tmp_path: Path, make, words: str, capsys: pytest.CaptureFixture) -> None:
+    spec = _folder(tmp_path)
+    out = tmp_path / "out"
+    make(out)
+    target = tmp_path / "f" / "s" if (tmp_path / "f").exists() else out
+    before = {p: p.lstat().st_mtime_ns for p in tmp_path.rglob("*")}
+    for check in ([], ["--check"]):
+        assert main(["import", str(spec), "--out", str(target), *check]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("micam: error: --out ") and words in err, err
+    assert {p: p.lstat().st_mtime_ns for p in tmp_path.rglob("*")} == before
+
+
+def test_a_description_of_too_many_poses_is_refused(tmp_path: Path,
+                                                    capsys: pytest.CaptureFixture) -> None:
+    from acquisition.importer import MAX_POSES
+
+    pose = '[[recordings.poses]]\nbursts = ["p0s0.wav", "p0s1.wav"]\n'
+    spec = _folder(tmp_path, TOML + pose * MAX_POSES)
+    assert main(["import", str(spec), "--out", str(tmp_path / "s"), "--check"]) == 2
+    assert f"recordings.poses: Tuple should have at most {MAX_POSES} items" in \
+        capsys.readouterr().err
+
+
+# ---------------------------------------------------------------------------------------------
+# Sizes come from headers, and --check holds one step's files at a time
+
+
+_IMPORTED = """
+from micam.cli import main
+import acquisition.importer, micam.commands.import_session  # their imports are not measured
+"""
+
+
+def test_a_huge_image_is_refused_from_its_header(tmp_path: Path) -> None:
+    """A 16000 x 16000 PNG of one colour (250 kB, 256 MB decoded) where the camera is
+    described at that size: refused before it is decoded."""
+    toml = TOML.replace("width = 64\nheight = 48", "width = 16000\nheight = 16000")
+    spec = _folder(tmp_path, toml)
+    (tmp_path / "p0.png").write_bytes(blank_png(16000, 16000))
+    grown, done = peak_growth(_IMPORTED, f"""
+        print("status", main(["import", {str(spec)!r}, "--out", {str(tmp_path / "s")!r},
+                              "--check"]))
+        """)
+    assert "status 2" in done.stdout and "more than the 100000000 pixels" in done.stderr, done
+    assert grown < 64 * 2**20, f"--check grew the peak memory by {grown / 2**20:.0f} MiB"
+
+
+def test_the_memory_of_check_does_not_grow_with_the_poses(tmp_path: Path) -> None:
+    """100 poses naming one 2000 x 1000 image (2 MB decoded; 200 MB if all were held):
+    --check holds one step's files at a time."""
+    toml = TOML.replace("width = 64\nheight = 48", "width = 2000\nheight = 1000")
+    pose = '[[recordings.poses]]\nbursts = ["p0s0.wav", "p0s1.wav"]\nimages = { cam0 = "p0.png" }\n'
+    spec = _folder(tmp_path, toml + pose * 99)
+    cv2.imwrite(str(tmp_path / "p0.png"), np.zeros((1000, 2000), np.uint8))
+    grown, done = peak_growth(_IMPORTED, f"""
+        print("status", main(["import", {str(spec)!r}, "--out", {str(tmp_path / "s")!r},
+                              "--check"]))
+        """)
+    assert "status 0" in done.stdout and "100 poses" in done.stdout, done
+    assert grown < 48 * 2**20, f"--check grew the peak memory by {grown / 2**20:.0f} MiB"

@@ -97,8 +97,8 @@ def test_simulate_on_a_read_only_filesystem_is_one_clear_line(
         if os.geteuid() == 0:
             subprocess.run(["umount", str(disk)], check=False)
     err = capsys.readouterr().err.strip()
-    assert err.startswith(f"micam: error: cannot create the session {disk / 's'}") and \
-        "\n" not in err, err
+    assert err.startswith(f"micam: error: --out {disk / 's'} cannot be created in {disk}: it "
+                          "is not writable") and "\n" not in err, err
 
 
 class _FullOutbox:

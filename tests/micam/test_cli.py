@@ -170,7 +170,7 @@ def test_outputs_are_checked_before_any_work(argv: list[str], tmp_path: Path,
 def test_an_output_that_is_a_directory_is_refused(tmp_path: Path,
                                                   capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["calibrate", "SESSION", "--out", str(tmp_path)]) == cli.EXIT_USAGE
-    assert "exists" in capsys.readouterr().err
+    assert "is a directory; name a file" in capsys.readouterr().err
 
 
 def test_daq_selftest_without_libusb_is_one_line(monkeypatch: pytest.MonkeyPatch,

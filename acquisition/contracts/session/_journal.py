@@ -1,10 +1,18 @@
 """The append-only journal: durable appends, tolerant reading, and replay into a session state.
 
 The journal is the session's source of truth. Each record is one JSON line written with a single
-`write` and fsync'd before the call returns, so a crash can damage at most the last line; the
-reader ignores such a torn tail but refuses damage anywhere else. `SessionState` replays the
-records and enforces the rules of the format (consecutive `seq`, one open attempt at a time,
-nothing after `session_stop`), so the writer and the reader share one interpretation.
+`write` and fsync'd before the call returns, so a crash can damage at most the last line, and
+only by cutting it short: what a crash leaves is a final piece without its newline. The reader
+ignores that torn tail, unless the session was stopped (no append follows `session_stop`), and
+refuses every other damage, naming its line: a line that ends in its newline and is not a valid
+record, anything after `session_stop`. `SessionState` replays the records and enforces the rules
+of the format (consecutive `seq`, one open attempt at a time, nothing after `session_stop`), so
+the writer and the reader share one interpretation.
+
+A journal comes from a directory any account may have written, so its sizes are bounded before
+they cost memory: the file's size is checked before it is read, and each line is read with a
+ceiling (MAX_RECORD_BYTES), never whole. The writer refuses to exceed the same bounds, so every
+journal it writes can be read back.
 """
 
 from __future__ import annotations
@@ -14,6 +22,7 @@ import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import BinaryIO
 
 from pydantic import ValidationError
 
@@ -39,6 +48,13 @@ from ._models import (
 )
 
 JOURNAL_NAME = "journal.jsonl"
+MAX_RECORD_BYTES = 2**20
+"""Longest journal line, bytes with its newline (1 MiB). The largest records are a
+`session_start` with its capture configuration and a `file` record with per-channel meta, some
+kilobytes to a few tens of kilobytes for 1024 channels."""
+MAX_JOURNAL_BYTES = 256 * 2**20
+"""Largest journal, bytes (256 MiB): a few hundred thousand records, where a session of a
+thousand poses journals a few thousand."""
 
 
 @dataclass(frozen=True)
@@ -62,9 +78,17 @@ def journal_path(session: Path) -> Path:
 
 
 def scan_journal(path: Path) -> JournalScan:
-    """Parse a journal file, ignoring a torn last line and refusing a damaged line before it."""
+    """Parse a journal file, ignoring a torn last line (see the module docstring) and refusing
+    any other damage, naming its line."""
     try:
-        data = path.read_bytes()
+        with path.open("rb") as fh:
+            size = os.fstat(fh.fileno()).st_size
+            if size > MAX_JOURNAL_BYTES:
+                raise SessionError(
+                    f"{path} is {size} bytes, more than the {MAX_JOURNAL_BYTES} a journal may "
+                    "hold: it was altered, or is not a micam journal; do not resume it"
+                )
+            return _scan_lines(path, fh)
     except FileNotFoundError:
         raise SessionError(
             f"{path.parent} is not a micam session: it has no {JOURNAL_NAME}; "
@@ -72,22 +96,40 @@ def scan_journal(path: Path) -> JournalScan:
         ) from None
     except OSError as exc:
         raise SessionError(f"cannot read the journal {path}: {exc}") from exc
-    *lines, tail = data.split(b"\n")  # `tail` is whatever follows the last newline
+
+
+def _scan_lines(path: Path, fh: BinaryIO) -> JournalScan:
+    """The records of an open journal, read line by line, no line longer than MAX_RECORD_BYTES."""
     records: list[Record] = []
     valid_bytes = 0
-    for number, line in enumerate(lines, start=1):
+    number = 0
+    while line := fh.readline(MAX_RECORD_BYTES + 1):
+        number += 1
+        complete = line.endswith(b"\n")
+        if len(line) > MAX_RECORD_BYTES:
+            raise _damaged(path, number, f"longer than {MAX_RECORD_BYTES} bytes, the longest "
+                                         "record the writer writes")
+        stopped = bool(records) and isinstance(records[-1], SessionStop)
+        if stopped:
+            raise _damaged(path, number, "it follows session_stop, after which the writer "
+                                         "appends nothing")
+        if not complete:  # the last piece, without its newline: what a crash leaves
+            return JournalScan(records, valid_bytes, torn_tail=True)
         try:
             records.append(RECORD_ADAPTER.validate_json(line))
         except ValidationError as exc:
-            if number == len(lines) and not tail:
-                return JournalScan(records, valid_bytes, torn_tail=True)
-            raise SessionError(
-                f"{path}, line {number}: not a valid journal record ({_first_error(exc)}). "
-                "A crash only damages the last line, so this journal was altered or its disk is "
-                "failing: do not resume it; restore it from a backup or recover its files by hand"
-            ) from exc
-        valid_bytes += len(line) + 1
-    return JournalScan(records, valid_bytes, torn_tail=bool(tail))
+            raise _damaged(path, number, f"not a valid journal record ({_first_error(exc)})"
+                           ) from exc
+        valid_bytes += len(line)
+    return JournalScan(records, valid_bytes, torn_tail=False)
+
+
+def _damaged(path: Path, number: int, what: str) -> SessionError:
+    return SessionError(
+        f"{path}, line {number}: {what}. A crash only cuts the last line short, so this "
+        "journal was altered or its disk is failing: do not resume it; restore it from a backup "
+        "or recover its files by hand"
+    )
 
 
 def _first_error(exc: ValidationError) -> str:
@@ -295,7 +337,20 @@ class JournalWriter:
     def append(self, record: Record) -> None:
         """Write one record as one line and fsync it; it is durable when this returns."""
         fd = self._require_fd()
-        remaining = memoryview(record.model_dump_json().encode() + b"\n")
+        line = record.model_dump_json().encode() + b"\n"
+        if len(line) > MAX_RECORD_BYTES:
+            raise SessionError(
+                f"a {record.kind} record of {len(line)} bytes is longer than the "
+                f"{MAX_RECORD_BYTES} a journal line may hold (readers refuse longer lines); "
+                "keep the capture configuration and the files' meta smaller"
+            )
+        if os.fstat(fd).st_size + len(line) > MAX_JOURNAL_BYTES:
+            raise SessionError(
+                f"{self.path} would grow beyond the {MAX_JOURNAL_BYTES} bytes a journal may "
+                "hold (readers refuse larger ones); stop this session and record the rest "
+                "in a new one"
+            )
+        remaining = memoryview(line)
         while remaining:
             remaining = remaining[os.write(fd, remaining) :]
         os.fsync(fd)

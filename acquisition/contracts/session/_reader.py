@@ -4,12 +4,14 @@ The reader replays the journal once, when it is made (make a new reader to see l
 and offers only completed steps: files of attempts that never reached `step_end` are invisible.
 It never writes, so it can read a session while a writer is still recording into it.
 
-Every file is checked against the journal before it is decoded: its bytes are read once,
-their size and SHA-256 compared with the journal's record, and only then decoded from memory,
-so a flipped bit, a truncated or missing file is a `SessionError` naming the file, never a
-calibration of damaged data. What still fails to decode (a file that matches a hand-edited
-journal) is a `SessionError` too, as is a recording or image whose shape is not the one the
-journal recorded.
+Every file is checked against the journal before it is decoded: its size on disk against the
+journal's record and the bound of its role (before anything is read), then its bytes are read
+once and their SHA-256 compared, so a flipped bit, a truncated or missing file is a
+`SessionError` naming the file, never a calibration of damaged data. A journal may have been
+edited to match a hostile file, so the file's header is read next (`media_headers`): its
+container, size and shape must be the ones the writer writes and the journal records, within
+the decoding bounds, before a sample or pixel is decoded. What still fails to decode is a
+`SessionError` too.
 """
 
 from __future__ import annotations
@@ -26,9 +28,25 @@ import cv2
 import numpy as np
 import soundfile as sf
 
+from ..media_headers import (
+    MAX_IMAGE_PIXELS,
+    MAX_RECORDING_VALUES,
+    UnreadableMedia,
+    check_recording_size,
+    image_header,
+    recording_header,
+)
 from ._atomic import sha256_file
 from ._journal import load_state
 from ._models import FileRecord, FileRole, SessionError, SessionManifest, SessionStatus, StepRecord
+
+MAX_FILE_BYTES: dict[FileRole, int] = {
+    "recording": 2 * MAX_RECORDING_VALUES + 2**20,
+    "image": 3 * MAX_IMAGE_PIXELS + 2**20,
+    "other": 64 * 2**20,
+}
+"""The largest file of each role read into memory, bytes: a recording or image of the
+decoding bounds (16-bit codes; uncompressed BGR) plus its header, and a JSON record."""
 
 
 class SessionReader:
@@ -77,34 +95,54 @@ class SessionReader:
         """The raw int16 codes, shape (n_samples, n_channels), and the sample rate in hertz."""
         file, data = self._verified(step, name, "recording")
         try:
-            codes, rate = sf.read(io.BytesIO(data), dtype="int16", always_2d=True)
-        except Exception as exc:  # libsndfile's errors, and soundfile's own on odd headers
+            header = recording_header(data)
+            if header.container not in ("WAV", "RF64") or header.subtype != "PCM_16":
+                raise UnreadableMedia(f"it is {header.container} {header.subtype}, the session "
+                                      "store writes 16-bit PCM WAV or RF64 only")
+            check_recording_size(header.frames, header.channels)
+        except UnreadableMedia as exc:
             raise self._undecodable(file, "a WAV recording", exc) from None
+        shape = (header.frames, header.channels)
         expected = (file.meta.get("n_samples"), file.meta.get("n_channels"))
-        if None not in expected and codes.shape != expected:
+        if shape != expected:
             raise SessionError(
-                f"{self._path / file.path}: the recording holds {codes.shape[0]} samples of "
-                f"{codes.shape[1]} channels, the journal recorded {expected[0]} of {expected[1]}; "
+                f"{self._path / file.path}: the recording holds {shape[0]} samples of "
+                f"{shape[1]} channels, the journal recorded {expected[0]} of {expected[1]}; "
                 "the file or the journal was altered"
             )
+        try:
+            codes, rate = sf.read(io.BytesIO(data), dtype="int16", always_2d=True)
+        except Exception as exc:  # libsndfile's errors, and soundfile's own on odd data
+            raise self._undecodable(file, "a WAV recording", exc) from None
+        if codes.shape != shape:
+            raise self._undecodable(file, "a WAV recording", f"it holds {codes.shape[0]} "
+                                    f"samples, its header {shape[0]}")
         return codes, rate
 
     def read_image(self, step: str, name: str) -> np.ndarray:
         """The image as stored: uint8 (height, width) grey or (height, width, 3) BGR."""
         file, data = self._verified(step, name, "image")
         try:
+            header = image_header(data)
+            if header.format != "PNG":
+                raise UnreadableMedia(f"it is {header.format}, the session store writes PNG "
+                                      "only")
+        except UnreadableMedia as exc:
+            raise self._undecodable(file, "a PNG image", exc) from None
+        size = (header.height, header.width)
+        expected = (file.meta.get("height"), file.meta.get("width"))
+        if size != expected:
+            raise SessionError(
+                f"{self._path / file.path}: the image is {size[1]} x {size[0]} pixels, the "
+                f"journal recorded {expected[1]} x {expected[0]}; the file or the journal was "
+                "altered"
+            )
+        try:
             image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
         except cv2.error as exc:
             raise self._undecodable(file, "a PNG image", exc) from None
-        if image is None:
+        if image is None or image.shape[:2] != size:
             raise self._undecodable(file, "a PNG image", "OpenCV cannot decode it")
-        expected = (file.meta.get("height"), file.meta.get("width"))
-        if None not in expected and image.shape[:2] != expected:
-            raise SessionError(
-                f"{self._path / file.path}: the image is {image.shape[1]} x {image.shape[0]} "
-                f"pixels, the journal recorded {expected[1]} x {expected[0]}; the file or the "
-                "journal was altered"
-            )
         return image
 
     def read_json(self, step: str, name: str) -> dict[str, Any]:
@@ -140,6 +178,15 @@ class SessionReader:
         file = self._file(step, name, role)
         path = self._path / file.path
         try:
+            size = path.stat().st_size
+            if size != file.bytes or size > MAX_FILE_BYTES[role]:
+                raise SessionError(
+                    f"{path} (step {step!r}): size mismatch: {size} bytes, the journal "
+                    f"recorded {file.bytes}" + ("" if size != file.bytes else
+                                                f", more than a {role} file may hold "
+                                                f"({MAX_FILE_BYTES[role]})")
+                    + "; the file is damaged: restore it from a copy of the session (`micam "
+                    "inspect` lists every damaged file)")
             data = path.read_bytes()
         except FileNotFoundError:
             raise SessionError(

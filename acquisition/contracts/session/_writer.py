@@ -24,6 +24,8 @@ import soundfile as sf
 
 from daq import ClosesOnExit
 
+from ..media_headers import MAX_IMAGE_PIXELS, MAX_RECORDING_VALUES
+from ..output_paths import dangling_link_problem
 from ..safe_names import is_name, is_step_id
 from ._atomic import PARTIAL_SUFFIX, fsync_dir, make_dirs, remove_partials, write_atomic
 from ._journal import JournalWriter, SessionState, journal_path, load_state, scan_journal
@@ -104,10 +106,11 @@ def _check_codes(codes: np.ndarray, name: str) -> None:
             f"{codes.shape}; for a single channel pass codes[:, np.newaxis]"
         )
     n_samples, n_channels = codes.shape
-    if n_samples == 0 or not 1 <= n_channels <= MAX_CHANNELS:
+    if n_samples == 0 or not 1 <= n_channels <= MAX_CHANNELS or codes.size > MAX_RECORDING_VALUES:
         raise SessionError(
             f"recording {name!r}: shape {codes.shape} is not storable; a recording needs at least "
-            f"one sample and 1 to {MAX_CHANNELS} channels"
+            f"one sample, 1 to {MAX_CHANNELS} channels and at most {MAX_RECORDING_VALUES} "
+            "samples x channels (what readers decode)"
         )
 
 
@@ -117,11 +120,12 @@ def _check_image(image: np.ndarray, name: str) -> None:
         or image.dtype != np.uint8
         or not (image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 3))
         or image.size == 0
+        or image.shape[0] * image.shape[1] > MAX_IMAGE_PIXELS
     ):
         got = f"{image.dtype} {image.shape}" if isinstance(image, np.ndarray) else type(image)
         raise SessionError(
             f"image {name!r}: expected a uint8 array, (height, width) grey or (height, width, 3) "
-            f"BGR, got {got}"
+            f"BGR of at most {MAX_IMAGE_PIXELS} pixels, got {got}"
         )
 
 
@@ -190,6 +194,9 @@ class SessionWriter(ClosesOnExit):
     @staticmethod
     def _claim_directory(path: Path) -> None:
         """Make `path` the new session's directory, or say why it cannot be."""
+        dangling = dangling_link_problem(path)
+        if dangling:
+            raise SessionError(f"{path} {dangling}")
         if not path.exists():
             make_dirs(path)
             return

@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 import pytest
 
-from acquisition.contracts.read_once import MAX_TOML_BYTES
+from acquisition.contracts.bounded_files import MAX_TOML_BYTES
 from acquisition.intrinsics_file import read_intrinsics
 from acquisition.daemon.config import ConfigError
 from micam.cli import main
