@@ -84,10 +84,10 @@ class _Planner:
         self.n_mics = layout.n_mics
         self.n_speakers = len(layout.speaker_outputs)
         self.n_poses = len(context.poses)
-        self.mic_inputs = list(layout.mic_inputs)
+        self.positions = list(range(self.n_mics))  # where each cable is: the input of that id
         self.speaker_outputs = list(layout.speaker_outputs)
-        self.rewired: dict[int, str] = {}  # microphone -> the mistake that moved its cable
-        self.swapped: dict[int, str] = {}
+        self.swapped_mics: dict[int, str] = {}  # microphone -> the swap that moved its cable
+        self.swapped: dict[int, str] = {}  # speaker -> the swap that moved its cable
         self.capsule: dict[tuple[int, str], str] = {}  # (microphone, kind) -> its mistake
         self.factors = np.ones(self.n_mics)
         self.echoes: list[Echo] = []
@@ -122,10 +122,22 @@ class _Planner:
     def resolve(self, spec: MistakeSpec, rng: np.random.Generator) -> dict:
         return self._resolvers[spec.kind.name](spec, rng)
 
+    @property
+    def mic_inputs(self) -> list[ChannelRef]:
+        """The board input each microphone's cable is on now."""
+        return [self.ctx.layout.mic_inputs[p] for p in self.positions]
+
     def build(self, records: tuple[dict, ...]) -> Mistakes:
+        """The plan; the cables' records get the columns their microphones are recorded in
+        after every cable mistake (a swap and a board shift compose)."""
+        for record in records:
+            if "recorded_in_columns" in record:
+                record["recorded_in_columns"] = self._input_fields(record["microphones"])[
+                    "columns"]
+        rewired = self.positions != list(range(self.n_mics))
         return Mistakes(
             records=records,
-            mic_inputs=tuple(self.mic_inputs) if self.rewired else None,
+            mic_inputs=tuple(self.mic_inputs) if rewired else None,
             speaker_outputs=tuple(self.speaker_outputs) if self.swapped else None,
             mic_factors=self.factors if np.any(self.factors != 1.0) else None,
             echoes=tuple(self.echoes), saturation=self.saturation, silent=self.silent,
@@ -148,7 +160,7 @@ class _Planner:
         if given is None:
             pool = list(range(count)) if choices is None else list(choices)
             if not pool:
-                raise self._fail(spec, f"no {what} is left for it; name one")
+                raise self._fail(spec, f"no {what} is left for it (other mistakes took them)")
             return int(pool[int(rng.integers(len(pool)))])
         if not 0 <= int(given) < count:
             raise self._fail(spec, f"there is no {what} {int(given)} ({_numbers(what, count)})")
@@ -168,7 +180,8 @@ class _Planner:
 
     def _input_fields(self, mics: Sequence[int]) -> dict:
         """"columns", "boards", "channels": where the microphones' signals are recorded."""
-        refs = [self.mic_inputs[m] for m in mics]
+        inputs = self.mic_inputs
+        refs = [inputs[m] for m in mics]
         return {"columns": [self._column(r) for r in refs],
                 "boards": [self.ctx.layout.boards[r.board].serial for r in refs],
                 "channels": [r.channel for r in refs]}
@@ -214,35 +227,35 @@ class _Planner:
         on = [(r.channel, m) for m, r in enumerate(self.ctx.layout.mic_inputs) if r.board == board]
         return [m for _, m in sorted(on)]
 
-    def _rewire(self, spec: MistakeSpec, mics: Sequence[int]) -> None:
-        moved = [m for m in mics if m in self.rewired]
-        if moved:
-            raise self._fail(spec, f"contradicts {self.rewired[moved[0]]!r}, which moves the "
-                                   f"cable of microphone {moved[0]} too")
-        self.rewired.update(dict.fromkeys(mics, spec.text))
-
     def _swap_mics(self, spec: MistakeSpec, rng: np.random.Generator) -> dict:
         layout = self.ctx.layout
-        if spec.arg(0) is None:
-            boards = [b for b in range(len(layout.boards)) if len(self._mics_on(b)) >= 2]
-            on = self._mics_on(boards[int(rng.integers(len(boards)))])
-            k = int(rng.integers(len(on) - 1))
-            a, b = on[k], on[k + 1]
+        if spec.arg(0) is None:  # two free neighbours on one board
+            pairs = [(on[k], on[k + 1]) for on in map(self._mics_on, range(len(layout.boards)))
+                     for k in range(len(on) - 1)
+                     if on[k] not in self.swapped_mics and on[k + 1] not in self.swapped_mics]
+            if not pairs:
+                raise self._fail(spec, "no two neighbouring microphones are left to swap")
+            a, b = pairs[int(rng.integers(len(pairs)))]
         else:
             a = self._index(spec, 0, self.n_mics, "microphone", rng)
             on = self._mics_on(layout.mic_inputs[a].board)
             k = on.index(a)
-            neighbour = on[k + 1] if k + 1 < len(on) else on[k - 1]
-            b = self._index(spec, 1, self.n_mics, "microphone", rng, [neighbour])
+            neighbours = [on[j] for j in (k + 1, k - 1) if 0 <= j < len(on)]
+            free = [m for m in neighbours if m not in self.swapped_mics] or neighbours
+            b = self._index(spec, 1, self.n_mics, "microphone", rng, free[:1])
         if a == b:
             raise self._fail(spec, f"swaps microphone {a} with itself; name two microphones")
-        self._rewire(spec, (a, b))
+        for m in (a, b):
+            if m in self.swapped_mics:
+                raise self._fail(spec, f"contradicts {self.swapped_mics[m]!r}, which swaps the "
+                                       f"cable of microphone {m} too")
+        self.swapped_mics.update(dict.fromkeys((a, b), spec.text))
         configured = self._input_fields((a, b))
-        self.mic_inputs[a], self.mic_inputs[b] = self.mic_inputs[b], self.mic_inputs[a]
-        return {"microphones": [a, b], **configured,
-                "recorded_in_columns": self._input_fields((a, b))["columns"]}
+        self.positions[a], self.positions[b] = self.positions[b], self.positions[a]
+        return {"microphones": [a, b], **configured, "recorded_in_columns": []}
 
     def _board_shift(self, spec: MistakeSpec, rng: np.random.Generator) -> dict:
+        self._only_once(spec)
         layout = self.ctx.layout
         boards = int(self._value(spec, 0, 1))
         array_boards = [b for b in range(len(layout.boards)) if self._mics_on(b)]
@@ -250,23 +263,23 @@ class _Planner:
         if boards == 0 or shift % self.n_mics == 0:
             raise self._fail(spec, f"a shift of {boards} boards puts every microphone back on "
                                    "its own input; shift by 1 or -1")
-        self._rewire(spec, range(self.n_mics))
-        configured = self._input_fields(range(self.n_mics))["columns"]
-        nominal = layout.mic_inputs
-        self.mic_inputs = [nominal[(m + shift) % self.n_mics] for m in range(self.n_mics)]
+        configured = [self._column(r) for r in layout.mic_inputs]
+        # the boards' connectors moved: whatever cable was on input position p is on p + shift
+        self.positions = [(p + shift) % self.n_mics for p in self.positions]
         return {"boards_shifted": boards, "shift_columns": shift,
                 "microphones": list(range(self.n_mics)), "columns": configured,
                 "boards": [layout.boards[b].serial for b in array_boards],
-                "recorded_in_columns": self._input_fields(range(self.n_mics))["columns"]}
+                "recorded_in_columns": []}
 
     def _swap_speakers(self, spec: MistakeSpec, rng: np.random.Generator) -> dict:
         outputs = self.ctx.layout.speaker_outputs
-        if spec.arg(0) is None:
-            boards = sorted({o.board for o in outputs
-                             if sum(p.board == o.board for p in outputs) >= 2})
-            board = boards[int(rng.integers(len(boards)))]
-            on = [s for s, o in enumerate(outputs) if o.board == board]
-            a, b = sorted(int(s) for s in rng.choice(on, 2, replace=False))
+        if spec.arg(0) is None:  # two free speakers of one board
+            pairs = [(a, b) for a in range(self.n_speakers) for b in range(a + 1, self.n_speakers)
+                     if outputs[a].board == outputs[b].board
+                     and a not in self.swapped and b not in self.swapped]
+            if not pairs:
+                raise self._fail(spec, "no two speakers of one board are left to swap")
+            a, b = pairs[int(rng.integers(len(pairs)))]
         else:
             a = self._index(spec, 0, self.n_speakers, "speaker", rng)
             same = [s for s, o in enumerate(outputs) if o.board == outputs[a].board and s != a]
@@ -276,9 +289,9 @@ class _Planner:
             raise self._fail(spec, f"swaps speaker {a} with itself; name two speakers")
         for s in (a, b):
             if s in self.swapped:
-                raise self._fail(spec, f"contradicts {self.swapped[s]!r}, which moves the "
+                raise self._fail(spec, f"contradicts {self.swapped[s]!r}, which swaps the "
                                        f"cable of speaker {s} too")
-        self.swapped.update({a: spec.text, b: spec.text})
+        self.swapped.update(dict.fromkeys((a, b), spec.text))
         self.speaker_outputs[a], self.speaker_outputs[b] = outputs[b], outputs[a]
         return {"speakers": [a, b],
                 "boards": [self.ctx.layout.boards[outputs[s].board].serial for s in (a, b)],
@@ -465,17 +478,24 @@ class _Planner:
         """The pose and camera of an image mistake, the pattern's corners in that image and
         the record's fields for them."""
         cameras = self.ctx.layout.cameras
-        p = self._index(spec, 0, self.n_poses, "pose", rng)
+        kind = spec.kind.name
+
+        def free(pose: int) -> list[int]:  # the cameras that see the board, not yet taken
+            return [c for c in range(len(cameras)) if (pose, c, kind) not in self.scene_kinds
+                    and self._board_in(c, pose) is not None]
+
+        p = self._index(spec, 0, self.n_poses, "pose", rng,
+                        [k for k in range(self.n_poses) if free(k)])
         seeing = [c for c in range(len(cameras)) if self._board_in(c, p) is not None]
         if not seeing:
             raise self._fail(spec, f"no camera sees the whole board at pose {p}; choose "
                                    "another pose")
-        c = self._index(spec, 1, len(cameras), "camera", rng, seeing)
+        c = self._index(spec, 1, len(cameras), "camera", rng, free(p) or seeing)
         corners = self._board_in(c, p)
         if corners is None:
             raise self._fail(spec, f"camera {c} does not see the whole board at pose {p}; "
                                    f"choose one that does ({', '.join(map(str, seeing))})")
-        key = (p, c, spec.kind.name)
+        key = (p, c, kind)
         if key in self.scene_kinds:
             raise self._fail(spec, f"{spec.kind.name} is asked for twice in camera {c}'s image "
                                    f"at pose {p}; ask for it once")

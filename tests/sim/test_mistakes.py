@@ -437,7 +437,8 @@ def test_motion_blur_is_the_stated_linear_blur(files: _Files) -> None:
     (("clipped-bursts=1.5",), "FRACTION must be a number with 0 < FRACTION < 1"),
     (("mjpeg", "mjpeg=90"), "mjpeg is asked for twice"),
     (("dead-mic=3", "inverted-mic=3"), "contradicts 'dead-mic=3'"),
-    (("swap-mics=1,2", "board-shift"), "contradicts 'swap-mics=1,2'"),
+    (("swap-mics=1,2", "swap-mics=2,3"), "contradicts 'swap-mics=1,2'"),
+    (("board-shift", "board-shift=-1"), "board-shift is asked for twice"),
     (("swap-speakers=0,1", "swap-speakers=1,2"), "contradicts 'swap-speakers=0,1'"),
     (("silent-speaker=2", "distorted-speaker=2"), "contradicts the silent speaker 2"),
     (("board-shift=4",), "puts every microphone back on its own input"),
@@ -464,6 +465,31 @@ def test_defaults_are_drawn_from_the_seed_and_alone() -> None:
     assert abs(first[0]["channels"][0] - first[0]["channels"][1]) == 1
     assert 5 <= first[1]["translation_mm"] <= 20 and 1 <= first[1]["rotation_deg"] <= 3
     assert 10e-6 <= first[2]["delay_s"] <= 20e-6 and 0.3 <= first[2]["gain"] <= 0.5
+
+
+def test_any_two_mistakes_of_their_defaults_can_be_made_together() -> None:
+    """The lead's sweep (issue 33: every mistake alone and two at a time) never meets a
+    refusal: a default avoids what another mistake took (a microphone, a speaker, a pose)."""
+    from itertools import combinations_with_replacement
+
+    from sim.mistakes import KINDS, PlanContext, plan_mistakes
+
+    sim = build_simulated_capture(_options())
+    context = PlanContext(sim.world.layout, sim.config, sim.world, sim.poses)
+    once = {"mjpeg", "clipped-bursts", "board-shift"}
+    for a, b in combinations_with_replacement([k.name for k in KINDS], 2):
+        if a == b and a in once:
+            continue
+        records = plan_mistakes((a, b), context).records
+        assert [r["kind"] for r in records] == [a, b]
+
+
+def test_cable_mistakes_compose_and_truth_says_where_each_microphone_ends() -> None:
+    swap, shift = build_simulated_capture(_options("swap-mics=12,13", "board-shift")
+                                          ).mistakes.records
+    assert swap["columns"] == [12, 13] and swap["recorded_in_columns"] == [25, 24]
+    assert shift["recorded_in_columns"][12:14] == [25, 24]
+    assert shift["recorded_in_columns"][:3] == [12, 13, 14]
 
 
 def test_without_mistakes_truth_says_none(files: _Files) -> None:
