@@ -26,6 +26,8 @@ from daq import CODE_FULL_SCALE, InputChannel, board_model, volts_to_codes
 
 from .arrivals import SpeakerState, linear_phase, transfer_functions
 from .live_scene import LiveScene
+from .mistakes import NO_MISTAKES, Mistakes
+from .mistakes.signals import overdrive_gain
 from .setups import Key, Setups
 from .sound import creeping_path_length, fft_length, propagate
 from .world import World
@@ -69,14 +71,6 @@ def _noise_chunk(seed: int, key: Key, board: int, chunk: int, n_inputs: int) -> 
     return out
 
 
-@dataclass(frozen=True)
-class _Source:
-    """What one input channel hears: an array microphone, the reference microphone, or nothing."""
-
-    kind: str  # "mic", "reference" or "none"
-    mic: int = -1
-
-
 @dataclass
 class _Scan:
     """Everything needed to produce the inputs of one scan."""
@@ -84,34 +78,42 @@ class _Scan:
     number: int
     noise_key: Key  # the set-up and the scan's number within it (sim.setups)
     drives: dict[int, np.ndarray]  # speaker index -> drive volts from sample 0
+    speaker: int | None  # the speaker whose output the capture drove (its file's number)
     rig_pose_speakers: np.ndarray  # (n_speakers, 3) speaker diaphragms at trigger time
     rig_normal: np.ndarray  # (3,) out of the rig's printed face at trigger time
     reference_mic_m: np.ndarray | None
     reference_near_speaker: int | None  # the reference microphone is in its near field
     speed_of_sound_m_s: float  # the air at trigger time
     signals: dict[tuple[int, int], np.ndarray] | None = None  # (board, channel) -> volts
+    overdrive: dict[tuple[int, int], float] | None = None  # (board, channel) -> clean peak, volts
     scene: LiveScene | None = None  # sources playing throughout the scan (live mode)
 
 
 class AcousticBench:
     """The `AnalogBench` of the simulated world: speakers, air, microphones and the clock.
 
+    `mistakes` are the bench's (sim.mistakes): the cables as really plugged (microphones,
+    speakers), the capsules' wiring, reflectors beside them and their dropouts, speakers that
+    do not play or distort, input stages overdriven. The world's own layout stays the wiring
+    as configured.
+
     Thread-safe: boards may read from several threads (the USB emulator does).
     """
 
-    def __init__(self, world: World, setups: Setups | None = None) -> None:
+    def __init__(self, world: World, setups: Setups | None = None,
+                 mistakes: Mistakes = NO_MISTAKES) -> None:
         self.world = world
         self.setups = setups or Setups()
+        self.mistakes = mistakes
         layout = world.layout
         self._board_index = {b.serial: i for i, b in enumerate(layout.boards)}
-        self._speaker_of_output = {(r.board, r.channel): k
-                                   for k, r in enumerate(layout.speaker_outputs)}
-        self._sources: dict[tuple[int, int], _Source] = {
-            (r.board, r.channel): _Source("mic", m) for m, r in enumerate(layout.mic_inputs)
-        }
-        ref = layout.reference_input
-        self._sources[(ref.board, ref.channel)] = _Source("reference")
+        self._mic_inputs = mistakes.mic_inputs or layout.mic_inputs
+        self._speaker_of_output = {(r.board, r.channel): k for k, r in enumerate(
+            mistakes.speaker_outputs or layout.speaker_outputs)}
+        self._driven_speaker = {(r.board, r.channel): k
+                                for k, r in enumerate(layout.speaker_outputs)}
         self._pending: dict[int, np.ndarray] = {}
+        self._pending_speaker: int | None = None
         self._scan_number = 0
         self._scans: dict[int, _Scan] = {}
         self._capsule_cache: dict[tuple[int, bool], np.ndarray] = {}
@@ -127,10 +129,14 @@ class AcousticBench:
                     range_v: float) -> None:
         b = self.board_index(serial)
         volts = np.asarray(codes, dtype=np.float64) * (range_v / CODE_FULL_SCALE)
+        setup = self.setups.current()
         with self._cond:
             for col, ch in enumerate(channels):
                 speaker = self._speaker_of_output.get((b, ch))
-                if speaker is not None and np.any(volts[:, col]):
+                if speaker is None or not np.any(volts[:, col]):
+                    continue
+                self._pending_speaker = self._driven_speaker[(b, ch)]
+                if self.mistakes.plays(speaker, setup):
                     self._pending[speaker] = volts[:, col].copy()
 
     def fire_trigger(self) -> int:
@@ -138,11 +144,14 @@ class AcousticBench:
             self._scan_number += 1
             n = self._scan_number
             w = self.world
+            w.start_scan()
             self._scans[n] = _Scan(
-                n, self.setups.next_scan(), self._pending, w.speaker_positions(),
-                w.rig_normal(), None if w.reference_mic_m is None else w.reference_mic_m.copy(),
+                n, self.setups.next_scan(), self._pending, self._pending_speaker,
+                w.speaker_positions(), w.rig_normal(),
+                None if w.reference_mic_m is None else w.reference_mic_m.copy(),
                 w.reference_near_speaker, w.speed_of_sound_m_s, scene=w.live_scene)
             self._pending = {}
+            self._pending_speaker = None
             for old in [k for k in self._scans if k < n - 2]:
                 del self._scans[old]
             self._cond.notify_all()
@@ -177,6 +186,9 @@ class AcousticBench:
             if signal is not None and start < signal.shape[0]:
                 stop = min(start + n_samples, signal.shape[0])
                 v[: stop - start] += signal[start:stop]
+            peak = None if record.overdrive is None else record.overdrive.get((b, ch.channel))
+            if peak is not None:  # an overdriven input stage (sim.mistakes)
+                v *= overdrive_gain(peak, self.mistakes.clip_fraction, ch.range_v)
             out[:, col] = volts_to_codes(v, ch.range_v)
         return out
 
@@ -184,10 +196,11 @@ class AcousticBench:
         """Add the live scene's microphone voltages to a board's input volts (in place)."""
         if record.scene is None:
             return
-        mics = [(m, r.channel) for m, r in enumerate(self.world.layout.mic_inputs)
-                if r.board == board]
+        mics = [(m, r.channel) for m, r in enumerate(self._mic_inputs) if r.board == board]
         if mics:
             scene = record.scene.mic_volts(start, volts.shape[0])
+            if self.mistakes.mic_factors is not None:
+                scene = scene * self.mistakes.mic_factors
             volts[:, [c for _, c in mics]] += scene[:, [m for m, _ in mics]]
 
     def _noise(self, key: Key, board: int, start: int, n: int) -> np.ndarray:
@@ -213,9 +226,9 @@ class AcousticBench:
         signals: dict[tuple[int, int], np.ndarray] = {}
         if not scan.drives:
             return signals
-        mic_keys = [(r.board, r.channel) for r in layout.mic_inputs]
+        mic_keys = [(r.board, r.channel) for r in self._mic_inputs]
         positions = [layout.mic_positions_m]
-        latencies = [w.board_latencies_s[[r.board for r in layout.mic_inputs]]]
+        latencies = [w.board_latencies_s[[r.board for r in self._mic_inputs]]]
         gains = [w.mic_gains]
         keys = list(mic_keys)
         if scan.reference_mic_m is not None:
@@ -244,12 +257,27 @@ class AcousticBench:
             for speaker, drive in scan.drives.items():
                 source = scan.rig_pose_speakers[speaker]
                 paths = self._path_lengths(source, receivers, n_mics=len(mic_keys))
-                spectrum = np.fft.rfft(drive, n_fft) * response
+                spectrum = self.mistakes.radiated(speaker, np.fft.rfft(drive, n_fft) * response,
+                                                  n_fft)
                 total += propagate(spectrum, n_fft, fs, paths / c + latency, gain / paths,
                                    n_out)
+        if self.mistakes.acoustic:
+            self._make_mistakes(scan, total, mic_keys)
         for key, row in zip(keys, total, strict=True):
             signals[key] = row
         return signals
+
+    def _make_mistakes(self, scan: _Scan, total: np.ndarray,
+                       mic_keys: list[tuple[int, int]]) -> None:
+        """The capsules' and the input stages' mistakes on one scan's rendered volts (rows:
+        the microphones in id order, then the reference microphone), in place."""
+        if scan.speaker is None:
+            return
+        recording = (scan.noise_key[:2], scan.speaker)
+        self.mistakes.after_render(recording, total, self.world.sample_rate_hz)
+        clipped = self.mistakes.clipping.get(recording, ())
+        peaks = {mic_keys[m]: float(np.max(np.abs(total[m]))) for m in clipped}
+        scan.overdrive = {key: peak for key, peak in peaks.items() if peak > 0.0}
 
     def _render_lab(self, scan: _Scan, receivers: np.ndarray, n_mics: int, latency: np.ndarray,
                     sensitivity: np.ndarray, n_fft: int, n_out: int, response: np.ndarray
@@ -277,7 +305,9 @@ class AcousticBench:
             is_near = near & (scan.reference_near_speaker == speaker)
             transfer = transfer_functions(lab, w.lab.room, state, receivers, is_near, freqs, c,
                                           w.lab.directivity)
-            spectra += transfer * (np.fft.rfft(drive, n_fft) * response)[None, :]
+            radiated = self.mistakes.radiated(speaker, np.fft.rfft(drive, n_fft) * response,
+                                              n_fft)
+            spectra += transfer * radiated[None, :]
         spectra *= w.speaker_pressure_gain
         if w.lab.ambient_noise is not None:
             spectra += self._ambient_spectra(scan, receivers, freqs, n_fft)

@@ -120,4 +120,4 @@ def build_audio_capture(options: SimulationOptions) -> SimulatedCapture:
     operator = RelayOperator(world, poses, reference_stand_position(world.layout.cameras[0]),
                              setups, process)
     return SimulatedCapture(options, world, AcousticBench(world, setups), group, cameras,
-                            operator, config, poses, None, process)
+                            operator, config, poses, None, world_process=process)

@@ -13,6 +13,7 @@ from daq import ClosesOnExit
 from .geometry import CameraModel
 from .light import render_rig_image
 from .live_light import render_scene_image
+from .mistakes import NO_MISTAKES, Mistakes
 from .setups import Setups
 from .world import World
 
@@ -28,14 +29,19 @@ class SimulatedCamera(ClosesOnExit):
     `preview` renders the same view at a smaller size, once per set-up (the simulated rig does
     not move between set-ups, so every look at it is the same picture), with noise of its own
     key: previews cost a render per set-up and change nothing a capture records.
+
+    `mistakes` are the camera's (sim.mistakes): what is in front of it at a pose (an arm, a
+    highlight, the board's motion) and its codec (MJPEG); they change the grabbed frames, not
+    the previews.
     """
 
     def __init__(self, model: CameraModel, world: World, index: int,
-                 setups: Setups | None = None) -> None:
+                 setups: Setups | None = None, mistakes: Mistakes = NO_MISTAKES) -> None:
         self.model = model
         self.world = world
         self.index = index
         self.setups = setups or Setups()
+        self.mistakes = mistakes
         self.fail_next_grabs = 0
         self._preview: tuple[tuple, np.ndarray] | None = None
 
@@ -65,8 +71,10 @@ class SimulatedCamera(ClosesOnExit):
             self.model, w.physical_rig, w.rig_pose if w.rig_in_view else None, rng,
             noise_grey=w.noise.image_noise_grey * w.noise.scale,
             blur_sigma_px=w.noise.image_blur_px,
+            scene=self.mistakes.scene(key[:2], self.index),
         )
-        return Frame(image=image, timestamp_s=time.monotonic(), camera=self.name)
+        return Frame(image=self.mistakes.delivered(image), timestamp_s=time.monotonic(),
+                     camera=self.name)
 
     def preview(self, max_width: int, timeout_s: float = 2.0) -> Frame:
         if self.fail_next_grabs > 0:

@@ -33,6 +33,7 @@ from .boards import SimulatedBoard
 from .cameras import SimulatedCamera
 from .geometry import Rig, RigidTransform
 from .lab import EFFECTS, LabEffects
+from .mistakes import NO_MISTAKES, Mistakes, PlanContext, parse_mistake, plan_mistakes
 from .simulated_operator import SimulatedOperator, reference_stand_position
 from .poses import sample_poses
 from .setups import Setups
@@ -80,6 +81,19 @@ class SimulationOptions(BaseModel):
                     "'sample-rate' states a sample rate 10 % above the clock's")
     without_effects: tuple[str, ...] = Field(
         default=(), description="lab effects removed from the profile")
+    mistakes: tuple[str, ...] = Field(
+        default=(), description="mistakes the world makes, each NAME or NAME=ARG,... "
+                                "(sim.mistakes; docs/simulation.md, \"Mistakes\")")
+
+    @field_validator("mistakes")
+    @classmethod
+    def _known_mistakes(cls, v: tuple[str, ...]) -> tuple[str, ...]:
+        """Each mistake well formed (SimulationInputError, not a ValueError, so that it
+        reaches the user as its own one-line message); whether the world can make it is
+        checked when the world is built."""
+        for text in v:
+            parse_mistake(text)
+        return v
 
     @field_validator("effects", "without_effects")
     @classmethod
@@ -146,6 +160,7 @@ class SimulatedCapture:
     config: CaptureConfig
     poses: list[RigidTransform]
     air_sensor: SimulatedAirSensor | None = None
+    mistakes: Mistakes = NO_MISTAKES
     world_process: WorldProcess | None = None
 
     def close(self) -> None:
@@ -241,21 +256,24 @@ def build_simulated_capture(options: SimulationOptions) -> SimulatedCapture:
     world, poses = world_for(options)
     layout, rig = world.layout, world.rig
     setups = Setups()  # the noise is keyed by what is captured (sim.setups)
-    bench = AcousticBench(world, setups)
-    hardware = _boards_for(options, layout, bench)
-    cameras: list[Camera] = [SimulatedCamera(m, world, i, setups)
-                             for i, m in enumerate(layout.cameras)]
-    operator = SimulatedOperator(world, poses, reference_stand_position(layout.cameras[0]),
-                                 setups)
+    sim_cameras = [SimulatedCamera(m, world, i, setups) for i, m in enumerate(layout.cameras)]
+    cameras: list[Camera] = list(sim_cameras)
     stated_rig = rig.turned() if options.description_mistake == "turned-pattern" else rig
     stated_rate = world.sample_rate_hz * (1.1 if options.description_mistake == "sample-rate"
                                           else 1.0)
     # the periods are chosen at the stated rate: the capture configuration is checked at it
     config = capture_config_for(layout, stated_rig, options.poses, stated_rate,
                                 options.burst(stated_rate), cameras)
+    mistakes = plan_mistakes(options.mistakes, PlanContext(layout, config, world, poses))
+    for camera in sim_cameras:  # the cameras' names are in the configuration the plan reads
+        camera.mistakes = mistakes
+    bench = AcousticBench(world, setups, mistakes)
+    hardware = _boards_for(options, layout, bench)
+    operator = SimulatedOperator(world, poses, reference_stand_position(layout.cameras[0]),
+                                 setups, mistakes)
     air_sensor = SimulatedAirSensor(world) if world.lab.air_sensor is not None else None
-    return SimulatedCapture(options, world, bench, SyncGroup(hardware), cameras, operator,
-                            config, poses, air_sensor)
+    return SimulatedCapture(options, world, bench, SyncGroup(hardware), cameras,
+                            operator, config, poses, air_sensor, mistakes)
 
 
 def truth_document(sim: SimulatedCapture) -> dict:
@@ -308,6 +326,7 @@ def truth_document(sim: SimulatedCapture) -> dict:
         "mic_gains": w.mic_gains.tolist(),
         "rig": w.rig.to_json(),
         "lab": w.lab_truth.to_json(),
+        "mistakes": list(sim.mistakes.records),
         "noise": {"scale": w.noise.scale,
                   "array_noise_v": w.noise.array_noise_v,
                   "reference_noise_v": w.noise.reference_noise_v,

@@ -23,6 +23,7 @@ Pixel convention: OpenCV's, pixel (row v, column u) is centred on the point (u, 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -93,6 +94,7 @@ def render_rig_image(
     rng: np.random.Generator,
     noise_grey: float = 2.0,
     blur_sigma_px: float = 0.6,
+    scene: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> np.ndarray:
     """Grey image (uint8, camera.height x camera.width) of the rig seen by `camera`.
 
@@ -103,6 +105,9 @@ def render_rig_image(
         rng: source of the sensor noise.
         noise_grey: standard deviation of the additive Gaussian sensor noise, grey levels.
         blur_sigma_px: standard deviation of the Gaussian blur (lens, defocus), pixels.
+        scene: what else changes the light reaching the lens (an arm in front of the board,
+            a highlight on it, its motion during the exposure: sim.mistakes), applied to the
+            ideal float image (grey levels, unclipped) before the blur and the sensor.
 
     Only the printed face (+Z side of the rig) shows the pattern; a camera behind the plate
     sees a uniform grey back. The first image of a camera also computes its pixel rays (about
@@ -118,6 +123,8 @@ def render_rig_image(
         plate *= _interval_coverage(hits.Y, hits.w_y, rig.plate_m[2], rig.plate_m[3])
         face = _front_face(rig, hits) if _sees_front(rig_to_cam) else np.float32(BACK_GREY)
         image = background + plate * (face - background)
+    if scene is not None:
+        image = scene(np.asarray(image, dtype=np.float32))
     return _sensor(image, rng, noise_grey, blur_sigma_px)
 
 

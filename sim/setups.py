@@ -17,6 +17,23 @@ from collections import Counter
 
 Key = tuple[int, ...]
 
+REFERENCE_SETUP = 1
+"""The first number of a set-up key: the reference microphone in front of speaker k, (1, k)."""
+STAND_SETUP = 2
+"""The reference microphone on its stand, the rig touching it (the refmic step): (2, 0)."""
+POSE_SETUP = 3
+"""The rig held at pose i: (3, i)."""
+
+
+def reference_setup(speaker: int) -> Key:
+    """The set-up key of speaker `speaker`'s reference recording."""
+    return (REFERENCE_SETUP, speaker)
+
+
+def pose_setup(pose: int) -> Key:
+    """The set-up key of pose `pose`."""
+    return (POSE_SETUP, pose)
+
 
 class Setups:
     """The current set-up and the scans and frames taken in it (thread-safe: boards may

@@ -9,8 +9,9 @@ import numpy as np
 from acquisition.contracts.instructions import Instruction, InstructionKind
 
 from .geometry import CameraModel, RigidTransform
+from .mistakes import NO_MISTAKES, Mistakes
 from .poses import FACING_CAMERA
-from .setups import Setups
+from .setups import POSE_SETUP, REFERENCE_SETUP, STAND_SETUP, Setups
 from .world import World
 
 
@@ -24,20 +25,25 @@ def reference_stand_position(camera: CameraModel, depth_m: float = 0.8) -> np.nd
     return camera.cam0_to_cam.inverse().apply(depth_m * ray / ray[2])
 
 
-_SETUP_CODE = {InstructionKind.REFERENCE_AT_SPEAKER: 1, InstructionKind.REFERENCE_ON_STAND: 2,
-               InstructionKind.RIG_AT_POSE: 3}
+_SETUP_CODE = {InstructionKind.REFERENCE_AT_SPEAKER: REFERENCE_SETUP,
+               InstructionKind.REFERENCE_ON_STAND: STAND_SETUP,
+               InstructionKind.RIG_AT_POSE: POSE_SETUP}
 
 
 class SimulatedOperator:
     """Moves the rig through a list of poses and places the reference microphone; tells
-    `setups` which set-up it made (the key of the noise that follows, see sim.setups)."""
+    `setups` which set-up it made (the key of the noise that follows, see sim.setups). Its
+    `mistakes` are the operator's: a rig nudged after a pose's images, the reference
+    microphone held further from a speaker than stated (sim.mistakes)."""
 
     def __init__(self, world: World, poses: Sequence[RigidTransform],
-                 stand_position_m: np.ndarray, setups: Setups | None = None) -> None:
+                 stand_position_m: np.ndarray, setups: Setups | None = None,
+                 mistakes: Mistakes = NO_MISTAKES) -> None:
         self.world = world
         self.poses = list(poses)
         self.stand_position_m = np.asarray(stand_position_m, dtype=np.float64)
         self.setups = setups or Setups()
+        self.mistakes = mistakes
 
     def rig_pose_on_stand(self) -> RigidTransform:
         """The rig pose with its reference mark at the stand, facing camera 0."""
@@ -50,7 +56,8 @@ class SimulatedOperator:
             if instruction.speaker is None or not 0 <= instruction.speaker < w.rig.n_speakers:
                 raise ValueError(f"no speaker {instruction.speaker} on the rig")
             w.set_session_progress(0.0)
-            w.place_reference_mic(w.reference_position_at_speaker(instruction.speaker),
+            distance = self.mistakes.reference_distances_m.get(instruction.speaker)
+            w.place_reference_mic(w.reference_position_at_speaker(instruction.speaker, distance),
                                   near_speaker=instruction.speaker)
         elif instruction.kind is InstructionKind.REFERENCE_ON_STAND:
             w.set_session_progress(0.0)
@@ -61,7 +68,8 @@ class SimulatedOperator:
                 raise ValueError(f"the simulated operator has no pose {instruction.pose}")
             w.set_session_progress(instruction.pose / max(len(self.poses) - 1, 1))
             w.place_reference_mic(self.stand_position_m)
-            w.place_rig(self.poses[instruction.pose])
+            w.place_rig(self.poses[instruction.pose],
+                        pose_for_bursts=self.mistakes.moved_poses.get(instruction.pose))
         else:  # pragma: no cover - every kind is handled above
             raise ValueError(f"unknown instruction {instruction.kind}")
         which = {InstructionKind.REFERENCE_AT_SPEAKER: instruction.speaker,

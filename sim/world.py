@@ -121,6 +121,7 @@ class World:
         self.reference_mic_m: np.ndarray | None = None
         self.reference_near_speaker: int | None = None
         self.rig_in_view = True
+        self._rig_pose_for_bursts: RigidTransform | None = None
         self.live_scene: LiveScene | None = None  # sources playing continuously (live mode)
 
     @property
@@ -166,9 +167,18 @@ class World:
         """Unit vector out of the rig's printed face, in the camera-0 frame."""
         return self.rig_pose.R[:, 2]
 
-    def place_rig(self, pose: RigidTransform, in_view: bool = True) -> None:
+    def place_rig(self, pose: RigidTransform, in_view: bool = True,
+                  pose_for_bursts: RigidTransform | None = None) -> None:
+        """Hold the rig at `pose`; `pose_for_bursts`: the rig is nudged there before the first
+        burst that follows (after the images: the moved-pose mistake, sim.mistakes)."""
         self.rig_pose = pose
         self.rig_in_view = in_view
+        self._rig_pose_for_bursts = pose_for_bursts
+
+    def start_scan(self) -> None:
+        """A scan starts (the trigger): a rig to be nudged before the bursts moves now."""
+        if self._rig_pose_for_bursts is not None:
+            self.rig_pose, self._rig_pose_for_bursts = self._rig_pose_for_bursts, None
 
     def place_reference_mic(self, position_m: np.ndarray | None,
                             near_speaker: int | None = None) -> None:
@@ -177,6 +187,9 @@ class World:
         self.reference_mic_m = None if position_m is None else np.asarray(position_m, float)
         self.reference_near_speaker = near_speaker
 
-    def reference_position_at_speaker(self, speaker: int) -> np.ndarray:
-        """Where the reference microphone sits for speaker `speaker`'s reference recording."""
-        return self.speaker_positions()[speaker] + self.reference_distance_m * self.rig_normal()
+    def reference_position_at_speaker(self, speaker: int,
+                                      distance_m: float | None = None) -> np.ndarray:
+        """Where the reference microphone sits for speaker `speaker`'s reference recording:
+        `distance_m` (default `reference_distance_m`) in front of its diaphragm."""
+        d = self.reference_distance_m if distance_m is None else distance_m
+        return self.speaker_positions()[speaker] + d * self.rig_normal()

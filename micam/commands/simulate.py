@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import textwrap
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -19,12 +20,27 @@ if TYPE_CHECKING:
     from acquisition.sequencer import Progress
 
 
+def _mistakes_epilog() -> str:
+    """The mistakes `--mistake` can ask for, one line each."""
+    from sim.mistakes import KINDS
+
+    width = max(len(k.usage) for k in KINDS) + 2
+    lines = [f"  {k.usage:<{width}}{k.help}" for k in KINDS]
+    return ("mistakes (--mistake NAME[=ARGS]): ARGS are positional numbers (micam's 0-based "
+            "ids), each\nmay be left out from the right and is then drawn from --seed; "
+            "truth.json's \"mistakes\" says\nwhat was done (docs/simulation.md, "
+            "\"Mistakes\"):\n" + "\n".join(lines))
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "simulate",
         help="record a capture session on the simulated world",
-        description="Run the capture sequencer on simulated boards and cameras and write a "
-                    "session to DIR, with the simulation's ground truth in DIR/truth.json.",
+        description=textwrap.fill(
+            "Run the capture sequencer on simulated boards and cameras and write a session "
+            "to DIR, with the simulation's ground truth in DIR/truth.json.", 79),
+        epilog=_mistakes_epilog(),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--out", required=True, type=Path, metavar="DIR",
                    help="session directory (new or empty; with --resume, an interrupted one)")
@@ -62,6 +78,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "ambient-noise, directivity")
     p.add_argument("--without", action="append", default=[], metavar="NAME",
                    help="remove one lab effect from the profile (repeatable)")
+    p.add_argument("--mistake", action="append", default=[], metavar="NAME[=ARGS]",
+                   help="a mistake the simulated world makes (repeatable; the list below), "
+                        "e.g. swap-mics=12,13; the session's configuration stays the nominal "
+                        "one")
     p.add_argument("--backend", choices=("sim", "usb-emulated", "audio"), default="sim",
                    help="plain simulated boards (default), the real USB driver on emulated "
                         "USB boards, or the audio backend on a running JACK server with the "
@@ -80,6 +100,7 @@ def _options_from_args(args: argparse.Namespace):
             mls_periods=args.mls_periods, body_diffraction=args.body_diffraction,
             backend=args.backend, lab=args.lab,
             effects=tuple(args.effect), without_effects=tuple(args.without),
+            mistakes=tuple(args.mistake),
         )
     except ValidationError as exc:
         problems = "; ".join(
