@@ -13,7 +13,6 @@ from pathlib import Path
 
 from acquisition.contracts.errors import UserError
 from acquisition.contracts.output_paths import dangling_link_problem, new_directory_problem
-from acquisition.contracts.session import JOURNAL_NAME
 
 
 def check_outputs(*outputs: tuple[str, Path | None]) -> None:
@@ -42,6 +41,8 @@ def check_output_dirs(*outputs: tuple[str, Path | None], session_hint: str = "",
     cannot be made at `path` (`new_directory_problem`; with `reuse` an existing directory is
     accepted, its files replaced). A directory that holds a session is named as such, with
     `session_hint` saying what to do instead."""
+    from acquisition.contracts.session import JOURNAL_NAME  # here: `micam --help` stays light
+
     for flag, path in outputs:
         if path is None:
             continue

@@ -26,7 +26,7 @@ from daq import CODE_FULL_SCALE, InputChannel, board_model, volts_to_codes
 
 from .arrivals import SpeakerState, linear_phase, transfer_functions
 from .live_scene import LiveScene
-from .mistakes import NO_MISTAKES, Mistakes
+from .mistakes.plan import NO_MISTAKES, Mistakes
 from .mistakes.signals import overdrive_gain
 from .setups import Key, Setups
 from .sound import creeping_path_length, fft_length, propagate

@@ -13,7 +13,7 @@ from daq import ClosesOnExit
 from .geometry import CameraModel
 from .light import render_rig_image
 from .live_light import render_scene_image
-from .mistakes import NO_MISTAKES, Mistakes
+from .mistakes.plan import NO_MISTAKES, Mistakes
 from .setups import Setups
 from .world import World
 

@@ -33,7 +33,9 @@ from .boards import SimulatedBoard
 from .cameras import SimulatedCamera
 from .geometry import Rig, RigidTransform
 from .lab import EFFECTS, LabEffects
-from .mistakes import NO_MISTAKES, Mistakes, PlanContext, parse_mistake, plan_mistakes
+from .mistakes import parse_mistake
+from .mistakes.plan import NO_MISTAKES, Mistakes
+from .mistakes.planner import PlanContext, plan_mistakes
 from .simulated_operator import SimulatedOperator, reference_stand_position
 from .poses import sample_poses
 from .setups import Setups

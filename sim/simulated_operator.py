@@ -9,7 +9,7 @@ import numpy as np
 from acquisition.contracts.instructions import Instruction, InstructionKind
 
 from .geometry import CameraModel, RigidTransform
-from .mistakes import NO_MISTAKES, Mistakes
+from .mistakes.plan import NO_MISTAKES, Mistakes
 from .poses import FACING_CAMERA
 from .setups import POSE_SETUP, REFERENCE_SETUP, STAND_SETUP, Setups
 from .world import World

@@ -7,11 +7,11 @@ records in truth.json's "mistakes"); the world's layers consult the resulting `M
 rig and the reference microphone, the cameras for the scene and the codec. The capture itself
 stays the real sequencer on the simulated hardware, and its configuration the nominal one: a
 swapped cable is a fact of the world, not of what the session says.
+
+The package itself exports only the names (spec, light: `micam simulate --help` lists them
+without loading the world); the world's layers import `.plan` and `.planner`.
 """
 
-from .plan import NO_MISTAKES, Mistakes
-from .planner import PlanContext, plan_mistakes
 from .spec import KINDS, MistakeKind, parse_mistake
 
-__all__ = ["KINDS", "NO_MISTAKES", "MistakeKind", "Mistakes", "PlanContext", "parse_mistake",
-           "plan_mistakes"]
+__all__ = ["KINDS", "MistakeKind", "parse_mistake"]

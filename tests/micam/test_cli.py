@@ -259,3 +259,18 @@ def test_the_fake_client_records_requests_and_refuses_unknown_ones() -> None:
     assert fake.requests == [("redo", {})]
     with pytest.raises(KeyError, match="no reply for 'capture'"):
         fake.request("capture")
+
+
+def test_the_parser_loads_nothing_heavy() -> None:
+    """`micam --help` is instant: building the parser (every subcommand's options, the
+    simulated mistakes' list included) imports neither numpy, OpenCV, SciPy nor the
+    simulated world."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from micam.cli import build_parser; build_parser(); "
+            "print(sorted({m.split('.')[0] for m in sys.modules} "
+            "& {'numpy', 'cv2', 'scipy', 'calibration', 'matplotlib', 'zmq'}))")
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                            check=True).stdout.strip()
+    assert loaded == "[]", f"building the parser loads {loaded}"

@@ -472,7 +472,8 @@ def test_any_two_mistakes_of_their_defaults_can_be_made_together() -> None:
     refusal: a default avoids what another mistake took (a microphone, a speaker, a pose)."""
     from itertools import combinations_with_replacement
 
-    from sim.mistakes import KINDS, PlanContext, plan_mistakes
+    from sim.mistakes import KINDS
+    from sim.mistakes.planner import PlanContext, plan_mistakes
 
     sim = build_simulated_capture(_options())
     context = PlanContext(sim.world.layout, sim.config, sim.world, sim.poses)
