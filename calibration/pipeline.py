@@ -61,8 +61,10 @@ from .camera_calibration import (
     DetectionMemo,
     calibrate_session,
 )
+from .capture_checks import CaptureVerdict, apply_verdict, check_capture, inverted_microphones
 from .delay_estimation import Weighting
 from .errors import CalibrationInputError
+from .fit_checks import SourceResiduals, moved_poses, speaker_findings
 from .multilateration import multilaterate
 from .paper_method import solve_paper_method
 from .plausibility import (
@@ -86,6 +88,7 @@ from .result import (
     CalibrationResult,
     CameraFrozenResult,
     CameraResult,
+    Finding,
     JointFitResult,
     MicrophoneResponse,
     MicrophoneResponsesResult,
@@ -262,6 +265,8 @@ class Measurements:
     air: tuple[float, float] | None = None
     notes: list[str] = field(default_factory=list)
     weighting: Weighting = "compact"
+    findings: list[Finding] = field(default_factory=list)
+    kept_microphones: np.ndarray | None = None
 
 
 @dataclass
@@ -328,30 +333,47 @@ def measure(path: Path, options: CalibrationOptions | None = None,
         speakers = speaker_positions(cams, data.speakers_rig_m, data.pose_steps)
         reference = _reference_position(cams, data)
     with _timed(timings, "times of flight", on_stage):
-        tofs, weighting = _times_of_flight(data, options)
+        tofs, weighting, verdict = _times_of_flight(data, options)
+    session_mics = data.mic_ids.size
+    data, tofs = apply_verdict(data, tofs, verdict)
     located = [data.pose_steps.index(p.step) for p in speakers.poses]
     reference_fit, notes = _reference_fit(speakers, reference, tofs.reference_tof_s[located])
+    kept = None if verdict.kept.size == session_mics else verdict.kept
     return Measurements(data, cams, speakers, located, tofs, reference, reference_fit, timings,
-                        _air(data), notes, weighting)
+                        _air(data), notes, weighting, verdict.findings, kept)
 
 
 def _times_of_flight(data: SessionData, options: CalibrationOptions
-                     ) -> tuple[SessionTofs, Weighting]:
-    """The session's times of flight and the weighting they were correlated with: the
-    options', or for "auto" compact, then matched where the echo ratio shows free field
-    (`FREE_FIELD_ECHO_RATIO`; a second pass over the recordings). The matched pass's
-    impulses replace the compact ones too: the capsules' dispersion that the times of flight
-    are corrected for must be weighted as the correlations that measured them were
-    (calibration.responses.dispersion_delays), and the responses relative to the array do
-    not depend on the weighting."""
+                     ) -> tuple[SessionTofs, Weighting, CaptureVerdict]:
+    """The session's times of flight, the weighting they were correlated with and the
+    capture's mistakes they show.
+
+    The weighting is the options', or for "auto" compact, then matched where the echo ratio
+    shows free field (`FREE_FIELD_ECHO_RATIO`; a second pass over the recordings). The
+    matched pass's impulses replace the compact ones too: the capsules' dispersion that the
+    times of flight are corrected for must be weighted as the correlations that measured
+    them were (calibration.responses.dispersion_delays), and the responses relative to the
+    array do not depend on the weighting. Microphones wired inverted are found in the first
+    pass and correlated with the opposite sign from then on (one more pass)."""
     memo = None if options.memo is None else options.memo.tofs
     first: Weighting = "compact" if options.weighting == "auto" else options.weighting
-    tofs = measure_session_tofs(data, NOMINAL_SPEED_OF_SOUND_M_S, options.band_hz, first,
-                                memo=memo)
-    if options.weighting != "auto" or not tofs.echo_ratio() <= FREE_FIELD_ECHO_RATIO:
-        return tofs, first  # (a NaN ratio, nothing to judge by, keeps compact too)
-    return measure_session_tofs(data, NOMINAL_SPEED_OF_SOUND_M_S, options.band_hz, "matched",
-                                memo=memo), "matched"
+
+    def correlated(weighting: Weighting, polarity: np.ndarray | None = None) -> SessionTofs:
+        return measure_session_tofs(data, NOMINAL_SPEED_OF_SOUND_M_S, options.band_hz,
+                                    weighting, memo=memo, polarity=polarity)
+
+    tofs = uncorrected = correlated(first)
+    inverted = inverted_microphones(tofs)
+    if inverted.size:
+        polarity = np.ones(data.mic_ids.size)
+        polarity[inverted] = -1.0
+        tofs = correlated(first, polarity)
+    weighting = first
+    if options.weighting == "auto" and tofs.echo_ratio() <= FREE_FIELD_ECHO_RATIO:
+        # (a NaN ratio, nothing to judge by, keeps compact too)
+        tofs, weighting = correlated("matched", tofs.polarity), "matched"
+    verdict = check_capture(data, tofs, uncorrected if inverted.size else None)
+    return tofs, weighting, verdict
 
 
 def _reference_fit(speakers: SpeakerPositions, reference: ReferenceMicrophonePosition | None,
@@ -401,9 +423,11 @@ def calibrate_measured(m: Measurements, options: CalibrationOptions,
     located poses or from a subset (`poses`, indices into `m.speakers.poses`: the acoustic
     sources; every board view still constrains the cameras, and every pose gets a board pose,
     so the others can be imaged with the result as held-out data)."""
+    options = _for_kept_microphones(options, m.kept_microphones)
     timings = dict(m.timings_s)
     with _timed(timings, "solver", on_stage):
         solution = solve(m, options, poses)
+        m, solution = _without_misfits(m, options, poses, solution)
     _check_plausible(m, options, _solution_figures(m, solution, options), frozen=True)
     if not (options.joint and options.method == "micam"):
         return CalibrationRun(_assemble(m, solution, options, timings), m, solution)
@@ -438,6 +462,54 @@ def calibrate_measured(m: Measurements, options: CalibrationOptions,
         "notes": [*result.notes, JOINT_NOTE],
     })
     return CalibrationRun(result, joint_m, joint_solution, solution, bundle)
+
+
+def _without_misfits(m: Measurements, options: CalibrationOptions, poses: np.ndarray | None,
+                     solution: MicrophoneSolution) -> tuple[Measurements, MicrophoneSolution]:
+    """The measurements and the camera-frozen solution without the speakers and poses whose
+    times of flight do not fit the geometry of the others (calibration.fit_checks: swapped
+    speaker cables, a rig moved after its images), with findings that name them."""
+    rows = np.asarray(m.located)[np.arange(len(m.located)) if poses is None else poses]
+    shape = (rows.size, m.data.n_speakers)
+
+    def with_tofs(tof_s: np.ndarray, std_s: np.ndarray) -> Measurements:
+        tof, std = m.tofs.tof_s.copy(), m.tofs.std_s.copy()
+        tof[rows], std[rows] = tof_s, std_s
+        return replace(m, tofs=replace(m.tofs, tof_s=tof, std_s=std))
+
+    def residuals_of(tof_s: np.ndarray, std_s: np.ndarray) -> SourceResiduals:
+        return SourceResiduals.of(solve(with_tofs(tof_s, std_s), options, poses), *shape)
+
+    tof, std = m.tofs.tof_s[rows].copy(), m.tofs.std_s[rows].copy()
+    residuals = SourceResiduals.of(solution, *shape)
+    findings, speakers = speaker_findings(
+        tof, std, residuals, lambda t, s: solve(with_tofs(t, s), options, poses))
+    if speakers.size:
+        tof[:, speakers] = std[:, speakers] = np.nan
+        residuals = residuals_of(tof, std)
+
+    def without_poses(moved: list[int]) -> SourceResiduals:
+        t, s = tof.copy(), std.copy()
+        t[moved] = s[moved] = np.nan
+        return residuals_of(t, s)
+
+    steps = [m.data.pose_steps[r] for r in rows]
+    pose_findings, moved = moved_poses(residuals, steps, without_poses)
+    if not findings and not pose_findings:
+        return m, solution
+    tof[moved] = std[moved] = np.nan
+    checked = replace(with_tofs(tof, std), findings=[*m.findings, *findings, *pose_findings])
+    return checked, solve(checked, options, poses)
+
+
+def _for_kept_microphones(options: CalibrationOptions, kept: np.ndarray | None
+                          ) -> CalibrationOptions:
+    """`options` for the microphones `kept` of the session (None: all of them): a prior
+    geometry, given in the session's microphone order, without the others."""
+    if kept is None or options.prior is None:
+        return options
+    return replace(options, prior=replace(options.prior,
+                                          positions_m=options.prior.positions_m[kept]))
 
 
 def _solution_figures(m: Measurements, sol: MicrophoneSolution,
@@ -821,6 +893,7 @@ def _assemble(m: Measurements, sol: MicrophoneSolution, options: CalibrationOpti
             weighting=m.weighting, echo_ratio=_finite_or_none(tofs.echo_ratio(located))),
         timings_s=dict(timings),
         notes=notes,
+        findings=m.findings,
         latency_gauge_board=data.reference_group,
     )
 

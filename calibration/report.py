@@ -186,8 +186,10 @@ def summary_lines(run: CalibrationRun, truth: dict | None = None) -> list[str]:
     median_std = _median_std(run)
     std = (f"median position std {significant(1e3 * median_std)} mm"
            if math.isfinite(median_std) else f"no position std (method {r.method} gives none)")
+    left_out = len(r.left_out_microphones())
+    without = f" ({left_out} left out: see the findings)" if left_out else ""
     lines = [
-        f"{len(r.microphones)} microphones from {len(r.poses)} poses "
+        f"{len(r.microphones)} microphones{without} from {len(r.poses)} poses "
         f"({len(r.poses) * run.data.n_speakers} sources), method {r.method}",
         f"speed of sound {r.speed_of_sound_m_s:.3f}{c_std} m/s; {std}; TOF residual RMS "
         f"{significant(1e9 * r.residuals.rms_s)} ns",
@@ -248,6 +250,7 @@ def _markdown(run: CalibrationRun, truth: dict | None) -> str:
     r = run.result
     out = [f"# Calibration of session {r.session_id}", "", *[f"- {ln}" for ln in
                                                             summary_lines(run, truth)], ""]
+    out += _findings(r)
     out += ["## Speed of sound", ""]
     if r.speed_of_sound_reference is not None:
         ref = r.speed_of_sound_reference
@@ -290,6 +293,20 @@ def _markdown(run: CalibrationRun, truth: dict | None) -> str:
             "## Notes", ""]
     out += [f"- {n}" for n in grouped_notes(run)]
     return "\n".join(out) + "\n"
+
+
+def _findings(r: CalibrationResult) -> list[str]:
+    """The section "Mistakes of the capture": one entry per finding (none: no section)."""
+    if not r.findings:
+        return []
+    out = ["## Mistakes of the capture", "",
+           "Found in the recordings themselves; what was corrected or left out is said in each "
+           "entry, and the result above is computed without what was left out.", ""]
+    for f in r.findings:
+        where = f" (wired at {', '.join(f.channels)})" if f.channels else ""
+        out.append(f"- **{f.kind}** ({f.action}): {f.evidence}{where}. "
+                   f"{f.advice[0].upper()}{f.advice[1:]}.")
+    return [*out, ""]
 
 
 def _frozen_vs_joint(r: CalibrationResult, truth: dict | None) -> list[str]:

@@ -153,19 +153,24 @@ def estimate_responses(tofs: SessionTofs, rows: list[int], flights: Flights, fs:
             H /= np.maximum(piston_directivity(centres_hz, flights.sin_off_axis[i],
                                                speaker_diameter_m / 2, speed_of_sound_m_s),
                             0.05)
+        # a measurement the times of flight left out (a clipped or dropped-out recording,
+        # a burst not played) says nothing of the microphone's response either
+        H[~np.isfinite(tofs.tof_s[row])] = np.nan
         per_source.append(H)
     stack = np.concatenate(per_source)  # (n_src, n_mic, n_band)
-    stack /= np.median(np.abs(stack), axis=1, keepdims=True)  # each source's own level
-    mean = stack.mean(axis=0)
+    stack = stack[np.isfinite(stack).any(axis=(1, 2))]  # sources with a measurement
+    stack /= np.nanmedian(np.abs(stack), axis=1, keepdims=True)  # each source's own level
+    mean = np.nanmean(stack, axis=0)
     n = stack.shape[0]
-    reference_gain = np.median(np.abs(mean), axis=0)
+    n_per_mic = np.sum(np.isfinite(stack), axis=0)
+    reference_gain = np.nanmedian(np.abs(mean), axis=0)
     phasors = mean / np.maximum(np.abs(mean), 1e-300)
-    reference_phase = np.angle(np.sum(phasors, axis=0))
+    reference_phase = np.angle(np.nansum(phasors, axis=0))
     gain = np.abs(mean) / reference_gain
     phase = np.angle(mean * np.exp(-1j * reference_phase))
     relative = stack / np.where(mean == 0, 1.0, mean)[None]
-    gain_std = gain * np.std(np.abs(relative), axis=0) / np.sqrt(n)
-    phase_std = np.std(np.angle(relative), axis=0) / np.sqrt(n)
+    gain_std = gain * np.nanstd(np.abs(relative), axis=0) / np.sqrt(n_per_mic)
+    phase_std = np.nanstd(np.angle(relative), axis=0) / np.sqrt(n_per_mic)
     return MicrophoneResponses(centres_hz.copy(), gain, phase, gain_std, phase_std, n)
 
 

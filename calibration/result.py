@@ -187,6 +187,35 @@ class MicrophoneResponsesResult(_Model):
     n_sources: int
 
 
+FindingKind = Literal["dead-microphone", "intermittent-microphone", "inverted-microphone",
+                      "clipped-bursts", "silent-speaker", "swapped-speakers",
+                      "misplaced-speaker", "moved-pose"]
+FindingAction = Literal["corrected", "left out", "noted"]
+
+
+class Finding(_Model):
+    """A mistake of the capture that the calibration found in the recordings or the images:
+    what it is, where, the evidence, what the calibration did about it and what to do."""
+
+    kind: FindingKind
+    action: FindingAction = Field(
+        description="corrected: the calibration undid it (a polarity); left out: the "
+        "measurements concerned were not used; noted: used, but worth a look")
+    microphones: list[int] = Field(default_factory=list, description="microphone ids")
+    channels: list[str] = Field(default_factory=list,
+                                description="where those microphones are wired")
+    speakers: list[int] = Field(default_factory=list)
+    poses: list[str] = Field(default_factory=list, description="pose steps concerned")
+    evidence: str
+    advice: str = Field(description="what the calibration did about it, and what to check or "
+                                    "do before the next capture")
+
+    def line(self) -> str:
+        """The finding as one line: what and its evidence, then what was done and what to
+        do (`advice` says both)."""
+        return f"{self.evidence}; {self.advice}"
+
+
 class CalibrationResult(_Model):
     schema_version: int = 1
     session_id: str
@@ -212,6 +241,15 @@ class CalibrationResult(_Model):
     joint_fit: JointFitResult | None = None
     rig: RigFitResult | None = None
     microphone_responses: MicrophoneResponsesResult | None = None
+    findings: list[Finding] = Field(
+        default_factory=list, description="the capture's mistakes found, in the order found")
+
+    def left_out_microphones(self) -> set[int]:
+        """The microphones that a finding left out whole: the result has no position for
+        them."""
+        placed = {m.id for m in self.microphones}
+        return {i for f in self.findings if f.action == "left out"
+                for i in f.microphones if i not in placed}
 
     def positions(self) -> np.ndarray:
         return np.array([m.position_m for m in self.microphones])

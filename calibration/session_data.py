@@ -11,7 +11,7 @@ channels x 19 k samples x 6 speakers per pose), so they are loaded one pose at a
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +31,7 @@ from acquisition.contracts.session import SessionError, SessionReader
 from acquisition.contracts.step_ids import is_pose_step, reference_step
 
 from .errors import CalibrationInputError
+from .levels import full_scale_of
 
 
 @dataclass(frozen=True)
@@ -102,6 +103,19 @@ class SessionData:
             if group.volts_per_unit is not None:
                 scale.update(zip(group.columns, group.volts_per_unit, strict=True))
         return np.array([scale.get(int(c), 1.0) for c in self.mic_columns])
+
+    def full_scale(self) -> float:
+        """The full scale of the recordings, in codes (`calibration.levels.full_scale_of`),
+        read off the first speaker's reference recording (a session's recordings share one
+        format)."""
+        codes, _ = self.reader.read_recording(reference_step(0), "speaker_0.wav")
+        return full_scale_of(codes)
+
+    def with_microphones(self, kept: np.ndarray) -> SessionData:
+        """This session with the microphones `kept` (indices into M) alone: the others are
+        left out of every later stage, as if the array had none of them."""
+        return replace(self, mic_ids=self.mic_ids[kept], mic_columns=self.mic_columns[kept],
+                       mic_boards=tuple(self.mic_boards[i] for i in kept))
 
     def references(self, samples: slice = slice(None)) -> np.ndarray:
         """(n_speakers, n) float32 reference-microphone recording of every speaker (the

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import fft as sfft
@@ -22,6 +22,7 @@ from ._cores import default_workers
 from .memo import LruMemo
 from .session_data import SessionData
 from .delay_estimation import TofEstimate, Weighting, estimate_delays, tof_from_delay
+from .levels import ChannelLevels, channel_levels
 
 MAX_RANGE_M = 6.0
 """Longest path searched for a correlation peak; later peaks are reflections."""
@@ -29,9 +30,12 @@ MAX_RANGE_M = 6.0
 TOF_CACHE_POSES = 2_000
 """Poses whose delays a worker's `TofMemo` remembers (about 15 kB each for 73 channels)."""
 
-TofMemo = LruMemo[tuple, TofEstimate]
-"""A pose's delays by (its recordings' SHA-256, the references' and the settings):
-`TofMemo(TOF_CACHE_POSES)`."""
+PoseTofs = tuple[TofEstimate, ChannelLevels]
+"""One pose's delays and the levels of the same samples."""
+
+TofMemo = LruMemo[tuple, PoseTofs]
+"""A pose's delays and levels by (its recordings' SHA-256, the references' and the
+settings): `TofMemo(TOF_CACHE_POSES)`."""
 
 
 def _recording_hashes(data: SessionData, step_of: Callable[[int], str]) -> tuple[str, ...]:
@@ -47,12 +51,14 @@ def _every_speaker_in(step: str) -> Callable[[int], str]:
     return lambda _speaker: step
 
 
-def _frozen(est: TofEstimate) -> TofEstimate:
-    """`est` with its arrays read-only: a memo shares them with every later reader."""
+def _frozen(pose: PoseTofs) -> PoseTofs:
+    """`pose`'s arrays read-only: a memo shares them with every later reader."""
+    est, levels = pose
     for array in (est.delay_s, est.std_s, est.snr_db, est.peak_to_sidelobe_db, est.impulses,
-                  est.impulse_first_lag, est.echo_energy, est.lead_energy):
+                  est.impulse_first_lag, est.echo_energy, est.lead_energy,
+                  levels.rail_samples, levels.dropout_share):
         array.flags.writeable = False
-    return est
+    return pose
 
 
 @dataclass(frozen=True)
@@ -74,6 +80,10 @@ class SessionTofs:
         impulse_step: full-rate samples between the impulses' values.
         echo_energy, lead_energy: (P, S, M) every array channel's correlation energy after
             and before its direct peak (`calibration.delay_estimation.TofEstimate`).
+        rail_samples, dropout_share: (P, S, M) every array channel's samples at the rail and
+            share of dropped-out blocks (`calibration.levels.ChannelLevels`).
+        polarity: (M,) +1, or -1 for a microphone whose recordings were inverted before the
+            correlation (a capsule wired with inverted polarity).
     """
 
     tof_s: np.ndarray
@@ -87,6 +97,16 @@ class SessionTofs:
     impulse_step: float
     echo_energy: np.ndarray
     lead_energy: np.ndarray
+    rail_samples: np.ndarray
+    dropout_share: np.ndarray
+    polarity: np.ndarray
+
+    def with_microphones(self, kept: np.ndarray) -> SessionTofs:
+        """These times of flight of the microphones `kept` (indices into M) alone."""
+        per_mic = {name: getattr(self, name)[:, :, kept] for name in (
+            "tof_s", "std_s", "snr_db", "peak_to_sidelobe_db", "impulses", "impulse_first_lag",
+            "echo_energy", "lead_energy", "rail_samples", "dropout_share")}
+        return replace(self, polarity=self.polarity[kept], **per_mic)
 
     def echo_ratio(self, poses: list[int] | slice = slice(None)) -> float:
         """The array's correlation energy after the direct sound over that before it, pooled
@@ -107,6 +127,7 @@ def measure_session_tofs(
     weighting: Weighting = "compact",
     on_pose: Callable[[str], None] | None = None,
     memo: TofMemo | None = None,
+    polarity: np.ndarray | None = None,
 ) -> SessionTofs:
     """Times of flight of every pose of `data`.
 
@@ -121,10 +142,16 @@ def measure_session_tofs(
     it fetched them); without a memo every recording is read, and checked against the
     journal. Poses are correlated at once on threads (numpy and the FFTs release the
     GIL: 1.5x on two cores): one pose per core, each FFT on its pose's thread.
+
+    `polarity` (M,): +1 or -1 per microphone, the sign its recordings are correlated with
+    (None: all +1); the levels do not depend on it.
     """
     on_stand = data.reference_column is not None
     columns = np.append(data.mic_columns, [data.reference_column] if on_stand else [])
     columns = columns.astype(int)
+    n_mic = data.mic_columns.size
+    signs = np.ones(n_mic) if polarity is None else np.asarray(polarity, dtype=float)
+    column_signs = np.append(signs, [1.0] if on_stand else []).astype(np.float32)
     d_ref = data.reference_distances_m[:, None]  # (S, 1): per speaker, against (S, channels)
     window = (-1e-4, MAX_RANGE_M / speed_of_sound_m_s)
     steady = data.description.burst.steady_window
@@ -140,7 +167,7 @@ def measure_session_tofs(
         first, stop = steady
         n_fft = stop - first
     settings = (band_hz, weighting, window, first, n_fft, tuple(columns.tolist()),
-                _recording_hashes(data, reference_step))
+                tuple(signs.tolist()), _recording_hashes(data, reference_step))
     keys = [(_recording_hashes(data, _every_speaker_in(step)), settings)
             for step in data.pose_steps]
     remembered = {i: est for i, key in enumerate(keys)
@@ -148,16 +175,19 @@ def measure_session_tofs(
     todo = [i for i in range(len(keys)) if i not in remembered]
     samples = slice(first, stop)
     references = data.references(samples) if todo else None
+    full_scale = data.full_scale() if todo else 1.0
 
-    def correlate(i: int) -> TofEstimate:
+    def correlate(i: int) -> PoseTofs:
         recordings = data.pose_recordings(data.pose_steps[i], columns, samples)
+        levels = channel_levels(recordings, full_scale)
+        recordings *= column_signs[None, :, None]
         assert references is not None  # read whenever something is to do
-        est = _frozen(estimate_delays(recordings, references, data.fs, band=band_hz,
-                                      weighting=weighting, delay_window_s=window, n_fft=n_fft,
-                                      fft_workers=1))
+        pose = _frozen((estimate_delays(recordings, references, data.fs, band=band_hz,
+                                        weighting=weighting, delay_window_s=window,
+                                        n_fft=n_fft, fft_workers=1), levels))
         if memo is not None:
-            memo.put(keys[i], est)
-        return est
+            memo.put(keys[i], pose)
+        return pose
 
     # one BLAS thread: the poses' threads already fill the cores, and the band sums'
     # batched products on OpenBLAS's own threads besides made the stage 30 % slower
@@ -165,21 +195,23 @@ def measure_session_tofs(
         estimates = remembered | dict(zip(todo, pool.map(correlate, todo), strict=True))
     parts = []
     for i, step in enumerate(data.pose_steps):
-        est = estimates[i]
+        est, levels = estimates[i]
         parts.append((tof_from_delay(est.delay_s, d_ref, speed_of_sound_m_s), est.std_s,
                       est.snr_db, est.peak_to_sidelobe_db, est.impulses,
-                      est.impulse_first_lag, est.echo_energy, est.lead_energy))
+                      est.impulse_first_lag, est.echo_energy, est.lead_energy,
+                      levels.rail_samples, levels.dropout_share))
         step_of_lags = est.impulse_step
         if on_pose is not None:
             on_pose(step)
-    tof, std, snr, psr, impulses, first_lag, echo, lead = (
+    tof, std, snr, psr, impulses, first_lag, echo, lead, rail, dropout = (
         np.stack(p) for p in zip(*parts, strict=True))
-    n_mic = data.mic_columns.size
-    if not on_stand:  # no reference microphone in the pose recordings: nothing measured
-        missing = np.full(tof.shape[:2], np.nan)
-        return SessionTofs(tof, std, snr, psr, missing, missing.copy(), impulses, first_lag,
-                           step_of_lags, echo, lead)
-    return SessionTofs(tof[..., :-1], std[..., :-1], snr[..., :-1], psr[..., :-1],
-                       tof[..., -1], std[..., -1], impulses[:, :, :n_mic],
-                       first_lag[:, :, :n_mic], step_of_lags, echo[..., :n_mic],
-                       lead[..., :n_mic])
+    mics = slice(0, n_mic)
+    if on_stand:
+        reference_tof, reference_std = tof[..., -1], std[..., -1]
+    else:  # no reference microphone in the pose recordings: nothing measured
+        reference_tof = np.full(tof.shape[:2], np.nan)
+        reference_std = reference_tof.copy()
+    return SessionTofs(tof[..., mics], std[..., mics], snr[..., mics], psr[..., mics],
+                       reference_tof, reference_std, impulses[:, :, mics],
+                       first_lag[:, :, mics], step_of_lags, echo[..., mics], lead[..., mics],
+                       rail[..., mics], dropout[..., mics], signs)

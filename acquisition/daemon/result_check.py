@@ -82,7 +82,8 @@ def check_result(result: dict[str, Any], facts: SessionFacts) -> None:
             raise ResultRejected(f"it is about session {result.get('session_id')!r}, not "
                                  f"{facts.session_id}")
         _check_microphones(((m["id"], m["position_m"], m["std_m"], m["board"])
-                            for m in result["microphones"]), facts)
+                            for m in result["microphones"]), facts,
+                           left_out=_left_out(result.get("findings", [])))
         _check_speed(result["speed_of_sound_m_s"])
         unknown = {c["name"] for c in result["cameras"]} - facts.cameras
         if unknown:
@@ -117,8 +118,20 @@ def check_live(update: LiveUpdate, facts: SessionFacts) -> None:
                              f"beyond {MAX_PIXEL:g}")
 
 
+def _left_out(findings: Any) -> set[int]:
+    """The microphones that a result's findings say were left out (a dead microphone has
+    no position); ResultRejected for findings that are not a list of findings."""
+    if not isinstance(findings, list) or not all(isinstance(f, dict) for f in findings):
+        raise ResultRejected("its findings are not a list of findings")
+    named = [f.get("microphones", []) for f in findings if f.get("action") == "left out"]
+    if not all(isinstance(ids, list) and all(type(i) is int for i in ids) for ids in named):
+        raise ResultRejected("its findings name microphones that are not ids")
+    return {i for ids in named for i in ids}
+
+
 def _check_microphones(mics: Iterable[tuple[Any, Any, Any, Any]], facts: SessionFacts,
-                       every: bool = True) -> None:
+                       every: bool = True, left_out: frozenset[int] | set[int] = frozenset()
+                       ) -> None:
     seen: set[int] = set()
     for mic_id, position, std, board in mics:
         if mic_id not in facts.mic_boards or mic_id in seen:
@@ -134,7 +147,10 @@ def _check_microphones(mics: Iterable[tuple[Any, Any, Any, Any]], facts: Session
         if not (_finite_vector(std) and min(std) >= 0):
             raise ResultRejected(f"microphone {mic_id}'s std {std!r} is not three finite "
                                  "non-negative numbers")
-    missing = set(facts.mic_boards) - seen
+    missing = set(facts.mic_boards) - seen - left_out
+    if every and 2 * len(seen) < len(facts.mic_boards):  # the calibration refuses less
+        raise ResultRejected(f"it places {len(seen)} of the session's "
+                             f"{len(facts.mic_boards)} microphones, fewer than half")
     if every and missing:
         raise ResultRejected(f"it has no position for {len(missing)} of the session's "
                              f"{len(facts.mic_boards)} microphones (e.g. {min(missing)})")

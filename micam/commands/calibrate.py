@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from acquisition.contracts.errors import UserError
@@ -227,6 +228,8 @@ def run(args: argparse.Namespace) -> int:
         write_acoular_xml(run_.result, args.acoular_xml)
     if args.acoular_calib is not None:
         write_acoular_calib_xml(run_.result, args.acoular_calib)
+    for finding in run_.result.findings:
+        print(f"micam: finding: {finding.line()}", file=sys.stderr)
     for line in summary_lines(run_, truth):
         print(line)
     print(f"result: {out}\nreport: {report}")

@@ -254,7 +254,8 @@ def test_the_echo_ratio_skips_dead_channels_and_is_nan_without_noise() -> None:
     echo[0, 0, 0] = lead[0, 0, 0] = np.nan
     nothing = np.zeros(shape)
     tofs = SessionTofs(nothing, nothing, nothing, nothing, nothing[..., 0], nothing[..., 0],
-                       nothing[..., None], nothing, 2.0, echo, lead)
+                       nothing[..., None], nothing, 2.0, echo, lead, nothing, nothing,
+                       np.ones(shape[2]))
     assert tofs.echo_ratio() == pytest.approx(1.5)
     assert tofs.echo_ratio([1]) == pytest.approx(1.5)
     silent = replace(tofs, lead_energy=np.zeros(shape))

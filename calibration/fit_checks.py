@@ -1,0 +1,182 @@
+"""Mistakes that only a geometry shows: speakers whose times of flight belong to another
+speaker (swapped cables), and poses whose bursts were played with the rig somewhere else
+than the cameras saw it (the rig nudged between its images and its bursts).
+
+Both are judged on the camera-frozen solution (calibration.solver), whose residuals say how
+far each measurement lies from the geometry of all the others, and always relative to the
+session's other speakers and poses. What is found is left out and the solution computed
+again without it; a swap is named, but not undone: the reference recordings were swapped
+with the pose recordings, so each speaker's times of flight carry the reference
+microphone's distance from the other speaker, which no relabelling takes out.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from .result import Finding
+from .solver import MicrophoneSolution
+
+GROSS_SHARE = 0.5
+"""A speaker with more than this share of its times of flight left out as outliers does not
+play from where the rig says it is."""
+
+SWAP_SCATTER = 3.0
+"""Two gross speakers are taken to be swapped when, exchanged, each one's times of flight fit
+the others' geometry up to a constant offset (the reference recordings were swapped too)
+with a scatter (`SourceResiduals.speaker_scatter_us`) below this many times the other
+speakers'."""
+
+MOVED_RATIO = 3.0
+"""A pose whose median |residual| is this many times the median pose's, with outliers among
+its times of flight, was heard somewhere else than it was seen."""
+
+SUSPECT_RATIO = 2.0
+"""A pose this many times the median pose's is tried without (`moved_poses`)."""
+
+OTHERS_GAIN = 1.25
+"""A suspect pose is taken out when, without it, the others' median |residual| falls by
+this factor."""
+
+MAX_MOVED_SHARE = 0.25
+"""At most this share of the poses is left out as moved: beyond it, the cameras and the
+times of flight disagree as a whole, which is the plausibility checks' to name."""
+
+
+@dataclass(frozen=True)
+class SourceResiduals:
+    """A solution's residuals by (pose, speaker, microphone).
+
+    Attributes:
+        residual_s: (P, S, M) measured minus modelled time of flight, seconds, NaN where not
+            measured (outliers included: the solution was fitted without them).
+        outlier: (P, S, M) left out as outliers.
+    """
+
+    residual_s: np.ndarray
+    outlier: np.ndarray
+
+    @classmethod
+    def of(cls, solution: MicrophoneSolution, n_pose: int, n_speaker: int) -> SourceResiduals:
+        shape = (n_pose, n_speaker, -1)
+        return cls(solution.residuals_s.reshape(shape), solution.outliers.reshape(shape))
+
+    def outlier_share(self, axes: tuple[int, ...]) -> np.ndarray:
+        """Share of the measured times of flight that are outliers, over `axes`."""
+        measured = np.isfinite(self.residual_s)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return (self.outlier & measured).sum(axis=axes) / measured.sum(axis=axes)
+
+    def median_us(self, axes: tuple[int, ...]) -> np.ndarray:
+        """Median |residual| over `axes`, microseconds."""
+        with warnings.catch_warnings():  # a pose left out has no residual: NaN, as it says
+            warnings.simplefilter("ignore", RuntimeWarning)
+            return 1e6 * np.nanmedian(np.abs(self.residual_s), axis=axes)
+
+    def speaker_scatter_us(self) -> np.ndarray:
+        """(S,) median |residual - the speaker's median residual|, microseconds: how far a
+        speaker's times of flight are from the geometry once a constant offset is allowed."""
+        offset = np.nanmedian(self.residual_s, axis=(0, 2), keepdims=True)
+        return 1e6 * np.nanmedian(np.abs(self.residual_s - offset), axis=(0, 2))
+
+
+Resolve = Callable[[np.ndarray, np.ndarray], MicrophoneSolution]
+"""Solves again with (P, S, M) times of flight and their (P, S, M) standard deviations
+(NaN: not used), over the same poses and speakers."""
+
+
+def gross_speakers(residuals: SourceResiduals) -> np.ndarray:
+    """Indices of the speakers whose times of flight do not fit their positions
+    (`GROSS_SHARE`), while most speakers' do."""
+    share = residuals.outlier_share((0, 2))
+    if not np.median(share) < GROSS_SHARE:
+        return np.array([], dtype=int)
+    return np.flatnonzero(share > GROSS_SHARE)
+
+
+def speaker_findings(tof_s: np.ndarray, std_s: np.ndarray, residuals: SourceResiduals,
+                     resolve: Resolve) -> tuple[list[Finding], np.ndarray]:
+    """The findings about gross speakers and the speakers to leave out. Two gross speakers
+    are tried exchanged (one more solve): when their times of flight then fit, they are named
+    as swapped."""
+    gross = gross_speakers(residuals)
+    if gross.size == 0:
+        return [], gross
+    before = residuals.median_us((0, 2))[gross]
+    if gross.size == 2:
+        a, b = gross
+        exchanged = [tof_s.copy(), std_s.copy()]
+        for array, original in zip(exchanged, (tof_s, std_s), strict=True):
+            array[:, [a, b]] = original[:, [b, a]]
+        trial = SourceResiduals.of(resolve(*exchanged), *tof_s.shape[:2])
+        scatter, scatter_before = trial.speaker_scatter_us(), residuals.speaker_scatter_us()
+        typical = float(np.median(np.delete(scatter_before, gross)))
+        if np.all(scatter[gross] < SWAP_SCATTER * max(typical, 1e-3)):
+            offsets = 1e6 * np.nanmedian(trial.residual_s[:, gross], axis=(0, 2))
+            return [Finding(
+                kind="swapped-speakers", action="left out", speakers=[int(a), int(b)],
+                evidence=f"speakers {a} and {b} look swapped: with their recordings exchanged "
+                         f"their times of flight fit the geometry to {_us(scatter[gross])} "
+                         f"(the other speakers' {typical:.2f} us; {_us(scatter_before[gross])} "
+                         f"as recorded) after a constant offset of {_us(np.abs(offsets))}, "
+                         "the reference microphone's distance from the other speaker",
+                advice="both were left out (their reference recordings were swapped too, so "
+                       "their times of flight carry that offset); check the two speakers' "
+                       "cables")], gross
+    return [Finding(
+        kind="misplaced-speaker", action="left out", speakers=[int(k)],
+        evidence=f"speaker {k}'s times of flight do not fit where the rig description puts "
+                 f"it ({100 * residuals.outlier_share((0, 2))[k]:.0f} % outliers, median "
+                 f"residual {_us(before[i:i + 1])})",
+        advice="it was left out; check its cable and its position in the rig description")
+        for i, k in enumerate(gross)], gross
+
+
+def moved_poses(residuals: SourceResiduals, steps: list[str], resolve_without:
+                Callable[[list[int]], SourceResiduals]) -> tuple[list[Finding], list[int]]:
+    """The findings about poses heard somewhere else than seen, and their indices (into
+    `steps`, the poses of `residuals`).
+
+    The pose that fits worst is a candidate when its median |residual| is `SUSPECT_RATIO`
+    times the median pose's, with outliers among its times of flight; the rest is solved
+    again without it, and it is taken out when it stands `MOVED_RATIO` times out, or when
+    the others then fit `OTHERS_GAIN` times better (a few poses' solution bends towards a
+    moved one). Repeated until none is found or `MAX_MOVED_SHARE` of the poses are out."""
+    moved: list[int] = []
+    findings: list[Finding] = []
+    current = residuals
+    while len(moved) + 1 <= MAX_MOVED_SHARE * len(steps):
+        median = current.median_us((1, 2))
+        share = current.outlier_share((1, 2))
+        typical = float(np.nanmedian(median))
+        ratio = median / typical
+        ratio[moved] = 0.0
+        worst = int(np.nanargmax(ratio))
+        if not (ratio[worst] > SUSPECT_RATIO and share[worst] > 0):
+            break
+        trial = resolve_without([*moved, worst])
+        others = [i for i in range(len(steps)) if i not in (*moved, worst)]
+        gain = float(np.nanmedian(median[others])
+                     / np.nanmedian(trial.median_us((1, 2))[others]))
+        if not (ratio[worst] > MOVED_RATIO or gain > OTHERS_GAIN):
+            break
+        moved.append(worst)
+        findings.append(Finding(
+            kind="moved-pose", action="left out", poses=[steps[worst]],
+            evidence=f"{steps[worst]}: its times of flight do not fit the rig where the cameras "
+                     f"saw it (median residual {median[worst]:.1f} us, {ratio[worst]:.1f}x the "
+                     f"median pose's {typical:.1f} us, {100 * share[worst]:.0f} % outliers; "
+                     f"without it the other poses fit {gain:.1f}x better): the rig moved "
+                     "between its images and its bursts",
+            advice="its bursts were left out (its images still calibrate the cameras); keep "
+                   "the rig still from its images to its last burst"))
+        current = trial
+    return findings, moved
+
+
+def _us(values: np.ndarray) -> str:
+    return " and ".join(f"{v:.2f} us" if v < 10 else f"{v:.0f} us" for v in values)
