@@ -5,6 +5,7 @@ against the truth, frozen beside joint."""
 from __future__ import annotations
 
 import json
+import warnings
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -320,3 +321,20 @@ def test_pipeline_joint_fit_beats_the_frozen_camera_against_the_truth(session: P
     np.testing.assert_allclose([m.position_m for m in no_joint.microphones],
                                [m.position_m for m in run.result.camera_frozen.microphones],
                                atol=1e-9)
+
+
+def test_an_infinite_std_is_no_data_and_warns_nothing() -> None:
+    """A silent reference column's TOFs come with an infinite std (no Fisher information):
+    the fit leaves them out as it leaves out missing ones, without a NaN sigma (it warned
+    "invalid value encountered in divide" twice)."""
+    small = make_scene(n_pose=3, seed=2, n_mic=12)
+    silent = replace(small.problem, reference_std_s=np.full(18, np.inf))
+    missing = replace(small.problem, reference_tof_s=np.full(18, np.nan))
+    start = frozen_camera_start(small.truth)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        fit = fit_bundle(silent, start)
+    assert all(np.isfinite(s) for s in fit.sigmas.values())
+    expected = fit_bundle(missing, start)
+    np.testing.assert_allclose(fit.state.microphones_m, expected.state.microphones_m,
+                               atol=1e-12)
