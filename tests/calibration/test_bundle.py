@@ -159,6 +159,7 @@ def test_jacobian_matches_central_differences() -> None:
     assert np.all(np.abs(numeric).max(axis=0) > 0)  # every unknown is observed
 
 
+@pytest.mark.slow
 def test_joint_fit_corrects_the_focal_length_and_the_array(scene: Scene,
                                                            fitted: BundleSolution) -> None:
     truth, est, std = scene.truth, fitted.state, fitted.std
@@ -184,6 +185,7 @@ def test_covariance_matches_the_errors(scene: Scene, fitted: BundleSolution) -> 
     assert 0.7 < fitted.chi2_per_dof < 1.3
 
 
+@pytest.mark.slow
 def test_covariance_counts_errors_shared_by_a_poses_speakers(scene: Scene) -> None:
     """Errors that the six speakers of a pose share at a microphone (a reflection, the
     speakers' directivity) are one error, not six. With 60 % of the same noise variance shared
@@ -209,6 +211,7 @@ def test_covariance_counts_errors_shared_by_a_poses_speakers(scene: Scene) -> No
     assert 1.5 < np.mean(d2[1]) < 4.5  # 3 for a 3-D Gaussian error
 
 
+@pytest.mark.slow
 def test_microphones_relative_geometry_is_covered_where_the_noise_model_is_right() -> None:
     """Four scenes with independent Gaussian noise: each microphone's error relative to the
     array's common motion (calibration.coverage) has a squared Mahalanobis distance of 3 on
@@ -248,6 +251,7 @@ def _exact_tofs(scene: Scene) -> np.ndarray:
     return flight + np.array(LATENCIES_S)[scene.problem.latency_column]
 
 
+@pytest.mark.slow
 def test_outliers_of_both_kinds_are_reported_and_left_out(scene: Scene,
                                                           fitted: BundleSolution) -> None:
     rng = np.random.default_rng(9)
@@ -285,6 +289,7 @@ def session(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_pipeline_joint_fit_beats_the_frozen_camera_against_the_truth(session: Path) -> None:
     truth = json.loads((session / "truth.json").read_text())
     run = calibrate(session)

@@ -65,6 +65,7 @@ BUILT_FROM = ("pyproject.toml", "setup.py", "README.md", "udev", "daq", "sim", "
 it was)."""
 
 
+@pytest.mark.slow
 def test_the_built_wheel_ships_the_udev_rules_and_installs_them(tmp_path: Path) -> None:
     """`pip wheel` maps udev/ into the package; `micam install udev` run from the unpacked
     wheel (a purelib wheel installs as its unpacked files) writes the rules of udev/."""

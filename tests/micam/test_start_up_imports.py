@@ -9,6 +9,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from micam.templates import template
 
 SIM_MODULES = "sorted(m for m in sys.modules if m == 'sim' or m.startswith('sim.'))"
@@ -21,6 +23,7 @@ def _run(code: str, tmp_path: Path) -> subprocess.CompletedProcess[str]:
                           timeout=120, env=env, cwd=tmp_path)
 
 
+@pytest.mark.slow
 def test_the_daemon_on_real_hardware_loads_no_simulator(tmp_path: Path) -> None:
     """`micam daemon` with the generic template's boards (not on this bus: it ends with "cannot
     open the hardware" after reading its configuration); the same check of a configuration
@@ -40,6 +43,7 @@ def test_the_daemon_on_real_hardware_loads_no_simulator(tmp_path: Path) -> None:
     assert "'sim.capture'" in checked.stdout
 
 
+@pytest.mark.slow
 def test_the_daemon_service_imports_no_scipy_signal(tmp_path: Path) -> None:
     done = _run("import sys, acquisition.daemon.service; "
                 "print(sorted(m for m in sys.modules if m.startswith('scipy.signal')))", tmp_path)
