@@ -33,6 +33,7 @@ from pydantic import Field, ValidationError, model_validator
 from .air import AirReading
 from .config_model import ConfigModel, describe_problems
 from .errors import UserError
+from .stimulus import mls_length
 
 DESCRIPTION_KIND: Final = "rig-and-array"
 """The `kind` of a description stored as a session's capture (a capture configuration has
@@ -225,7 +226,7 @@ class BurstLayout(ConfigModel):
 
     @property
     def sequence_samples(self) -> int:
-        return 2**self.mls_order - 1
+        return mls_length(self.mls_order)
 
     @property
     def n_samples(self) -> int:

@@ -11,8 +11,14 @@ from __future__ import annotations
 import numpy as np
 
 
+def mls_length(order: int) -> int:
+    """Samples in one period of the maximum-length sequence of `order`: 2**order - 1."""
+    return 2**order - 1
+
+
 def mls_burst(order: int) -> np.ndarray:
-    """One period of a maximum-length sequence of 2**order - 1 samples, as +-1.0 floats."""
+    """One period of a maximum-length sequence of `mls_length(order)` samples, as +-1.0
+    floats."""
     if not 4 <= order <= 20:
         raise ValueError(f"MLS order {order} is outside 4..20 (order 14 is 171 ms at 96 kS/s)")
     from scipy.signal import max_len_seq
