@@ -65,6 +65,7 @@ from scipy import sparse
 from scipy.linalg import cho_factor, cho_solve
 from scipy.spatial.transform import Rotation
 
+from acquisition.contracts.air import NOMINAL_SPEED_OF_SOUND_M_S
 from acquisition.contracts.rigid import RigidTransform, rotated_point_jacobian, rotation_from_rotvec
 
 from ._blas import single_threaded_blas
@@ -155,7 +156,7 @@ class BundleProblem:
     n_latency: int
     camera_names: tuple[str, ...]
     reference_distance_m: np.ndarray | None = None
-    tof_speed_of_sound_m_s: float = 343.0
+    tof_speed_of_sound_m_s: float = NOMINAL_SPEED_OF_SOUND_M_S
     speed_of_sound_of_pose: np.ndarray | None = None
     priors: BundlePriors | None = None
 

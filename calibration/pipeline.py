@@ -36,6 +36,7 @@ from typing import Literal
 
 import numpy as np
 
+from acquisition.contracts.air import NOMINAL_SPEED_OF_SOUND_M_S
 from acquisition.contracts.rig_description import KnownIntrinsics
 from acquisition.contracts.rigid import RigidTransform
 from acquisition.contracts.step_ids import REFMIC_STEP
@@ -118,8 +119,6 @@ from .speakers import (
 from .speed_of_sound import SpeedOfSoundFit, fit_speed_of_sound_robust
 from .times_of_flight import TOF_CACHE_POSES, SessionTofs, TofMemo, measure_session_tofs
 
-NOMINAL_SPEED_OF_SOUND_M_S = 343.0
-"""Start value of c when nothing better is known (about 20 degC)."""
 FREE_FIELD_ECHO_RATIO = 1.02
 """The largest echo ratio (`SessionTofs.echo_ratio`: the correlations' energy in the 20 ms
 after the direct sound over that in the 20 ms before it, pooled over the session) at which

@@ -17,6 +17,8 @@ from pydantic import BaseModel, ConfigDict, Field
 
 AIR_FILE = "air.json"
 """The per-step file of an air reading."""
+NOMINAL_SPEED_OF_SOUND_M_S = 343.0
+"""c when nothing better is known (dry air at about 20 degC): a start value, never a result."""
 
 
 class AirReading(BaseModel):
