@@ -65,7 +65,7 @@ from scipy import sparse
 from scipy.linalg import cho_factor, cho_solve
 from scipy.spatial.transform import Rotation
 
-from acquisition.contracts.air import NOMINAL_SPEED_OF_SOUND_M_S
+from acquisition.contracts.air import NOMINAL_SPEED_OF_SOUND_M_S, SpeedOfSoundPrior
 from acquisition.contracts.rigid import RigidTransform, rotated_point_jacobian, rotation_from_rotvec
 
 from ._blas import single_threaded_blas
@@ -200,7 +200,7 @@ class BundlePriors:
     print_scale_std: float = FIXED
     off_axis_std_m: float = FIXED
     mic_delay_std_s: float = FIXED
-    speed_of_sound: tuple[float, float] | None = None
+    speed_of_sound: SpeedOfSoundPrior | None = None
     speed_of_sound_step_m_s: float = 0.01
     intrinsics_mean: np.ndarray | None = None
     intrinsics_std: np.ndarray | None = None
