@@ -2,9 +2,9 @@
 
 The joint fit's normal equations (a few hundred to about 1,100 unknowns) and CLEAN-SC's
 thousands of ~0.1 ms matrix-vector products gain nothing from a second BLAS thread, and on a
-loaded 2-core machine an OpenBLAS thread spins waiting for a descheduled partner: a 500 x 500
-Cholesky factorisation took 0.44 s on 2 threads against 0.01 s on 1 (load 7.8), a 3534 x 72
-zgemv 0.90 ms against 0.07 ms (load 5.8).
+loaded 2-core machine an OpenBLAS thread spins waiting for a descheduled partner, which made
+a Cholesky factorisation and a zgemv many times slower on 2 threads than on 1
+(benchmarks/bench_bundle.py and bench_imaging.py measure the fit and CLEAN-SC).
 """
 
 from __future__ import annotations

@@ -65,6 +65,7 @@ from scipy import sparse
 from scipy.linalg import cho_factor, cho_solve
 from scipy.spatial.transform import Rotation
 
+from acquisition.contracts.air import NOMINAL_SPEED_OF_SOUND_M_S, SpeedOfSoundPrior
 from acquisition.contracts.rigid import RigidTransform, rotated_point_jacobian, rotation_from_rotvec
 
 from ._blas import single_threaded_blas
@@ -123,9 +124,9 @@ class BundleProblem:
         corners_px: (n_view, n_corner, 2) detected corners in rig order.
         pose_of_source, speaker_of_source: (n_src,) pose and speaker of every source.
         tof_s, tof_std_s: (n_src, n_mic) array times of flight and their predicted std, NaN
-            where missing.
+            where missing (an infinite std, no signal, counts as missing).
         reference_tof_s, reference_std_s: (n_src,) times of flight to the reference
-            microphone and their predicted std (NaN where missing).
+            microphone and their predicted std (NaN where missing, as above).
         latency_column: (n_mic,) latency unknown of each microphone (-1: its board is the
             gauge, latency 0).
         n_latency: number of latency unknowns.
@@ -155,7 +156,7 @@ class BundleProblem:
     n_latency: int
     camera_names: tuple[str, ...]
     reference_distance_m: np.ndarray | None = None
-    tof_speed_of_sound_m_s: float = 343.0
+    tof_speed_of_sound_m_s: float = NOMINAL_SPEED_OF_SOUND_M_S
     speed_of_sound_of_pose: np.ndarray | None = None
     priors: BundlePriors | None = None
 
@@ -199,7 +200,7 @@ class BundlePriors:
     print_scale_std: float = FIXED
     off_axis_std_m: float = FIXED
     mic_delay_std_s: float = FIXED
-    speed_of_sound: tuple[float, float] | None = None
+    speed_of_sound: SpeedOfSoundPrior | None = None
     speed_of_sound_step_m_s: float = 0.01
     intrinsics_mean: np.ndarray | None = None
     intrinsics_std: np.ndarray | None = None
@@ -456,6 +457,13 @@ class _Rows:
     family: str
 
 
+def _measured(tof_s: np.ndarray, std_s: np.ndarray) -> np.ndarray:
+    """Where a time of flight is data: finite, with a finite positive std. An infinite std
+    (no signal: a silent column's, whose Fisher information is 0) says nothing, and as a row it
+    would make its group's sigma inf and their ratios NaN."""
+    return np.isfinite(tof_s) & np.isfinite(std_s) & (std_s > 0)
+
+
 def _corner_rows(views: np.ndarray, n_corner: int) -> np.ndarray:
     """Residual rows (u, v of every corner) of the given views, in order."""
     return (2 * n_corner * views[:, None] + np.arange(2 * n_corner)).ravel()
@@ -469,10 +477,10 @@ class _Model:
         self.layout = layout
         n_view, n_corner = problem.corners_px.shape[:2]
         self.n_corner_rows = 2 * n_view * n_corner
-        self.tof_valid = np.isfinite(problem.tof_s) & (problem.tof_std_s > 0)
+        self.tof_valid = _measured(problem.tof_s, problem.tof_std_s)
         self.src, self.mic = np.nonzero(self.tof_valid)
-        self.ref_valid = np.flatnonzero(np.isfinite(problem.reference_tof_s)
-                                        & (problem.reference_std_s > 0))
+        self.ref_valid = np.flatnonzero(_measured(problem.reference_tof_s,
+                                                  problem.reference_std_s))
         self.n_rows = self.n_corner_rows + self.src.size + self.ref_valid.size
         self.groups = self._groups()
         self._pattern: _Pattern | None = None  # the Jacobian's, found at its first evaluation
@@ -719,7 +727,7 @@ class _Priors:
                                              priors.intrinsics_std.ravel(), strict=True)):
                 if np.isfinite(sd):
                     prior(start + j, float(mu), float(sd))
-        if not np.any(np.isfinite(problem.reference_tof_s) & (problem.reference_std_s > 0)):
+        if not np.any(_measured(problem.reference_tof_s, problem.reference_std_s)):
             free[layout.slices["reference"]] = False  # no data: the stand is not in the fit
         for m in range(layout.shapes["mic_delays"][0]):
             prior(layout.slices["mic_delays"].start + m, 0.0, priors.mic_delay_std_s)

@@ -260,8 +260,8 @@ which the ring check (corners.py `_ring_is_printed`) has refused since. Against 
 predictions are now within 0.8 px on that session and within 0.7 px on the five 30-pose
 ones; the robust detector finds no board cut by the edge (its 13 failures there are 12 px or
 more outside, or 6 px inside at a grazing angle) and every board 8 px or more inside. At
-10 px it skips 47 of 59 unsure images there, against 35 at 40 px (about 1.5 s of the camera
-stage), and finds the same views."""
+10 px it skips 47 of 59 unsure images there, against 35 at 40 px (time of the camera stage
+saved), and finds the same views."""
 
 
 def _runs_off_the_image(

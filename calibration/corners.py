@@ -33,7 +33,7 @@ or 4x-supersampled renders), a board's mean off by up to 0.05 px, and 0.026 px R
 30-view session with 2 grey levels of noise. The fit models the pixels as sim.light forms
 them (and nearly as a camera does) and has no such bias: 0.0007-0.0022 px RMS on noise-free
 renders (the 8-bit rounding; 0.0001 px on float ones), 0.006 px with 2 grey levels of noise
-(the noise itself), for about 4 ms per image; where it fails (see `_fit_corners`)
+(the noise itself); where it fails (see `_fit_corners`)
 cornerSubPix's corner stands.
 """
 
@@ -48,8 +48,8 @@ from acquisition.contracts.rig_description import RigDescription
 
 _CLASSIC_FLAGS = cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
 """The classic detector without adaptive thresholding: on the realistic lab's images (30
-poses, 3 cameras) it finds the same 49 boards in 3.7 ms per image instead of 35 ms, and where
-it fails (a board cut by the image's edge) it fails in 4 ms instead of 120-360 ms; the
+poses, 3 cameras) it finds the same boards in a fraction of the time, and where it fails (a
+board cut by the image's edge) it fails in a fraction of it too; the
 sector-based fallback is the detector robust to uneven light, and it found every board the
 adaptive classic one found."""
 _SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 100, 1e-4)
@@ -60,8 +60,8 @@ most edge pixels."""
 _SUBPIX_HALF_WINDOW_PX = (2, 10)
 _FIT_HALF_WINDOW_PX = (3.0, 8.0)
 """Smallest and largest radius of the disc the corner model is fitted on, pixels: below 3 px
-too few edge pixels are left; 8 px keeps the fit at about 4 ms per image of 54 corners (10 px
-took 25 % longer for 12 % less noise, 6 px 25 % less time for 17 % more)."""
+too few edge pixels are left; 8 px weighs the fit's time against its noise (a larger disc
+costs time for a little less noise, a smaller one saves time for more)."""
 _FIT_MARGIN_PX = 2.5
 """Clearance between the fit's disc and the sides of the four squares around a corner,
 pixels: the blur (about 2 sigma) and the pixel (half a pixel) spread an edge that far."""

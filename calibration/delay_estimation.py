@@ -312,8 +312,8 @@ def _echo_and_lead_energy(corr: np.ndarray, peak: np.ndarray, lags: _Lags, fs: f
     far before it (circular; the span is cut to under half the circle, so the two never
     overlap). Each span is a window of a circularly padded copy of the correlation, and its
     sum of squares is accumulated in the correlation's own precision (single: 1e-5 of it,
-    plenty for a ratio judged at 2 %): 2.4 ms per pose of 438 channels, a third of what
-    gathering the spans by index took."""
+    plenty for a ratio judged at 2 %): faster than gathering the spans by index
+    (benchmarks/bench_calibration.py times the stage)."""
     first, last = (int(round(t * fs / lags.step)) for t in ECHO_SPAN_S)
     last = min(last, (lags.length - 1) // 2)
     rows = corr.reshape(-1, lags.length)
@@ -368,8 +368,8 @@ def _lag_correlation(weighted: np.ndarray, band: slice | np.ndarray, length: int
     """The band-limited correlation at `length` equally spaced lags around the circle (r, ch,
     length): every full-rate lag (length n_fft) or about every second one (the band's bins
     then all below the shorter circle's Nyquist bin, so that it is sampled exactly). `band`:
-    the bins of `weighted`, a slice where they are consecutive (a slice's assignment is 6x
-    faster than an index array's: 7 ms per pose of 438 channels)."""
+    the bins of `weighted`, a slice where they are consecutive (a slice's assignment is
+    several times faster than an index array's)."""
     full = np.zeros((*weighted.shape[:-1], length // 2 + 1), dtype=np.complex64)
     full[..., band] = weighted
     return sfft.irfft(full, length, axis=-1, workers=fft_workers)
@@ -443,8 +443,8 @@ class _BandSums:
 
     Why: Newton's iterations need S_1 and S_2 at every step; forming the (rows, K) phasors and
     their products with C took five passes over the band per step, this takes one (with the
-    band taken as a view, a pose of 6 x 73 channels correlates in 0.12 s of CPU instead of
-    0.17-0.20 s). The exponentials are exact (no recurrence); the block products are in C's
+    band taken as a view; benchmarks/bench_calibration.py times the stage). The exponentials
+    are exact (no recurrence); the block products are in C's
     precision, their sum over blocks in double.
     """
 

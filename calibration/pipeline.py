@@ -36,6 +36,7 @@ from typing import Literal
 
 import numpy as np
 
+from acquisition.contracts.air import NOMINAL_SPEED_OF_SOUND_M_S, SpeedOfSoundPrior
 from acquisition.contracts.rig_description import KnownIntrinsics
 from acquisition.contracts.rigid import RigidTransform
 from acquisition.contracts.step_ids import REFMIC_STEP
@@ -121,8 +122,6 @@ from .speakers import (
 from .speed_of_sound import SpeedOfSoundFit, fit_speed_of_sound_robust
 from .times_of_flight import TOF_CACHE_POSES, SessionTofs, TofMemo, measure_session_tofs
 
-NOMINAL_SPEED_OF_SOUND_M_S = 343.0
-"""Start value of c when nothing better is known (about 20 degC)."""
 FREE_FIELD_ECHO_RATIO = 1.02
 """The largest echo ratio (`SessionTofs.echo_ratio`: the correlations' energy in the 20 ms
 after the direct sound over that in the 20 ms before it, pooled over the session) at which
@@ -238,7 +237,7 @@ class CalibrationOptions:
     mic_delay_std_s: float | None = 1e-6
     speed_of_sound_per_pose: bool = True
     speed_of_sound_step_m_s: float = 0.01
-    speed_of_sound_prior: tuple[float, float] | None = None
+    speed_of_sound_prior: SpeedOfSoundPrior | None = None
     intrinsics: dict[str, KnownIntrinsics] | None = None
     responses: bool = True
     air_sensor: bool = True
@@ -262,7 +261,7 @@ class Measurements:
     reference: ReferenceMicrophonePosition | None
     reference_fit: SpeedOfSoundFit | None
     timings_s: dict[str, float] = field(default_factory=dict)
-    air: tuple[float, float] | None = None
+    air: SpeedOfSoundPrior | None = None
     notes: list[str] = field(default_factory=list)
     weighting: Weighting = "compact"
     findings: list[Finding] = field(default_factory=list)
@@ -394,13 +393,13 @@ def _reference_fit(speakers: SpeakerPositions, reference: ReferenceMicrophonePos
     return fit, []
 
 
-def _air(data: SessionData) -> tuple[float, float] | None:
+def _air(data: SessionData) -> SpeedOfSoundPrior | None:
     """(c, std) from the air sensor's readings of the session, None without any."""
     readings = list(data.air_readings().values())
     if not readings:
         return None
     implied = np.array([r.speed_of_sound() for r in readings])
-    return float(np.mean(implied[:, 0])), float(np.mean(implied[:, 1]))
+    return SpeedOfSoundPrior(float(np.mean(implied[:, 0])), float(np.mean(implied[:, 1])))
 
 
 def calibrate(path: Path, options: CalibrationOptions | None = None,
@@ -592,7 +591,7 @@ def speed_of_sound_plan(m: Measurements, options: CalibrationOptions
 
 
 def known_speed_of_sound(m: Measurements,
-                         options: CalibrationOptions) -> tuple[float, float] | None:
+                         options: CalibrationOptions) -> SpeedOfSoundPrior | None:
     """The known (c, std) in m/s: the options', else the session description's air (a
     reading someone wrote down), else the session's air-sensor readings."""
     if options.speed_of_sound_prior is not None:

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from acquisition.contracts.air import speed_of_sound
+from acquisition.contracts.air import SpeedOfSoundPrior, speed_of_sound
 
 from .errors import CalibrationInputError
 from .robust import robust_sigma
@@ -61,7 +61,7 @@ class FitFigures:
     tof_residuals_s: np.ndarray
     tof_outliers: np.ndarray
     corner_rms_px: dict[str, float]
-    known_speed_of_sound: tuple[float, float] | None = None
+    known_speed_of_sound: SpeedOfSoundPrior | None = None
 
     @property
     def tof_spread_s(self) -> float:

@@ -35,6 +35,7 @@ from scipy import sparse
 from scipy.optimize import OptimizeResult, least_squares
 from scipy.spatial.transform import Rotation
 
+from acquisition.contracts.air import NOMINAL_SPEED_OF_SOUND_M_S
 from acquisition.contracts.rigid import RigidTransform, kabsch, rotated_point_jacobian
 
 from .errors import CalibrationInputError
@@ -126,7 +127,7 @@ class SolverOptions:
         max_nfev: evaluation limit of each least-squares stage.
     """
 
-    speed_of_sound_m_s: float = 343.0
+    speed_of_sound_m_s: float = NOMINAL_SPEED_OF_SOUND_M_S
     fit_speed_of_sound: bool = True
     latency: Literal["none", "common", "per_board"] = "common"
     reference_board: int | None = 0

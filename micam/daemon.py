@@ -18,16 +18,17 @@ from daq import DaqError
 
 from acquisition.contracts.camera import CameraError
 from acquisition.contracts.errors import UserError
+from acquisition.daemon.config import DaemonConfig
 from acquisition.daemon.security import check_exposure
 from acquisition.daemon.service import Daemon
 from acquisition.daemon.systemd import configure_logging, sd_notify
 
-from .hardware import MicamDaemonConfig, load_daemon_config, open_hardware
+from .hardware import load_daemon_config, open_hardware
 
 log = logging.getLogger("micam.daemon")
 
 
-def check_config(config: MicamDaemonConfig) -> str:
+def check_config(config: DaemonConfig) -> str:
     """Check a loaded configuration without opening anything (`load_daemon_config` has
     validated it; this refuses sockets strangers could reach); a one-line summary of it."""
     check_exposure(config.sockets)

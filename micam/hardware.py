@@ -2,71 +2,66 @@
 
 The acquisition daemon knows only `Hardware` and the real devices; the simulated world lives in
 `sim/`, which the daemon must not import (a daemon on the acquisition PC never loads the
-simulator). This module joins them: `MicamDaemonConfig` is the daemon's configuration with the
-`[simulation]` section, and `open_hardware` opens what the configuration asks for.
+simulator). This module joins them, and loads the simulator only when the configuration has no
+`[hardware]`: then the configuration is read as `micam.simulated_hardware.MicamDaemonConfig`
+(with the `[simulation]` section validated) and `open_hardware` builds that world; otherwise it
+is an `OnHardwareConfig` and `open_hardware` opens the real devices.
 """
 
 from __future__ import annotations
 
 import logging
 from pathlib import Path
+from typing import Any
 
-from pydantic import ConfigDict
+from pydantic import Field
 
-from acquisition.daemon.config import DaemonConfig, load_config
+from acquisition.contracts.bounded_files import read_toml
+from acquisition.daemon.config import ConfigError, DaemonConfig, config_of
 from acquisition.daemon.hardware import Hardware, open_real_hardware
-from sim.capture import SimulationOptions
-
-from .simulated import TRUTH_FILE
 
 log = logging.getLogger("micam.daemon")
 
 
-class SimulationConfig(SimulationOptions):
-    """The simulated world the daemon runs on without hardware (unknown keys refused)."""
+class OnHardwareConfig(DaemonConfig):
+    """The daemon's configuration with `[hardware]`: a `[simulation]` section is accepted and
+    left unread (validating it would load the simulator for a world that is not built)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class MicamDaemonConfig(DaemonConfig):
-    """The daemon's configuration as `micam daemon` reads it: with the simulated world's section
-    (used when there is no `[hardware]`)."""
-
-    simulation: SimulationConfig = SimulationConfig()
+    simulation: dict[str, Any] = Field(
+        default_factory=dict, description="the simulated world's options, used only without "
+                                          "[hardware]")
 
 
-def load_daemon_config(path: Path | None = None) -> MicamDaemonConfig:
-    """Read `micam daemon`'s configuration (None: defaults) with its environment overrides."""
-    return load_config(path, MicamDaemonConfig)
+def daemon_config_of(document: dict[str, Any] | None, where: str) -> DaemonConfig:
+    """`micam daemon`'s configuration of a parsed TOML `document` (None: defaults) and the
+    environment: an `OnHardwareConfig` when it configures hardware, else the simulated world's
+    `MicamDaemonConfig`. Raises ConfigError naming `where`."""
+    config = config_of(document, where, OnHardwareConfig)
+    if config.hardware is not None:
+        return config
+    from .simulated_hardware import MicamDaemonConfig
+
+    return config_of(document, where, MicamDaemonConfig)
 
 
-def _simulated(options: SimulationConfig) -> Hardware:
-    from sim.backends import build_capture
-    from sim.capture import truth_document
-    from sim.live_scene import demo_scene
-
-    sim = build_capture(options)
-    world = sim.world
-    process = sim.world_process
-
-    def live_scene(playing: bool) -> None:
-        world.live_scene = demo_scene(world) if playing else None
-        if process is not None:  # the audio backend: the sound is the JACK client's
-            process.live(playing)
-
-    on = " through the audio backend" if process is not None else ""
-    return Hardware(
-        config=sim.config, group=sim.group, cameras=sim.cameras, world_operator=sim.operator,
-        max_poses=options.poses, session_files={TRUTH_FILE: truth_document(sim)},
-        air_sensor=sim.air_sensor, live_scene=live_scene,
-        closers=[process.close] if process is not None else [],
-        description=f"simulated world ({options.array}, {options.poses} poses, seed "
-                    f"{options.seed}){on}")
+def load_daemon_config(path: Path | None = None) -> DaemonConfig:
+    """Read `micam daemon`'s configuration (None: defaults) with its environment overrides;
+    the file is read once, at most 1 MiB (`read_toml`)."""
+    if path is None:
+        return daemon_config_of(None, "the configuration")
+    return daemon_config_of(read_toml(Path(path), "config file", ConfigError),
+                            f"config file {path}")
 
 
-def open_hardware(config: MicamDaemonConfig) -> Hardware:
-    """Open the configured hardware, or build the simulated world when none is configured."""
-    hardware = (_simulated(config.simulation) if config.hardware is None
-                else open_real_hardware(config.hardware))
+def open_hardware(config: DaemonConfig) -> Hardware:
+    """Open the configured hardware, or build the simulated world when none is configured (a
+    configuration without `[simulation]`, e.g. a bare `DaemonConfig`: the default world)."""
+    if config.hardware is not None:
+        hardware = open_real_hardware(config.hardware)
+    else:
+        from .simulated_hardware import MicamDaemonConfig, SimulationConfig, simulated_hardware
+
+        hardware = simulated_hardware(config.simulation if isinstance(config, MicamDaemonConfig)
+                                      else SimulationConfig())
     log.info("hardware: %s", hardware.description)
     return hardware

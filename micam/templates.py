@@ -22,6 +22,7 @@ import json
 import textwrap
 
 from acquisition.contracts.errors import UserError
+from acquisition.contracts.stimulus import mls_length
 from sim.geometry import PAPER_SPEAKERS_MM
 
 TEMPLATES = ("paper", "generic", "audio", "uma16", "import")
@@ -197,8 +198,8 @@ def _daemon(title: str, boards: list[tuple[str, str, int, int]], n_mics: int,
         "distance_from_speaker_m = 0.002   # how far from each speaker in its reference recording",
         "",
         "[hardware.capture.burst]       # what each speaker plays per recording",
-        (f"mls_order = {order}          # {2**order - 1} samples, "
-         f"{1e3 * (2**order - 1) / rate_hz:.0f} ms at {rate_hz / 1000:.0f} kS/s"),
+        (f"mls_order = {order}          # {mls_length(order)} samples, "
+         f"{1e3 * mls_length(order) / rate_hz:.0f} ms at {rate_hz / 1000:.0f} kS/s"),
         "periods = 2             # played back to back; the last is the room-proof one",
         "amplitude_v = 1.0",
         "pre_samples = 512       # recorded silence before the sequence",

@@ -26,8 +26,9 @@ from acquisition.daemon.hardware import Hardware
 from acquisition.daemon.service import Daemon
 from sim.capture import SimulationOptions
 
-from .hardware import MicamDaemonConfig, SimulationConfig, open_hardware
+from .hardware import open_hardware
 from .simulated import record_simulated_session
+from .simulated_hardware import MicamDaemonConfig, SimulationConfig
 
 SMALL_WORLD: dict[str, Any] = {"array": "scatter48", "poses": 3, "mls_order": 9, "seed": 3}
 """48 scattered microphones, one camera, 3 poses, short bursts: enough to calibrate."""

@@ -24,6 +24,7 @@ from acquisition.contracts.capture_config import (
     SpeakerEntry,
 )
 from acquisition.contracts.rig_description import MIN_STEADY_PERIOD_S, steady_mls_order
+from acquisition.contracts.stimulus import mls_length
 from daq import Board, InputChannel, OutputChannel, SyncGroup, board_model
 
 from .air_sensor import SimulatedAirSensor
@@ -129,7 +130,7 @@ class SimulationOptions(BaseModel):
     @model_validator(mode="after")
     def _periods_fit(self) -> SimulationOptions:
         fs = World.sample_rate_hz
-        period_s = (2**self.mls_order - 1) / fs
+        period_s = mls_length(self.mls_order) / fs
         if self.burst(fs).periods > 1 and period_s < MIN_STEADY_PERIOD_S:
             raise ValueError(
                 f"{self.mls_periods} periods of an MLS of order {self.mls_order} "
@@ -143,7 +144,7 @@ class SimulationOptions(BaseModel):
         otherwise (the short bursts of quick tests)."""
         periods = self.mls_periods
         if periods is None:
-            long_enough = (2**self.mls_order - 1) / sample_rate_hz >= MIN_STEADY_PERIOD_S
+            long_enough = mls_length(self.mls_order) / sample_rate_hz >= MIN_STEADY_PERIOD_S
             periods = 2 if long_enough else 1
         return BurstConfig(mls_order=self.mls_order, periods=periods)
 

@@ -88,6 +88,7 @@ def test_import_contracts_hold() -> None:
     assert "0 broken" in run.stdout
 
 
+@pytest.mark.slow
 def test_mypy_is_clean() -> None:
     run = subprocess.run([sys.executable, "-m", "mypy"], cwd=REPO, capture_output=True,
                          text=True, timeout=600)

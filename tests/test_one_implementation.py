@@ -94,6 +94,7 @@ def test_a_record_with_its_own_rotation_and_translation_is_found() -> None:
         "class Ok:\n    rig_to_cam: RigidTransform\n    t: float\n") == ["Pose"]
 
 
+@pytest.mark.slow
 def test_no_type_but_rigid_transform_holds_a_rotation_and_a_translation() -> None:
     """#18 found five types for one rigid transform; records hold a RigidTransform in a field
     named for its direction (`cam0_to_cam`, `rig_to_cam0`) instead of their own R and t."""

@@ -8,7 +8,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 ROOTS = ("micam/", "acquisition/", "calibration/", "sim/", "daq/", "tests/", "benchmarks/",
-         "docs/", "pyproject.toml")
+         "docs/", "udev/", "pyproject.toml")
 
 
 def _tour() -> str:

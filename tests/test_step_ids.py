@@ -128,6 +128,7 @@ def test_a_hand_spelled_step_id_is_found_and_prose_is_not() -> None:
                                                "reference/{}", "refmic"]
 
 
+@pytest.mark.slow
 def test_no_package_module_but_step_ids_spells_a_step_id() -> None:
     """#18 found the step ids spelled by hand in some twenty places; each now calls
     acquisition.contracts.step_ids (pose_step, pose_index, is_pose_step, reference_step,
@@ -139,6 +140,7 @@ def test_no_package_module_but_step_ids_spells_a_step_id() -> None:
     assert SPELLS_STEP_IDS.keys() <= found.keys()  # the exceptions still need to be
 
 
+@pytest.mark.slow
 def test_the_report_reads_pose_numbers_without_the_imaging_package() -> None:
     """calibration.report imported calibration.imaging (and scipy.signal) for pose_index
     alone: ~0.45 s of every CLI start. A fresh interpreter shows what importing it loads."""

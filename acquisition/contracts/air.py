@@ -10,13 +10,22 @@ relative humidity at 20 degC. The capture sequencer stores one `AirReading` per 
 
 from __future__ import annotations
 
-from typing import Protocol, runtime_checkable
+from typing import NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 AIR_FILE = "air.json"
 """The per-step file of an air reading."""
+NOMINAL_SPEED_OF_SOUND_M_S = 343.0
+"""c when nothing better is known (dry air at about 20 degC): a start value, never a result."""
+
+
+class SpeedOfSoundPrior(NamedTuple):
+    """A known speed of sound and how well it is known: a prior of the calibration's c."""
+
+    c_m_s: float
+    std_m_s: float
 
 
 class AirReading(BaseModel):
@@ -36,7 +45,7 @@ class AirReading(BaseModel):
     pressure_pa: float = Field(default=101_325.0, ge=50_000.0, le=120_000.0)
     pressure_std_pa: float = Field(default=2_000.0, ge=0.0, le=50_000.0)
 
-    def speed_of_sound(self) -> tuple[float, float]:
+    def speed_of_sound(self) -> SpeedOfSoundPrior:
         """(c, std) in m/s implied by the reading and its stated accuracies (first order)."""
         c = float(speed_of_sound(self.temperature_c, self.relative_humidity, self.pressure_pa))
         parts = []
@@ -47,7 +56,7 @@ class AirReading(BaseModel):
             dc = float(speed_of_sound(shifted.temperature_c, shifted.relative_humidity,
                                       shifted.pressure_pa)) - c
             parts.append(dc / step * std)
-        return c, float(np.sqrt(np.sum(np.square(parts))))
+        return SpeedOfSoundPrior(c, float(np.sqrt(np.sum(np.square(parts)))))
 
 
 def piston_directivity(freqs_hz: np.ndarray, sin_theta: np.ndarray, radius_m: float,

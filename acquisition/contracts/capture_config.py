@@ -28,6 +28,7 @@ from .rig_description import (
     RigDescription,
 )
 from .session import SessionError
+from .stimulus import mls_length
 
 
 class BoardEntry(ConfigModel):
@@ -101,7 +102,7 @@ class BurstConfig(ConfigModel):
     @property
     def n_samples(self) -> int:
         """Length of one recording, samples per channel."""
-        return self.pre_samples + self.periods * (2**self.mls_order - 1) + self.post_samples
+        return self.pre_samples + self.periods * mls_length(self.mls_order) + self.post_samples
 
 
 RigEntry = RigDescription

@@ -30,9 +30,10 @@ from typing import Final, Literal
 
 from pydantic import Field, ValidationError, model_validator
 
-from .air import AirReading
+from .air import AirReading, SpeedOfSoundPrior
 from .config_model import ConfigModel, describe_problems
 from .errors import UserError
+from .stimulus import mls_length
 
 DESCRIPTION_KIND: Final = "rig-and-array"
 """The `kind` of a description stored as a session's capture (a capture configuration has
@@ -225,7 +226,7 @@ class BurstLayout(ConfigModel):
 
     @property
     def sequence_samples(self) -> int:
-        return 2**self.mls_order - 1
+        return mls_length(self.mls_order)
 
     @property
     def n_samples(self) -> int:
@@ -304,12 +305,13 @@ class KnownAir(ConfigModel):
             raise ValueError("\n".join(problems))
         return self
 
-    def speed_of_sound_prior(self) -> tuple[float, float]:
+    def speed_of_sound_prior(self) -> SpeedOfSoundPrior:
         """(c, standard deviation) in m/s: the measured c, or Cramer's c of the measured air
         (acquisition.contracts.air) with the temperature's and the humidity's std carried through
         (humidity unknown: 0.5 +- 0.5)."""
         if self.speed_of_sound_m_s is not None:
-            return self.speed_of_sound_m_s, float(self.speed_of_sound_std_m_s or 0.0)
+            return SpeedOfSoundPrior(self.speed_of_sound_m_s,
+                                     float(self.speed_of_sound_std_m_s or 0.0))
         humid = self.relative_humidity is not None
         return AirReading(
             temperature_c=float(self.temperature_c or 0.0),

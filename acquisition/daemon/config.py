@@ -4,9 +4,10 @@ Priority, highest first: environment (`MICAM_DAEMON_SESSION_ROOT=...`, nested se
 double underscore: `MICAM_DAEMON_SOCKETS__CONTROL=ipc:///run/micam/control`), then the TOML
 file, then the defaults below. The file is read once (it may be a pipe: `--config <(...)`)
 and parsed once; the settings get the parsed document, never the path to read again. Unknown
-keys are refused so a misspelt option is never ignored. With no `[hardware]` section the daemon runs on a simulated world; its `[simulation]` section is
-added by the application that builds that world (`micam.hardware.MicamDaemonConfig`), so this
-package never imports the simulator.
+keys are refused so a misspelt option is never ignored. With no `[hardware]` section the
+daemon runs on a simulated world; its `[simulation]` section is added by the application that
+builds that world (`micam.simulated_hardware.MicamDaemonConfig`), so this package never imports
+the simulator.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """The daemon's index of its sessions: `sessions.list` without reading journals on the loop.
 
-Reading a session's journal costs milliseconds (about 2 ms for a 20-pose session) and the
+Reading a session's journal costs milliseconds (benchmarks/bench_sessions_list.py) and the
 daemon's one loop must answer within a burst, so a listing that reads every journal would
 starve the heartbeats after a thousand sessions. The index keeps each session's summary with
 the size and modification time of the journal it was read from:

@@ -28,6 +28,7 @@ from acquisition.contracts.instructions import Instruction, InstructionKind
 from ..sequencer import CaptureSequencer, Progress, plan_steps
 from acquisition.contracts.session import SessionWriter
 from acquisition.contracts.session._layout import attempt_dir
+from acquisition.contracts.stimulus import mls_length
 from acquisition.contracts.step_ids import is_pose_step
 from .config import DaemonConfig
 from .hardware import Hardware
@@ -324,7 +325,7 @@ class SessionRun:
     def on_recording(self, step: str, name: str, codes: np.ndarray) -> None:
         attempt = self._current(step)
         burst = self.capture.burst
-        levels = measure(codes, burst.pre_samples, 2**burst.mls_order - 1,
+        levels = measure(codes, burst.pre_samples, mls_length(burst.mls_order),
                          self.config.quality.clip_fraction)
         summary = {"rms_dbfs": _rounded(levels.rms_dbfs), "peak_dbfs": _rounded(levels.peak_dbfs),
                    "snr_db": _rounded(levels.snr_db) if levels.snr_db is not None else [],

@@ -20,8 +20,8 @@ from .geometry import BoardPose, CameraView
 from .grid import PlaneGrid
 
 MAX_VIEW_POINTS = 120_000
-"""Largest grid `field_of_view_grid` makes (about 1.5 s of CLEAN-SC per band on 2 cores);
-beyond it the spacing grows."""
+"""Largest grid `field_of_view_grid` makes (CLEAN-SC's time per band grows with it:
+benchmarks/bench_imaging.py); beyond it the spacing grows."""
 MAX_VIEW_EXTENT_M = 3.0
 """How far from the rig's centre a field-of-view grid reaches at most (a plane seen at a
 grazing angle reaches the horizon)."""

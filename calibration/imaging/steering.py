@@ -68,8 +68,9 @@ def _distances(points: np.ndarray, mics: np.ndarray) -> np.ndarray:
 
 
 def unit_phasors(angle: np.ndarray) -> np.ndarray:
-    """exp(-i angle) in complex128 for float64 angles, to about 1e-15, 2-3x faster than
-    np.exp on this workload: the angle is reduced to [-pi, pi], halved k times until it is
+    """exp(-i angle) in complex128 for float64 angles, to about 1e-15, faster than
+    np.exp on this workload (benchmarks/bench_imaging.py): the angle is reduced to [-pi, pi],
+    halved k times until it is
     below 0.1, the Taylor series of cos and sin taken to the 10th and 11th order (error
     < 3e-18) and the result squared k times."""
     x = np.array(angle, dtype=np.float64, copy=True)
@@ -242,8 +243,8 @@ class SteeringModel:
         The phase k (r_m - r_0) is computed and reduced to [-pi, pi] in float64; only the
         reduced angle is rounded to float32 and its cosine and sine are taken in float32
         (absolute phase error <= 3e-7 rad; Acoular rounds the unreduced k r, about 150 rad at
-        8 kHz and 1 m, to float32: up to 8e-6 rad). About 10x faster than the float64
-        exponential.
+        8 kHz and 1 m, to float32: up to 8e-6 rad). Much faster than the float64
+        exponential (benchmarks/bench_imaging.py).
         """
         cycles = self.path_difference * (float(freq_hz) / self.c)
         cycles -= np.rint(cycles)

@@ -166,7 +166,7 @@ class UsbTransport:
             if e.errno in (errno.EACCES, errno.EPERM):
                 raise UsbTransferError(
                     f"{self.name}: no permission for {what}; install the udev rules with "
-                    "`sudo micam install udev` (micam/data/udev/README.md) and replug the board"
+                    "`sudo micam install udev` (udev/README.md) and replug the board"
                 ) from None
             if e.errno == errno.EBUSY:
                 raise UsbTransferError(

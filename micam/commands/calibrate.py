@@ -5,11 +5,15 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from acquisition.contracts.errors import UserError
 
 from ..outputs import check_output_dirs, check_outputs
 from .bounded import number, positive
+
+if TYPE_CHECKING:
+    from acquisition.contracts.air import SpeedOfSoundPrior
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -114,7 +118,7 @@ _AIR_FLAGS = {"temperature_c": "--temperature", "temperature_std_c": "--temperat
               "speed_of_sound_std_m_s": "--known-speed-of-sound-std"}
 
 
-def _known_air(args: argparse.Namespace) -> tuple[float, float] | None:
+def _known_air(args: argparse.Namespace) -> SpeedOfSoundPrior | None:
     """The known (c, std) of --temperature or --known-speed-of-sound, checked."""
     from pydantic import ValidationError
 

@@ -60,14 +60,13 @@ def run_template(args: argparse.Namespace) -> int:
 def run_check(args: argparse.Namespace) -> int:
     """Check the file as read once (it may be a pipe: `micam config check <(...)`)."""
     from acquisition.contracts.bounded_files import read_toml
-    from acquisition.daemon.config import config_of
     from micam.daemon import check_config
-    from micam.hardware import MicamDaemonConfig
+    from micam.hardware import daemon_config_of
 
     document = read_toml(args.file, "configuration", UserError)
     if "recordings" in document:
         return _check_import(document, args.file)
-    print(check_config(config_of(document, f"config file {args.file}", MicamDaemonConfig)))
+    print(check_config(daemon_config_of(document, f"config file {args.file}")))
     return 0
 
 

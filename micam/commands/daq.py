@@ -120,7 +120,7 @@ def run_list(args: argparse.Namespace) -> int:
         raise _usb_unusable(exc) from None
     if not boards:
         print("no Data Translation board found (check the cable, power and udev rules: "
-              "micam/data/udev/README.md, `micam install udev`)")
+              "udev/README.md, `micam install udev`)")
         return 1
     print(f"{'family':8s} {'model':12s} {'serial':>10s} {'firmware':9s} {'usb id':10s} location")
     for b in boards:
@@ -133,7 +133,7 @@ def run_list(args: argparse.Namespace) -> int:
 def _usb_unusable(exc: Exception) -> UserError:
     return UserError(
         f"cannot scan the USB bus: {exc}. Is libusb-1.0 installed (Debian: libusb-1.0-0), "
-        "and may this user open the boards (micam/data/udev/README.md, `micam install udev`)?")
+        "and may this user open the boards (udev/README.md, `micam install udev`)?")
 
 
 def run_selftest(args: argparse.Namespace) -> int:

@@ -175,7 +175,7 @@ def run_probe(args: argparse.Namespace) -> int:
         trace_path.unlink(missing_ok=True)
         raise UserError(f"cannot scan the USB bus: {exc}. Is libusb-1.0 installed (Debian: "
                         "libusb-1.0-0), and may this user open the boards "
-                        "(micam/data/udev/README.md, `micam install udev`)?") from None
+                        "(udev/README.md, `micam install udev`)?") from None
     except OSError as exc:
         raise UserError(f"cannot write {trace_path}: {exc.strerror or exc}") from None
     try:

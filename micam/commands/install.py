@@ -6,10 +6,11 @@ from __future__ import annotations
 import argparse
 import shutil
 import sys
-from importlib.resources import files
 from pathlib import Path
 
 from acquisition.contracts.errors import UserError
+
+from ..data import shipped
 
 UDEV_DIR = Path("etc/udev/rules.d")
 SYSTEMD_DIR = Path("etc/systemd/system")
@@ -52,17 +53,13 @@ def _this_micam() -> Path:
     return beside if beside.exists() or found is None else Path(found)
 
 
-def _shipped(folder: str, name: str) -> str:
-    return files("micam.data").joinpath(folder, name).read_text()
-
-
 def planned(args: argparse.Namespace) -> list[tuple[Path, str]]:
     """(path, content) of every file the command writes."""
     if args.what == "udev":
         names = (UDEV_FLAG, UDEV_ACCESS[args.access])
-        return [(args.prefix / UDEV_DIR / n, _shipped("udev", n)) for n in names]
+        return [(args.prefix / UDEV_DIR / n, shipped("udev", n)) for n in names]
     micam = str((args.micam or _this_micam()).absolute())
-    return [(args.prefix / SYSTEMD_DIR / n, _shipped("systemd", n).replace(MICAM_TOKEN, micam))
+    return [(args.prefix / SYSTEMD_DIR / n, shipped("systemd", n).replace(MICAM_TOKEN, micam))
             for n in UNITS]
 
 

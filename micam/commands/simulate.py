@@ -32,6 +32,18 @@ def _mistakes_epilog() -> str:
             "\"Mistakes\"):\n" + "\n".join(lines))
 
 
+MISTAKES_EPILOG = "(the mistakes --mistake can ask for)"
+"""The epilog's placeholder, replaced by `_mistakes_epilog()` when the help is formatted."""
+
+
+class _MistakesHelp(argparse.RawDescriptionHelpFormatter):
+    """Lists the mistakes only when the help is shown: they are the simulator's, which building
+    the parser (for any command, `micam daemon` too) must not load."""
+
+    def add_text(self, text: str | None) -> None:
+        super().add_text(_mistakes_epilog() if text is MISTAKES_EPILOG else text)
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "simulate",
@@ -39,8 +51,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         description=textwrap.fill(
             "Run the capture sequencer on simulated boards and cameras and write a session "
             "to DIR, with the simulation's ground truth in DIR/truth.json.", 79),
-        epilog=_mistakes_epilog(),
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=MISTAKES_EPILOG,
+        formatter_class=_MistakesHelp,
     )
     p.add_argument("--out", required=True, type=Path, metavar="DIR",
                    help="session directory (new or empty; with --resume, an interrupted one)")

@@ -28,6 +28,7 @@ import numpy as np
 
 from acquisition.contracts.capture_config import CaptureConfig
 from acquisition.contracts.step_ids import pose_step, reference_step
+from acquisition.contracts.stimulus import mls_length
 
 from ..arrays import ArrayLayout, ChannelRef
 from ..errors import SimulationInputError
@@ -329,7 +330,7 @@ class _Planner:
         recordings = self._pose_recordings()
         count = max(1, round(fraction * len(recordings)))
         burst = self.ctx.config.burst
-        length = burst.periods * (2**burst.mls_order - 1)
+        length = burst.periods * mls_length(burst.mls_order)
         chosen = sorted(int(i) for i in rng.choice(len(recordings), count, replace=False))
         listed = []
         for i in chosen:

@@ -28,6 +28,7 @@ def _hashes(path: Path) -> dict[str, str]:
             for p in path.rglob("*") if p.is_file() and p.suffix in (".wav", ".png")}
 
 
+@pytest.mark.slow
 def test_complete_session_round_trips(tmp_path: Path, small_options: SimulationOptions) -> None:
     sim, writer, seq = _capture(tmp_path / "s", small_options)
     seq.run()
@@ -70,6 +71,7 @@ def _count_records(path: Path) -> int:
     return len(journal_records(path / "journal.jsonl"))
 
 
+@pytest.mark.slow
 def test_crash_after_every_journal_record_resumes_intact(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     options = SimulationOptions(array="scatter48", poses=1, mls_order=8, seed=9)
@@ -115,6 +117,7 @@ def test_crash_after_every_journal_record_resumes_intact(
         assert not list(path.rglob("*.partial"))
 
 
+@pytest.mark.slow
 def test_unplugged_board_interrupts_and_resume_completes(
         tmp_path: Path, small_options: SimulationOptions) -> None:
     path = tmp_path / "s"
@@ -161,6 +164,7 @@ def test_camera_without_frame_interrupts_cleanly(tmp_path: Path,
     assert SessionReader(path).status == "complete"
 
 
+@pytest.mark.slow
 def test_same_seed_same_recordings(tmp_path: Path, small_options: SimulationOptions) -> None:
     for name in ("a", "b"):
         _, _, seq = _capture(tmp_path / name, small_options)

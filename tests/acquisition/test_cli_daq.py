@@ -18,6 +18,7 @@ def test_daq_list_emulated_shows_every_board(capsys: pytest.CaptureFixture) -> N
     assert "36001" in out and "16099" in out and "running" in out
 
 
+@pytest.mark.slow
 def test_daq_selftest_emulated_passes(capsys: pytest.CaptureFixture) -> None:
     assert main(["daq", "selftest", "--emulate", "--seconds", "0.05"]) == 0
     lines = [ln for ln in capsys.readouterr().out.splitlines() if ln.strip()]
@@ -31,6 +32,7 @@ def test_selftest_refuses_a_nonpositive_length(capsys: pytest.CaptureFixture) ->
     assert "argument --seconds: 0 is not a number above 0" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_usb_emulated_capture_records_what_the_plain_simulation_records(tmp_path: Path) -> None:
     common = ["--array", "scatter48", "--poses", "1", "--mls-order", "9", "--quiet"]
     assert main(["simulate", "--out", str(tmp_path / "usb"), "--backend", "usb-emulated",

@@ -18,6 +18,7 @@ from acquisition.contracts.session import SessionReader, journal_records
 QUICK = ["--array", "scatter48", "--poses", "2", "--mls-order", "9", "--quiet"]
 
 
+@pytest.mark.slow
 def test_simulate_writes_session_and_truth(tmp_path: Path) -> None:
     out = tmp_path / "s"
     assert main(["simulate", "--out", str(out), *QUICK]) == 0
@@ -68,6 +69,7 @@ def test_resume_needs_a_simulated_session(tmp_path: Path, capsys: pytest.Capture
     assert "truth.json is missing" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_sigkill_during_capture_then_resume(tmp_path: Path) -> None:
     """A real kill -9 in the middle of a burst; the resumed session is complete and intact."""
     out = tmp_path / "s"

@@ -73,6 +73,7 @@ def _calibrate(session: Path, tmp_path: Path, capsys: pytest.CaptureFixture) -> 
 @pytest.mark.parametrize(("step", "name"), [("pose/0001", "cam0.png"),
                                             ("reference/2", "speaker_2.wav")])
 @pytest.mark.parametrize("damage", sorted(DAMAGE))
+@pytest.mark.slow
 def test_calibrate_names_the_damaged_file(session: Path, tmp_path: Path, step: str, name: str,
                                           damage: str, capsys: pytest.CaptureFixture) -> None:
     path = _file(session, step, name)
@@ -145,6 +146,7 @@ def _refusal_in_fresh_process(session: Path, call: str) -> tuple[int, str]:
     return grown, done.stdout + done.stderr
 
 
+@pytest.mark.slow
 def test_a_huge_png_that_matches_the_journal_is_refused_before_decoding(
         session: Path, tmp_path: Path) -> None:
     """A 16000 x 16000 PNG of one colour is 250 kB on disk and 256 MB decoded: with the journal

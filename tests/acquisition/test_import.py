@@ -318,6 +318,7 @@ import acquisition.importer, micam.commands.import_session  # their imports are 
 """
 
 
+@pytest.mark.slow
 def test_a_huge_image_is_refused_from_its_header(tmp_path: Path) -> None:
     """A 16000 x 16000 PNG of one colour (250 kB, 256 MB decoded) where the camera is
     described at that size: refused before it is decoded."""
@@ -332,6 +333,7 @@ def test_a_huge_image_is_refused_from_its_header(tmp_path: Path) -> None:
     assert grown < 64 * 2**20, f"--check grew the peak memory by {grown / 2**20:.0f} MiB"
 
 
+@pytest.mark.slow
 def test_the_memory_of_check_does_not_grow_with_the_poses(tmp_path: Path) -> None:
     """100 poses naming one 2000 x 1000 image (2 MB decoded; 200 MB if all were held):
     --check holds one step's files at a time."""

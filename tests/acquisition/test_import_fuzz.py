@@ -239,6 +239,7 @@ def _run(argv: list[str]) -> tuple[int, str]:
 @settings(max_examples=EXAMPLES, deadline=None, database=None, derandomize=not LONG,
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 @given(data=st.data())
+@pytest.mark.slow
 def test_any_import_description_ends_in_a_session_or_one_clear_line(data: st.DataObject
                                                                       ) -> None:
     with tempfile.TemporaryDirectory(dir=_SCRATCH) as directory:

@@ -129,10 +129,11 @@ def test_known_air_gives_c_and_its_std() -> None:
     assert std == pytest.approx(0.5 * slope, rel=1e-3)
     # without a hygrometer, the humidity's range dominates
     d = validate_description(_with("air", {"temperature_c": 24.0, "temperature_std_c": 0.5}))
-    assert d.air.speed_of_sound_prior()[1] > 0.6  # type: ignore[union-attr]
+    assert d.air.speed_of_sound_prior().std_m_s > 0.6  # type: ignore[union-attr]
     d = validate_description(_with("air", {"speed_of_sound_m_s": 344.1,
                                            "speed_of_sound_std_m_s": 0.05}))
-    assert d.air.speed_of_sound_prior() == (344.1, 0.05)  # type: ignore[union-attr]
+    known = d.air.speed_of_sound_prior()  # type: ignore[union-attr]
+    assert (known.c_m_s, known.std_m_s) == (344.1, 0.05)
 
 
 

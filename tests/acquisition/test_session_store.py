@@ -310,6 +310,7 @@ def _resume_finish_and_check(path: Path) -> None:
 
 
 @pytest.mark.parametrize("site", CRASH_SITES)
+@pytest.mark.slow
 def test_resume_after_a_crash_at_every_point(
     site: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

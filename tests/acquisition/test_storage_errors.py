@@ -61,6 +61,7 @@ def full_disk(tmp_path: Path) -> Iterator[tuple[Path, Callable[[], None] | None]
     yield disk, limit_file_size
 
 
+@pytest.mark.slow
 def test_simulate_on_a_full_disk_says_what_to_do_and_resumes(
         full_disk: tuple[Path, Callable[[], None] | None], tmp_path: Path) -> None:
     disk, limit = full_disk
@@ -120,6 +121,7 @@ def _final_jobs(root: Path) -> list[Path]:
     return sorted((root / "sessions.outbox").glob("*.final.json"))
 
 
+@pytest.mark.slow
 def test_a_full_outbox_neither_stops_the_daemon_nor_loses_the_final_job(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     outbox = _FullOutbox(monkeypatch)

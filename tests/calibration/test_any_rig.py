@@ -26,6 +26,8 @@ from calibration.result import compare_with_truth
 
 from . import foreign_rig
 
+pytestmark = pytest.mark.slow  # every test here: a foreign lab recorded and imported
+
 HARDWARE_KEYS = {"serial", "model", "boards", "range_v", "device_id", "n_poses",
                  "output_channel", "outputs", "inputs"}
 """What only an acquisition knows: an import must not need, invent or store any of it."""

@@ -92,6 +92,7 @@ def test_fixed_intrinsics_are_used_as_given_even_with_one_view() -> None:
     assert view.rms_px < 0.3 and np.all(np.isfinite(view.rig_to_cam.cov))
 
 
+@pytest.mark.slow
 def test_a_prior_is_weighed_against_the_images() -> None:
     rig = Rig()
     board = Checkerboard(6, 9, 0.03)
@@ -107,6 +108,7 @@ def test_a_prior_is_weighed_against_the_images() -> None:
     assert combined.std[0] < min(free.std[0], 0.5)  # better known than either alone
 
 
+@pytest.mark.slow
 def test_the_robust_detector_skips_a_board_that_another_camera_shows_running_off_the_image(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """A board cut by the image's edge passes the fast check and fails the classic detector;
@@ -148,6 +150,7 @@ def test_the_robust_detector_skips_a_board_that_another_camera_shows_running_off
     assert {(m.camera, m.step) for m in cal.missed} == {*cut, ("cam0", "pose/0007")}
 
 
+@pytest.mark.slow
 def test_a_grid_shifted_onto_the_boards_outer_edge_is_refused() -> None:
     """A board cut by the image's right edge (the realistic lab's camera 1 at pose 19): the
     classic detector finds a grid of the right size one column off, its left column on the

@@ -5,6 +5,7 @@ against the truth, frozen beside joint."""
 from __future__ import annotations
 
 import json
+import warnings
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -158,6 +159,7 @@ def test_jacobian_matches_central_differences() -> None:
     assert np.all(np.abs(numeric).max(axis=0) > 0)  # every unknown is observed
 
 
+@pytest.mark.slow
 def test_joint_fit_corrects_the_focal_length_and_the_array(scene: Scene,
                                                            fitted: BundleSolution) -> None:
     truth, est, std = scene.truth, fitted.state, fitted.std
@@ -183,6 +185,7 @@ def test_covariance_matches_the_errors(scene: Scene, fitted: BundleSolution) -> 
     assert 0.7 < fitted.chi2_per_dof < 1.3
 
 
+@pytest.mark.slow
 def test_covariance_counts_errors_shared_by_a_poses_speakers(scene: Scene) -> None:
     """Errors that the six speakers of a pose share at a microphone (a reflection, the
     speakers' directivity) are one error, not six. With 60 % of the same noise variance shared
@@ -208,6 +211,7 @@ def test_covariance_counts_errors_shared_by_a_poses_speakers(scene: Scene) -> No
     assert 1.5 < np.mean(d2[1]) < 4.5  # 3 for a 3-D Gaussian error
 
 
+@pytest.mark.slow
 def test_microphones_relative_geometry_is_covered_where_the_noise_model_is_right() -> None:
     """Four scenes with independent Gaussian noise: each microphone's error relative to the
     array's common motion (calibration.coverage) has a squared Mahalanobis distance of 3 on
@@ -247,6 +251,7 @@ def _exact_tofs(scene: Scene) -> np.ndarray:
     return flight + np.array(LATENCIES_S)[scene.problem.latency_column]
 
 
+@pytest.mark.slow
 def test_outliers_of_both_kinds_are_reported_and_left_out(scene: Scene,
                                                           fitted: BundleSolution) -> None:
     rng = np.random.default_rng(9)
@@ -284,6 +289,7 @@ def session(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_pipeline_joint_fit_beats_the_frozen_camera_against_the_truth(session: Path) -> None:
     truth = json.loads((session / "truth.json").read_text())
     run = calibrate(session)
@@ -320,3 +326,20 @@ def test_pipeline_joint_fit_beats_the_frozen_camera_against_the_truth(session: P
     np.testing.assert_allclose([m.position_m for m in no_joint.microphones],
                                [m.position_m for m in run.result.camera_frozen.microphones],
                                atol=1e-9)
+
+
+def test_an_infinite_std_is_no_data_and_warns_nothing() -> None:
+    """A silent reference column's TOFs come with an infinite std (no Fisher information):
+    the fit leaves them out as it leaves out missing ones, without a NaN sigma (it warned
+    "invalid value encountered in divide" twice)."""
+    small = make_scene(n_pose=3, seed=2, n_mic=12)
+    silent = replace(small.problem, reference_std_s=np.full(18, np.inf))
+    missing = replace(small.problem, reference_tof_s=np.full(18, np.nan))
+    start = frozen_camera_start(small.truth)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        fit = fit_bundle(silent, start)
+    assert all(np.isfinite(s) for s in fit.sigmas.values())
+    expected = fit_bundle(missing, start)
+    np.testing.assert_allclose(fit.state.microphones_m, expected.state.microphones_m,
+                               atol=1e-12)

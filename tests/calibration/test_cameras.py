@@ -28,6 +28,8 @@ from calibration.camera_calibration import (
 from calibration.corners import detect_corners
 from calibration.session_data import load_session
 
+pytestmark = pytest.mark.slow  # every test here: the twelve-pose session and its camera calibration
+
 CAMERAS = ["cam0", "cam1", "cam2"]
 
 

@@ -102,6 +102,7 @@ def _rms(error: np.ndarray) -> float:
 
 @pytest.mark.parametrize("lens", list(CAMERAS))
 @pytest.mark.parametrize("name", list(POSES))
+@pytest.mark.slow
 def test_corners_of_noise_free_renders_are_unbiased(lens: str, name: str) -> None:
     error = _detected_error(lens, name, 0.0)
     assert _rms(error) < NOISE_FREE_RMS_PX
@@ -109,6 +110,7 @@ def test_corners_of_noise_free_renders_are_unbiased(lens: str, name: str) -> Non
     assert np.abs(error).max() < NOISE_FREE_MAX_PX
 
 
+@pytest.mark.slow
 def test_corners_with_sensor_noise_are_noise_limited() -> None:
     """2 grey levels of noise (the simulated world's), two images per pose."""
     errors = [_detected_error("distorted", name, 2.0, seed) for name in NOISY for seed in (1, 2)]

@@ -30,6 +30,7 @@ def test_similarity_basis_moves_the_points_as_a_rigid_scaled_body() -> None:
     assert (similarity_basis(p)[:, 6].reshape(10, 3)) == pytest.approx(centred)
 
 
+@pytest.mark.slow
 def test_a_right_covariance_covers_the_relative_geometry_in_every_session() -> None:
     """The plain share swings from session to session with the common draw; the common
     chi-square averages its 7 degrees of freedom and the relative share stays near 95 %."""
@@ -46,6 +47,7 @@ def test_a_right_covariance_covers_the_relative_geometry_in_every_session() -> N
     assert 0.3 < np.mean([d.common_p for d in draws]) < 0.7
 
 
+@pytest.mark.slow
 def test_a_covariance_half_as_wide_is_caught_both_ways() -> None:
     positions, covariance, factor = _world(3)
     rng = np.random.default_rng(4)

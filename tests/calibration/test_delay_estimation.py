@@ -49,6 +49,7 @@ def test_noise_free_bias_below_1ns_for_any_fractional_delay(band_spectrum):
 
 
 @pytest.mark.parametrize("array_snr_db", [20.0, 0.0])
+@pytest.mark.slow
 def test_rms_within_1_2x_crlb(band_spectrum, array_snr_db):
     """400 trials (20 bursts x 20 channels), reference at 40 dB, array at 20 or 0 dB.
 

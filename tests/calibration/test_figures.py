@@ -25,6 +25,8 @@ from calibration.figures.style import new_figure, save_all
 from calibration.pipeline import CalibrationRun, calibrate
 from tests.conftest import simulated_session
 
+pytestmark = pytest.mark.slow  # every test here: a calibration run
+
 MAX_PNG_BYTES = 200_000
 
 

@@ -16,6 +16,8 @@ from micam.cli import main
 from calibration.pipeline import CalibrationOptions, calibrate
 from calibration.result import compare_with_truth
 
+pytestmark = pytest.mark.slow  # every test here: a recorded session, calibrated
+
 
 @pytest.fixture(scope="module")
 def session(tmp_path_factory: pytest.TempPathFactory) -> Path:

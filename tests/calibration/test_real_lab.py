@@ -37,6 +37,7 @@ def _calibrated(root: Path, name: str, **options) -> tuple[CalibrationRun, dict]
     return calibrate(path), truth
 
 
+@pytest.mark.slow
 def test_acoustic_centres_are_found_in_front_of_the_diaphragms(root: Path) -> None:
     run, truth = _calibrated(root, "centres", effects=("acoustic-centres",))
     assert run.result.rig is not None
@@ -49,6 +50,7 @@ def test_acoustic_centres_are_found_in_front_of_the_diaphragms(root: Path) -> No
     assert compare_with_truth(run.result, truth)["mean_mic_error_m"] < 0.1e-3
 
 
+@pytest.mark.slow
 def test_rig_build_errors_are_found_in_the_board_plane(root: Path) -> None:
     # with the air measured: without any absolute reference, the speakers' positions in the
     # board plane are what pins the metric scale (with c), and so they absorb its error
@@ -63,6 +65,7 @@ def test_rig_build_errors_are_found_in_the_board_plane(root: Path) -> None:
     assert compare_with_truth(run.result, truth)["mean_mic_error_m"] < 0.1e-3
 
 
+@pytest.mark.slow
 def test_the_print_scale_is_found_when_the_air_is_measured(root: Path) -> None:
     run, truth = _calibrated(root, "print", effects=("print-scale", "air-sensor"))
     rig = run.result.rig
@@ -75,6 +78,7 @@ def test_the_print_scale_is_found_when_the_air_is_measured(root: Path) -> None:
     assert errors["mean_mic_error_m"] < 0.1e-3
 
 
+@pytest.mark.slow
 def test_microphone_delays_and_responses_are_found(root: Path) -> None:
     run, truth = _calibrated(root, "capsules", effects=("mic-responses",))
     mics = sorted(run.result.microphones, key=lambda m: m.id)
@@ -103,6 +107,7 @@ def test_microphone_delays_and_responses_are_found(root: Path) -> None:
     assert np.std(gain_error_db) < 0.3  # the capsules' 1 dB spread
 
 
+@pytest.mark.slow
 def test_the_speed_of_sound_follows_the_air_through_the_session(root: Path) -> None:
     run, truth = _calibrated(root, "drift", effects=("air-drift", "air-sensor"))
     joint = run.result.joint_fit
@@ -114,17 +119,25 @@ def test_the_speed_of_sound_follows_the_air_through_the_session(root: Path) -> N
     assert abs(run.result.speed_of_sound_m_s - truth["speed_of_sound_m_s"]) < 0.08
 
 
-def test_the_whole_realistic_lab_against_the_truth(root: Path) -> None:
+@pytest.fixture(scope="module")
+def realistic(root: Path) -> tuple[Path, dict]:
+    """The realistic lab's session (every effect at once) and its truth, recorded once."""
+    return _session(root, "realistic", lab="realistic")
+
+
+@pytest.mark.slow
+def test_the_whole_realistic_lab_against_the_truth(realistic: tuple[Path, dict]) -> None:
     """Every effect at once, six poses of the planar array: well below the paper's 3 mm,
     c as good as the lab's air sensor."""
-    run, truth = _calibrated(root, "realistic", lab="realistic")
+    path, truth = realistic
+    run = calibrate(path)
     errors = compare_with_truth(run.result, truth)
     assert errors["mean_mic_error_m"] < 0.3e-3
     assert abs(errors["speed_of_sound_error_m_s"]) < 0.1
     # and the same data with the real lab's unknowns switched off is measurably worse
     from calibration.pipeline import CalibrationOptions
 
-    naive = calibrate(root / "realistic", CalibrationOptions(
+    naive = calibrate(path, CalibrationOptions(
         speaker_offsets=False, print_scale=False, mic_delay_std_s=None,
         speed_of_sound_per_pose=False))
     assert compare_with_truth(naive.result, truth)["mean_mic_error_m"] > 3 * errors[
@@ -135,6 +148,7 @@ def test_the_whole_realistic_lab_against_the_truth(root: Path) -> None:
     ("turned-pattern", "turned by 180 degrees"),
     ("sample-rate", "which air cannot have"),
 ])
+@pytest.mark.slow
 def test_a_wrong_description_ends_in_a_clear_error_and_no_result(
         root: Path, tmp_path: Path, capsys: pytest.CaptureFixture, mistake: str,
         words: str) -> None:
@@ -149,8 +163,9 @@ def test_a_wrong_description_ends_in_a_clear_error_and_no_result(
         calibrate(path)
 
 
-def test_truth_json_says_what_the_lab_was(root: Path) -> None:
-    truth = json.loads((root / "realistic" / "truth.json").read_text())
+@pytest.mark.slow
+def test_truth_json_says_what_the_lab_was(realistic: tuple[Path, dict]) -> None:
+    truth = json.loads((realistic[0] / "truth.json").read_text())
     lab = truth["lab"]
     assert set(lab["effects"]) >= {"acoustic-centres", "room", "air-sensor"}
     assert len(truth["poses"][0]["diaphragms_m"]) == 6

@@ -50,12 +50,14 @@ def efficiency(n_pose: int, trials: int, sigma_p: float) -> tuple[float, float]:
 
 
 @pytest.mark.parametrize("n_pose", [4, 16])
+@pytest.mark.slow
 def test_efficient_with_exact_sources(n_pose):
     _, ratio = efficiency(n_pose, trials=6, sigma_p=0.0)
     assert 0.85 < ratio < 1.15
 
 
 @pytest.mark.parametrize("n_pose, target_m", [(4, 2.0e-3), (16, 1.2e-3)])
+@pytest.mark.slow
 def test_near_bound_with_noisy_sources(n_pose, target_m):
     """0.5 mm i.i.d. source noise, sources refined with that prior (24 and 96 sources).
 
@@ -76,6 +78,7 @@ def test_covariance_is_honest():
 
 
 @pytest.mark.parametrize("seed", range(6))
+@pytest.mark.slow
 def test_single_pose_has_no_mirror_or_divergence(seed):
     """6 coplanar sources: the camera-side rule keeps every microphone in front of the rig."""
     scene = make_scene(1, seed, sigma_t=1e-6, sigma_p=5e-4)
@@ -95,6 +98,7 @@ def test_single_pose_has_no_mirror_or_divergence(seed):
     assert np.linalg.norm(free.positions_m - scene.mics, axis=1).max() < 0.1
 
 
+@pytest.mark.slow
 def test_reflection_outliers_do_not_change_accuracy():
     clean = make_scene(16, 1, sigma_t=1e-6)
     dirty = make_scene(16, 1, sigma_t=1e-6, outlier_fraction=0.05)
@@ -121,6 +125,7 @@ def test_per_board_latency_and_speed_of_sound_recovered():
     assert abs(sol.speed_of_sound_m_s - C_TRUE) < 4 * sol.speed_of_sound_std_m_s
 
 
+@pytest.mark.slow
 def test_pose_refinement_removes_rigid_camera_errors():
     """Per-pose rigid errors of 2 mrad / 0.3 mm per axis (pessimistic fronto-parallel camera)."""
     scene = make_scene(16, 3, sigma_t=1e-6, pose_std=(2e-3, 3e-4))

@@ -34,6 +34,8 @@ from calibration.speakers import (
     speaker_positions,
 )
 
+pytestmark = pytest.mark.slow  # every test here: the twelve-pose session and its camera calibration
+
 
 @dataclasses.dataclass(frozen=True)
 class Setup:

@@ -11,6 +11,7 @@ from micam.cli import main
 from calibration.study import StudyRow, sources_needed
 
 
+@pytest.mark.slow
 def test_study_writes_table_json_and_plot(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     out = tmp_path / "study"
     assert main(["study", "--out", str(out), "--bands", "0.6-1.0", "--poses", "4",

@@ -56,6 +56,7 @@ def test_fifo_overflow_is_an_overrun_naming_the_board() -> None:
     group.close()
 
 
+@pytest.mark.slow
 def test_missing_trigger_times_out_naming_the_board() -> None:
     group = _group(Fault("missing_trigger", "1002"))
     _acquire_fails(group, TriggerTimeoutError,

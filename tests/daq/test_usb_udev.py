@@ -7,7 +7,7 @@ from pathlib import Path
 
 from daq.usb import FAMILIES
 
-UDEV = Path(__file__).resolve().parents[2] / "micam" / "data" / "udev"
+UDEV = Path(__file__).resolve().parents[2] / "udev"
 
 
 def test_flag_rules_cover_every_loader_and_running_id() -> None:

@@ -270,7 +270,7 @@ def test_the_parser_loads_nothing_heavy() -> None:
 
     code = ("import sys; from micam.cli import build_parser; build_parser(); "
             "print(sorted({m.split('.')[0] for m in sys.modules} "
-            "& {'numpy', 'cv2', 'scipy', 'calibration', 'matplotlib', 'zmq'}))")
+            "& {'numpy', 'cv2', 'scipy', 'calibration', 'matplotlib', 'zmq', 'sim'}))")
     loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                             check=True).stdout.strip()
     assert loaded == "[]", f"building the parser loads {loaded}"

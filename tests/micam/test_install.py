@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+import os
+import shutil
+import subprocess
+import sys
+import zipfile
 from pathlib import Path
 
 import pytest
@@ -51,3 +56,44 @@ def test_a_changed_file_is_kept_without_force(tmp_path: Path,
 def test_again_with_the_same_content_is_fine(tmp_path: Path) -> None:
     assert main(["install", "udev", "--prefix", str(tmp_path)]) == 0
     assert main(["install", "udev", "--prefix", str(tmp_path)]) == 0
+
+
+REPO = Path(__file__).resolve().parents[2]
+BUILT_FROM = ("pyproject.toml", "setup.py", "README.md", "udev", "daq", "sim", "acquisition",
+              "calibration", "micam")
+"""What the wheel is built from, copied (pip builds in the source tree, which a test leaves as
+it was)."""
+
+
+@pytest.mark.slow
+def test_the_built_wheel_ships_the_udev_rules_and_installs_them(tmp_path: Path) -> None:
+    """`pip wheel` maps udev/ into the package; `micam install udev` run from the unpacked
+    wheel (a purelib wheel installs as its unpacked files) writes the rules of udev/."""
+    source = tmp_path / "source"
+    for name in BUILT_FROM:
+        if (REPO / name).is_dir():
+            shutil.copytree(REPO / name, source / name,
+                            ignore=shutil.ignore_patterns("__pycache__", "*.egg-info"))
+        else:
+            source.mkdir(exist_ok=True)
+            shutil.copy2(REPO / name, source / name)
+    built = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w",
+                            str(tmp_path / "dist"), str(source)],
+                           capture_output=True, text=True, timeout=240)
+    assert built.returncode == 0, built.stderr
+    (wheel,) = (tmp_path / "dist").glob("micam-*.whl")
+    shipped = {n for n in zipfile.ZipFile(wheel).namelist() if n.startswith("micam/data/udev/")}
+    rules = sorted(p.name for p in (REPO / "udev").glob("*.rules"))
+    assert shipped == {f"micam/data/udev/{n}" for n in [*rules, "README.md"]}
+    site = tmp_path / "site"
+    zipfile.ZipFile(wheel).extractall(site)
+    code = ("import sys, micam; from micam.cli import main; "
+            f"assert micam.__file__.startswith({str(site)!r}), micam.__file__; "
+            f"sys.exit(main(['install', 'udev', '--prefix', {str(tmp_path / 'root')!r}]))")
+    installed = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                               timeout=120, cwd=tmp_path,
+                               env={**os.environ, "PYTHONPATH": str(site)})
+    assert installed.returncode == 0, installed.stderr
+    written = tmp_path / "root/etc/udev/rules.d"
+    for name in ("60-micam-daq.rules", "61-micam-daq-uaccess.rules"):
+        assert (written / name).read_text() == (REPO / "udev" / name).read_text()

@@ -90,6 +90,7 @@ def _assert_named(err: str, flag: str, file: Path) -> None:
 
 @pytest.mark.parametrize("option", sorted(OPTIONS))
 @pytest.mark.parametrize("content", sorted(CONTENTS))
+@pytest.mark.slow
 def test_a_malformed_option_file_names_the_option_and_the_file(
         tmp_path: Path, session: Path, monkeypatch: pytest.MonkeyPatch,
         capsys: pytest.CaptureFixture, option: str, content: str) -> None:
@@ -143,6 +144,7 @@ def _documents() -> st.SearchStrategy:
 @settings(max_examples=EXAMPLES, deadline=None, database=None, derandomize=not LONG,
           suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 @given(document=_documents())
+@pytest.mark.slow
 def test_the_option_file_loaders_raise_only_their_input_error(tmp_path: Path,
                                                               document: dict) -> None:
     import numpy as np

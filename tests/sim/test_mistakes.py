@@ -31,6 +31,8 @@ from sim.errors import SimulationInputError
 from sim.mistakes.images import ARM_GREY, MotionBlur
 from sim.mistakes.signals import saturated
 
+pytestmark = pytest.mark.slow  # every test here: the module records its sessions with mistakes once
+
 FS = 96_000.0
 FULL_SCALE = 32767
 N_MICS = 48  # scatter48; column 48 is the reference microphone

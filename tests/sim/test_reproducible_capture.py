@@ -29,6 +29,7 @@ pose 1 made again in its resumed attempt."""
 
 
 @pytest.mark.parametrize("mistakes", [(), MISTAKES], ids=["clean", "mistakes"])
+@pytest.mark.slow
 def test_a_resumed_capture_records_what_an_uninterrupted_one_does(
         tmp_path: Path, small_options: SimulationOptions, mistakes: tuple[str, ...]) -> None:
     """In the realistic lab: every random draw (inputs, images, the ambient noise, the

@@ -7,6 +7,7 @@ import pytest
 from scipy.optimize import minimize_scalar
 
 from daq import InputChannel, volts_to_codes
+from acquisition.contracts.stimulus import mls_length
 from sim.arrays import scatter48, sphere72
 from sim.analog_bench import AcousticBench
 from sim.sound import creeping_path_length, mls_burst
@@ -93,6 +94,11 @@ def test_mls_is_plus_minus_one_and_white() -> None:
     assert circular[0] == pytest.approx(1023) and np.allclose(circular[1:], -1)
     with pytest.raises(ValueError, match="MLS order"):
         mls_burst(30)
+
+
+def test_the_mls_length_is_the_sequences() -> None:
+    assert [mls_length(k) for k in (4, 9, 14)] == [15, 511, 16383]
+    assert all(len(mls_burst(k)) == mls_length(k) for k in (4, 9, 14))
 
 
 def test_creeping_path_is_longer_only_in_the_shadow() -> None:

@@ -232,5 +232,5 @@ def _unknown_id(product_id: int, runs: bool) -> str:
         return (f"product id 0x{product_id:04x} is no known loader or running id ({known}) but "
                 "has the DT9836's running endpoints: if this is a DT9816 with its firmware "
                 f"running, set DT9816_RUNNING_PID = 0x{product_id:04x} in "
-                "daq/usb/_unpublished.py (and in micam/data/udev/60-micam-daq.rules)")
+                "daq/usb/_unpublished.py (and in udev/60-micam-daq.rules)")
     return f"product id 0x{product_id:04x} is no known loader or running id ({known})"

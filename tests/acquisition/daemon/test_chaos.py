@@ -159,6 +159,7 @@ def _operate(client: DaemonClient, session: Path | None) -> tuple[Path, bool]:
     return session, status.state == "capturing"
 
 
+@pytest.mark.slow
 def test_kills_at_random_points_lose_nothing_and_change_nothing(
         tmp_path: Path, uninterrupted: tuple[Path, dict]) -> None:
     """Each round kills at a random point: in a random step (the capture of a step, a random

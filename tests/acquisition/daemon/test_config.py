@@ -11,8 +11,8 @@ import pytest
 
 from acquisition.contracts.config_model import models_within
 from acquisition.daemon.config import ConfigError, SocketsConfig
-from micam.hardware import MicamDaemonConfig as DaemonConfig
 from micam.hardware import load_daemon_config as load_config
+from micam.simulated_hardware import MicamDaemonConfig as DaemonConfig
 from acquisition.daemon.endpoints import is_local_endpoint
 from acquisition.daemon.security import check_exposure
 

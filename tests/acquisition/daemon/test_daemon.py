@@ -57,6 +57,7 @@ def test_bad_input_gets_clear_errors_and_the_daemon_keeps_serving(client: Daemon
         client.wait_until(lambda s: s.state == "capturing", 0.05, interval_s=0.01)
 
 
+@pytest.mark.slow
 def test_session_with_pause_refusals_stop_and_journal(daemon: ThreadDaemon,
                                                       client: DaemonClient) -> None:
     started = client.request("session.start", poses=2)["session"]
@@ -89,6 +90,7 @@ def test_session_with_pause_refusals_stop_and_journal(daemon: ThreadDaemon,
         (started["id"], "complete", 1)]
 
 
+@pytest.mark.slow
 def test_abort_at_a_pose_closes_the_session_as_aborted(client: DaemonClient) -> None:
     path = Path(client.request("session.start")["session"]["path"])
     for _ in range(REFERENCE_STEPS):
@@ -137,6 +139,7 @@ def test_warn_policy_keeps_the_step_with_its_warnings(tmp_path: Path) -> None:
         running.stop()
 
 
+@pytest.mark.slow
 def test_camera_failure_and_redo_wait_for_a_new_capture(daemon: ThreadDaemon,
                                                         client: DaemonClient) -> None:
     path = Path(client.request("session.start")["session"]["path"])
@@ -168,6 +171,7 @@ def test_camera_failure_and_redo_wait_for_a_new_capture(daemon: ThreadDaemon,
     wait_state(client, "idle")
 
 
+@pytest.mark.slow
 def test_hands_free_captures_poses_held_still(tmp_path: Path) -> None:
     config = small_config(tmp_path, hands_free=HandsFreeConfig(
         enabled=True, still_s=0.1, check_interval_s=0.02))
@@ -212,6 +216,7 @@ def _listing_once_rescanned(client: DaemonClient) -> dict:
     return first
 
 
+@pytest.mark.slow
 def test_curve_lets_in_only_authorised_clients(tmp_path: Path) -> None:
     keys = tmp_path / "keys"
     make_keys(keys)

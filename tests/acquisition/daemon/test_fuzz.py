@@ -20,6 +20,7 @@ import os
 import socket
 from pathlib import Path
 
+import pytest
 import zmq
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -149,6 +150,7 @@ class Target:
         self.context.destroy(linger=0)
 
 
+@pytest.mark.slow
 def test_random_input_at_every_socket_during_a_capture(daemon: ThreadDaemon) -> None:
     target = Target(daemon)
     client = daemon.client(timeout_s=10.0)

@@ -50,6 +50,7 @@ def test_a_reply_that_cannot_be_encoded_becomes_an_error_reply(daemon: ThreadDae
     assert daemon.thread.is_alive()
 
 
+@pytest.mark.slow
 def test_unencodable_ids_neither_stop_nor_deafen_the_daemon(daemon: ThreadDaemon) -> None:
     with daemon.client() as client:
         reply = client.exchange([SURROGATE_ID])  # idle: the daemon used to exit here
@@ -69,6 +70,7 @@ def _peak_rss_bytes(pid: int) -> int:
     raise AssertionError("no VmHWM in /proc")
 
 
+@pytest.mark.slow
 def test_every_socket_drops_oversized_frames_before_buffering_them(tmp_path: Path) -> None:
     """128 MiB frames at the control, events, jobs and files sockets: the daemon's peak memory
     grows by far less than one of them (ZeroMQ drops each connection at the frame's header),

@@ -28,6 +28,8 @@ from calibration.imaging.view_plane import depth_plane_grid
 
 from .helpers import WAIT_S, ThreadDaemon, next_event, small_config
 
+pytestmark = pytest.mark.slow  # every test here: a daemon and a live recording, made once
+
 FS = 96_000.0
 
 

@@ -8,6 +8,8 @@ import re
 from contextlib import closing
 from pathlib import Path
 
+import pytest
+
 from acquisition.contracts.protocol import CaptureEvent, InstructionEvent, ProgressEvent
 from acquisition.contracts.session import SessionReader
 from acquisition.daemon.display import format_event
@@ -28,6 +30,7 @@ def _named(step: str, text: str) -> list[int]:
     return [int(n) for n in NAMED[step.split("/")[0]].findall(text)]
 
 
+@pytest.mark.slow
 def test_instructions_name_the_number_of_their_step_and_directory(
         daemon: ThreadDaemon) -> None:
     shown: list[tuple[str, str]] = []  # (step, instruction text) as status reports them

@@ -50,6 +50,7 @@ def test_describe_names_every_column(daemon: ThreadDaemon) -> None:
     assert d["camera_min_views"] == CAMERA_MIN_VIEWS == MIN_VIEWS
 
 
+@pytest.mark.slow
 def test_previews_only_while_asked_for(daemon: ThreadDaemon) -> None:
     with daemon.client() as client:
         previews = client.subscribe(previews=True)
@@ -74,6 +75,7 @@ def test_previews_only_while_asked_for(daemon: ThreadDaemon) -> None:
             plain.close()
 
 
+@pytest.mark.slow
 def test_levels_flags_poses_seen_and_coverage(daemon: ThreadDaemon) -> None:
     with daemon.client() as client:
         client.request("session.start", poses=2)

@@ -44,6 +44,7 @@ def _files(reader: SessionReader) -> dict[str, tuple[int, dict[str, str]]]:
             for step, record in reader.steps().items()}
 
 
+@pytest.mark.slow
 def test_session_driven_through_the_cli(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     process = _start(tmp_path)
     control = ["--control", f"ipc://{tmp_path}/control"]
@@ -82,6 +83,7 @@ def test_session_driven_through_the_cli(tmp_path: Path, capsys: pytest.CaptureFi
 
 @pytest.mark.parametrize(("point", "nth"), [("burst", 8), ("between_files", 9),
                                             ("manifest", 9)])
+@pytest.mark.slow
 def test_sigkill_then_resume_keeps_every_completed_recording(tmp_path: Path, point: str,
                                                               nth: int) -> None:
     process = _start(tmp_path, [sys.executable, str(HARNESS), point, str(nth)])
@@ -121,6 +123,7 @@ def test_sigkill_then_resume_keeps_every_completed_recording(tmp_path: Path, poi
         assert hashlib.sha256(file.read_bytes()).hexdigest() == digest
 
 
+@pytest.mark.slow
 def test_sigterm_ends_the_burst_and_leaves_the_session_resumable(tmp_path: Path) -> None:
     """`systemctl stop` never loses more than a crash: the step in progress is abandoned after
     its burst, the session stays interrupted, and the next daemon offers it and continues it."""
@@ -157,6 +160,7 @@ def test_sigterm_ends_the_burst_and_leaves_the_session_resumable(tmp_path: Path)
     assert reader.steps()["pose/0000"].attempt == 2
 
 
+@pytest.mark.slow
 def test_resume_at_start_auto_continues_the_interrupted_session(tmp_path: Path) -> None:
     config = write_toml(tmp_path / "daemon.toml", tmp_path, 'resume_at_start = "auto"')
     process = _start(tmp_path)

@@ -12,6 +12,7 @@ import time
 from contextlib import ExitStack, closing
 from pathlib import Path
 
+import pytest
 import zmq
 
 from acquisition.contracts.protocol import LIVE_FRAME_TOPIC, SAMPLES_TOPIC
@@ -59,6 +60,7 @@ def test_every_socket_of_the_worker_has_short_queues(tmp_path: Path) -> None:
     assert 2 * FETCH_WINDOW <= CHUNK_QUEUE, "a worker's window of fetches must fit the queue"
 
 
+@pytest.mark.slow
 def test_stalled_samples_subscribers_cost_a_few_blocks(tmp_path: Path) -> None:
     process = DaemonProcess(write_toml(tmp_path / "daemon.toml", tmp_path), tmp_path)
     with ExitStack() as stack:

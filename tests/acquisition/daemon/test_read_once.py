@@ -51,6 +51,7 @@ def test_a_check_of_a_pipe_checks_what_it_holds(command: list[str],
     assert "tcp://0.0.0.0:5560" in err and "CURVE" in err and err.count("\n") == 1
 
 
+@pytest.mark.slow
 def test_a_daemon_runs_on_the_configuration_of_a_pipe(tmp_path: Path) -> None:
     text = write_toml(tmp_path / "daemon.toml", tmp_path).read_text()
     defaults = {"HOME": str(tmp_path / "home"), "MICAM_RUNTIME_DIR": str(tmp_path / "run")}

@@ -92,6 +92,7 @@ def _record(root: Path, **changes: object) -> dict:
     return {**record, **changes}
 
 
+@pytest.mark.slow
 def test_planted_job_files_are_ignored_and_the_daemon_keeps_serving(tmp_path: Path) -> None:
     outbox = tmp_path / "sessions.outbox"
     outbox.mkdir()
@@ -195,6 +196,7 @@ def _done(worker: FakeWorker, job: dict, result: bytes) -> dict:
     return worker.receive("ack")[0]
 
 
+@pytest.mark.slow
 def test_forged_results_are_refused_and_a_stored_one_keeps_its_checksum(
         daemon: ThreadDaemon) -> None:
     with daemon.client() as client:
@@ -308,6 +310,7 @@ def test_a_job_file_waiting_longer_than_any_retry_delay_is_offered_at_once(
         running.stop()
 
 
+@pytest.mark.slow
 def test_a_retryable_failure_is_offered_again_after_a_growing_delay(tmp_path: Path) -> None:
     """A worker's retryable failure is not re-offered at once (all attempts would be spent
     within milliseconds): after `retry_delay_s`, then twice that, and the job's record says

@@ -61,6 +61,7 @@ def test_map_update_equals_beamforming_the_degraded_csm() -> None:
                                atol=1e-10 * result.components[0].peak)
 
 
+@pytest.mark.slow
 def test_simulated_uncorrelated_speakers_positions_and_levels() -> None:
     bench = sphere_bench(seed=2)
     levels_db = np.array([0.0, -6.0, -3.0, -9.0])

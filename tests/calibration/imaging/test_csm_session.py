@@ -21,6 +21,8 @@ from tests.conftest import simulated_session
 
 from .test_evaluate import run_command
 
+pytestmark = pytest.mark.slow  # every test here: a recorded session
+
 SETTINGS = ImagingSettings(band_lo_hz=7000.0, band_hi_hz=11000.0)  # 8 bands
 CALIBRATION = (0, 4)
 

@@ -17,6 +17,8 @@ from calibration.imaging import load_geometry
 from calibration.imaging.evaluate import ImagingSettings, evaluate_session
 from micam.commands import evaluate_imaging, image, simulate
 
+pytestmark = pytest.mark.slow  # every test here: a recorded session, imaged
+
 
 def run_command(module, argv: list[str]) -> int:
     parser = argparse.ArgumentParser()

@@ -40,6 +40,7 @@ def test_folds_deal_the_poses_and_keep_enough_to_calibrate() -> None:
         fold_poses([0, 1, 2, 3], 1)
 
 
+@pytest.mark.slow
 def test_held_out_poses_are_imaged_with_a_calibration_that_never_saw_them(
         session: Path) -> None:
     truth = load_geometry(session / "truth.json")
@@ -62,6 +63,7 @@ def test_held_out_poses_are_imaged_with_a_calibration_that_never_saw_them(
     assert json.loads(json.dumps(cv.to_json()))["held_out"]["overall"]["count"] == 24
 
 
+@pytest.mark.slow
 def test_the_command_prints_in_sample_beside_held_out(session: Path, tmp_path: Path,
                                                       capsys: pytest.CaptureFixture) -> None:
     figure = tmp_path / "cv.png"

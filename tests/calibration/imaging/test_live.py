@@ -73,6 +73,7 @@ def test_the_depth_plane_fills_the_image_and_a_smaller_image_samples_the_same_ma
 
 
 @pytest.mark.parametrize("clean_sc", [False, True])
+@pytest.mark.slow
 def test_the_map_peak_follows_a_carried_speaker_frame_after_frame(world, clean_sc) -> None:
     """A speaker carried across the view at 1 m (0.4 m/s) with a second tone elsewhere in
     another band and broadband noise: at every video frame the peak of the map in the first

@@ -15,6 +15,8 @@ from sim.geometry import CameraModel
 
 from .helpers import C, point_source_csm, sphere_bench
 
+pytestmark = pytest.mark.slow  # every test here: a simulated scene, beamformed
+
 
 def view_of(model: CameraModel) -> CameraView:
     return CameraView(model.name, model.width, model.height, model.K, model.dist,

@@ -65,6 +65,7 @@ def test_an_exception_in_a_block_reaches_the_caller() -> None:
 
 
 @pytest.mark.parametrize("precision", ["single", "double"])
+@pytest.mark.slow
 def test_maps_do_not_depend_on_the_threads(precision: str) -> None:
     steering = SteeringModel(wide_grid().points, MICS, C)
     # a full-rank CSM (Cholesky) and a rank-2 one (not positive definite: the general form)
@@ -98,6 +99,7 @@ def test_a_block_of_a_steering_model_is_its_slice() -> None:
         h[0, 0] = 0.0
 
 
+@pytest.mark.slow
 def test_clean_sc_does_not_depend_on_threads_or_lockstep() -> None:
     grid = wide_grid()
     steering = SteeringModel(grid.points, MICS, C)

@@ -187,6 +187,7 @@ def test_daemon_messages_of_another_version_or_none_are_refused(daemon: Scripted
 
 
 @pytest.mark.parametrize("daemon", [1.0], indirect=True)  # it reconnects after 1 s of silence
+@pytest.mark.slow
 def test_an_oversized_frame_from_the_daemon_is_dropped_unread(daemon: ScriptedDaemon) -> None:
     """The worker's sockets refuse frames above their limit before reading them (a rogue
     daemon cannot make it buffer gigabytes); it carries on once reconnected."""

@@ -10,6 +10,8 @@ import hashlib
 import json
 from pathlib import Path
 
+import pytest
+
 from acquisition.daemon.outbox import JobRecord
 from acquisition.contracts.protocol import CalibrationEvent, JobEvent
 from tests.acquisition.daemon.helpers import DaemonProcess, capture_all
@@ -40,6 +42,7 @@ def _stored_once(session: Path, job: JobRecord) -> None:
     assert len(result["microphones"]) == len(truth["microphones"])
 
 
+@pytest.mark.slow
 def test_a_worker_killed_inside_the_final_job_is_replaced_by_the_other(tmp_path: Path) -> None:
     holds = Holds(tmp_path)
     daemon = DaemonProcess(daemon_toml(tmp_path), tmp_path)
@@ -74,6 +77,7 @@ def test_a_worker_killed_inside_the_final_job_is_replaced_by_the_other(tmp_path:
     assert requeued and held_by in requeued[0].reason
 
 
+@pytest.mark.slow
 def test_a_job_pending_across_a_daemon_restart_completes(tmp_path: Path) -> None:
     holds = Holds(tmp_path)
     config = daemon_toml(tmp_path)

@@ -22,6 +22,7 @@ def five_poses(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_the_hint_lies_in_camera_0s_image_and_the_poses_taken_are_where_they_were(
         five_poses: Path) -> None:
     options = CalibrationOptions(allow_interrupted=True, joint=False)

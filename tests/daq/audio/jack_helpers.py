@@ -1,13 +1,10 @@
-"""Helpers of the audio backend's tests: the JACK server's figures, a failure that says how to
+"""Helpers of the audio backend's tests: the JACK server's figures, a skip that says how to
 install what is missing, bounded waits, and a capture taken again after a loaded machine's
 xrun."""
 
 from __future__ import annotations
 
-import os
 import time
-
-import pytest
 
 from sim.jack_server import (  # noqa: F401 - the figures the tests use
     CAPTURE_PORTS,
@@ -17,20 +14,14 @@ from sim.jack_server import (  # noqa: F401 - the figures the tests use
     JackServer,
     missing_audio_stack,
 )
-
-
-SKIP_ENV = "MICAM_SKIP_AUDIO_TESTS"
+from tests.system_packages import REQUIRE_AUDIO_ENV, require
 
 
 def require_audio_stack() -> None:
-    """Fail (with the install command) unless jackd, PortAudio and JACK-Client are there:
-    `.ci/run` installs them, so these tests run on a fresh machine (a skip only when
-    $MICAM_SKIP_AUDIO_TESTS says so, as for the browser tests)."""
-    missing = missing_audio_stack()
-    if missing is not None:
-        if os.environ.get(SKIP_ENV):
-            pytest.skip(f"audio backend tests disabled by ${SKIP_ENV}: {missing}")
-        pytest.fail(f"{missing} (or set {SKIP_ENV}=1 to skip these tests)")
+    """Skip (with the install command) unless jackd, PortAudio and JACK-Client are there, or
+    fail when $MICAM_REQUIRE_AUDIO is set: `.ci/run` installs them and sets it, so these tests
+    run on a fresh machine."""
+    require(missing_audio_stack(), "the audio backend's tests", REQUIRE_AUDIO_ENV)
 
 
 def wait_for(condition, timeout_s: float, what: str, poll_s: float = 0.02):  # noqa: ANN001

@@ -41,6 +41,8 @@ from sim.jack_world import WorldProcess
 
 from .jack_helpers import CAPTURE_PORTS, PERIOD, PLAYBACK_PORTS, RATE_HZ, XRUN_RETRIES, acquire_whole, wait_for
 
+pytestmark = pytest.mark.slow  # every test here: a JACK server and the world as its client
+
 OPTIONS = SimulationOptions(array="scatter15", poses=2, mls_order=10, seed=3, backend="audio")
 PRE = 256
 N = PERIOD + 4096  # the round trip (one period) and the burst

@@ -24,6 +24,8 @@ from sim.live_scene import demo_scene
 
 from ...acquisition.daemon.helpers import DaemonProcess, capture_all
 
+pytestmark = pytest.mark.slow  # every test here: a JACK server and the world as its client
+
 WORLD = {"array": "scatter15", "poses": 6, "mls_order": 10, "seed": 3, "backend": "audio"}
 """15 microphones and the reference on the 16 inputs, 6 poses, bursts of 1023 samples."""
 SIMULATED_BOARDS_MM = 0.041

@@ -12,11 +12,15 @@ import signal
 import subprocess
 from pathlib import Path
 
+import pytest
+
 from acquisition.contracts.session import SessionReader
 
 from ...acquisition.daemon.helpers import capture
 from .jack_helpers import JackServer, require_audio_stack
 from .test_daemon_audio import audio_daemon
+
+pytestmark = pytest.mark.slow  # every test here: a JACK server and the world as its client
 
 WORLD = {"array": "scatter15", "poses": 1, "mls_order": 10, "seed": 3, "backend": "audio"}
 

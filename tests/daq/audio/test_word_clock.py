@@ -18,6 +18,8 @@ from sim.jack_world import WorldProcess
 from .jack_helpers import PERIOD, acquire_whole
 from .test_audio_board import OPTIONS, burst_codes
 
+pytestmark = pytest.mark.slow  # every test here: a JACK server and the world as its client
+
 N = PERIOD + 4096
 
 

@@ -13,8 +13,8 @@ import pytest
 
 from micam.demo_loop import Loop
 from micam.web.testing import Chromium, WebProcess, browser_missing
+from tests.system_packages import REQUIRE_BROWSER_ENV, require
 
-SKIP_ENV = "MICAM_SKIP_BROWSER_TESTS"
 POSES = 8  # the world's poses; sessions ask for fewer
 LONE_TIMEOUT_S = 0.5
 
@@ -59,14 +59,9 @@ def lone_web(tmp_path_factory: pytest.TempPathFactory) -> Iterator[WebProcess]:
 
 @pytest.fixture
 def chromium() -> Iterator[type[Chromium]]:
-    """The Chromium class, once it is known to run here: a missing browser fails the test
-    with what to install (a skip only when $MICAM_SKIP_BROWSER_TESTS says so)."""
-    problem = browser_missing()
-    if problem is not None:
-        if os.environ.get(SKIP_ENV):
-            pytest.skip(f"browser tests disabled by ${SKIP_ENV}: {problem}")
-        pytest.fail(f"the browser tests need headless Chromium: {problem} (or set {SKIP_ENV}=1 "
-                    "to skip them)")
+    """The Chromium class, once it is known to run here: without a browser the test skips
+    with what to install (fails when $MICAM_REQUIRE_BROWSER is set, as .ci/run does)."""
+    require(browser_missing(), "the browser tests", REQUIRE_BROWSER_ENV)
     yield Chromium
 
 

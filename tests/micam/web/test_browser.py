@@ -15,6 +15,7 @@ import threading
 import time
 from pathlib import Path
 
+import pytest
 from selenium.webdriver.common.by import By
 
 from micam.web.testing import Chromium
@@ -39,6 +40,7 @@ def _capture_from_page(b: Chromium) -> None:
            what=f"step {before + 1} done")
 
 
+@pytest.mark.slow
 def test_five_browsers_see_every_event(stack: Stack, chromium: type[Chromium]) -> None:
     browsers = []
     try:
@@ -72,6 +74,7 @@ def test_five_browsers_see_every_event(stack: Stack, chromium: type[Chromium]) -
             b.close()
 
 
+@pytest.mark.slow
 def test_a_whole_session_from_the_page(stack: Stack, chromium: type[Chromium],
                                        screenshots: Path) -> None:
     b = chromium()
@@ -211,6 +214,7 @@ class AttackerSite:
         self.server.server_close()
 
 
+@pytest.mark.slow
 def test_another_sites_pages_can_neither_read_nor_drive_the_page(
         stack: Stack, chromium: type[Chromium]) -> None:
     """A browser that resolves evil.example to 127.0.0.1 (as a DNS-rebinding attacker makes

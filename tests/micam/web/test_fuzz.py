@@ -171,6 +171,7 @@ def _check(answer: Answer, websocket: bool) -> None:
        cuts=st.lists(st.integers(0, 10_000), max_size=3), websocket=st.booleans(),
        denial=st.booleans(), token=st.sampled_from([None, TOKEN]), result=results,
        live=results)
+@pytest.mark.slow
 def test_no_request_gets_a_500(run: Callable[..., Answer], method: str, path: str,
                                query: bytes, headers: dict[str, list[bytes]], body: bytes,
                                cuts: list[int], websocket: bool, denial: bool,
@@ -200,6 +201,7 @@ raw_methods = methods.map(str.encode) | st.binary(min_size=1, max_size=8)
 @given(method=raw_methods, target=raw_targets, headers=header_lists, body=bodies,
        version=st.sampled_from([b"HTTP/1.1"] * 5 + [b"HTTP/1.0", b"HTTP/2", b"HTTP/1.1x"]),
        chunked=st.booleans())
+@pytest.mark.slow
 def test_the_running_page_never_answers_5xx(lone_web: WebProcess, method: bytes, target: bytes,
                                             headers: dict[str, list[bytes]], body: bytes,
                                             version: bytes, chunked: bool) -> None:

@@ -72,6 +72,7 @@ def _four_at_once(port: int) -> list[Reply]:
 
 
 @pytest.mark.parametrize("case", ["announced", "four at once", "chunked"])
+@pytest.mark.slow
 def test_huge_bodies_are_refused_without_the_memory_growing(lone_web: WebProcess,
                                                             case: str) -> None:
     """64 MiB announced in Content-Length, four such at once, and 64 MiB chunked (no length
@@ -110,6 +111,7 @@ def _cut_off(port: int, first: bytes, trickle: bytes) -> tuple[bytes, float]:
 
 
 @pytest.mark.parametrize("case", ["nothing", "head", "body"])
+@pytest.mark.slow
 def test_a_slow_client_is_cut_off_at_the_request_timeout(lone_web: WebProcess, case: str) -> None:
     """A client that opens a connection and sends nothing, one that sends its head a byte at a
     time, and one that sends its body a byte at a time: each is answered 408 and cut off at

@@ -32,6 +32,7 @@ def live_page(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Loop, 
             web.stop()
 
 
+@pytest.mark.slow
 def test_the_page_shows_live_maps_records_and_leaves(live_page, chromium: type[Chromium],
                                                       screenshots: Path) -> None:
     loop, web = live_page

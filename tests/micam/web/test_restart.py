@@ -7,6 +7,8 @@ import time
 import urllib.request
 from pathlib import Path
 
+import pytest
+
 from acquisition.contracts.session import SessionReader, journal_records
 
 from .conftest import Stack
@@ -29,6 +31,7 @@ def _wait_state(url: str, done, timeout_s: float = 60.0) -> dict:
     raise AssertionError(f"the page's state did not get there within {timeout_s:g} s")
 
 
+@pytest.mark.slow
 def test_killing_the_page_never_disturbs_a_capture(stack: Stack) -> None:
     with stack.loop.client() as client:
         client.request("session.start", poses=POSES)
