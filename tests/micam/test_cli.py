@@ -192,8 +192,8 @@ def test_daq_selftest_without_libusb_is_one_line(monkeypatch: pytest.MonkeyPatch
 
 
 def _status(**fields: Any) -> StatusResult:
-    return StatusResult(state="idle", simulated=True, events_endpoint="ipc:///x/events",
-                        last_event_seq=0, **fields)
+    return StatusResult(**{"state": "idle", "simulated": True,
+                           "events_endpoint": "ipc:///x/events", "last_event_seq": 0, **fields})
 
 
 def _event(seq: int) -> StateEvent:
@@ -224,6 +224,32 @@ def test_watch_text_says_the_daemon_restarted(monkeypatch: pytest.MonkeyPatch,
     assert main(["watch", "--count", "2"]) == 0
     out = capsys.readouterr().out
     assert "the daemon restarted" in out and "missed -" not in out
+
+
+def test_watch_says_target_reached_only_while_its_session_is_open(
+        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """A worker's live calibration may arrive after stop: "you may stop" is then wrong."""
+    from acquisition.contracts.job_messages import LiveUpdate
+    from acquisition.contracts.protocol import LiveCalibrationEvent
+
+    session = SessionSummary(id="s1", path="/s1", status="open", steps_done=9, steps_total=9,
+                             poses_done=2, n_poses=2, created_utc=datetime.now(UTC))
+    update = LiveUpdate(session_id="s1", poses=2, microphones=[], mean_uncertainty_m=1e-4,
+                        predicted_accuracy_m=1e-4, speed_of_sound_m_s=343.0)
+
+    def live(seq: int) -> LiveCalibrationEvent:
+        return LiveCalibrationEvent(seq=seq, time_utc=datetime.now(UTC), session_id="s1",
+                                    job_id="live-p0002", update=update)
+
+    closed = StateEvent(seq=2, time_utc=datetime.now(UTC), state="idle", previous="stopping",
+                        reason="stopped", session_id="s1")
+    _fake_daemon(monkeypatch, FakeDaemonClient(_status(state="waiting_for_pose",
+                                                       session=session),
+                                               [live(1), closed, live(3)]))
+    assert main(["watch", "--count", "3", "--target-mm", "0.5"]) == 0
+    out = capsys.readouterr().out
+    assert out.count("REACHED") == 1
+    assert out.index("REACHED") < out.index("stopped")
 
 
 def test_capture_quiet_prints_only_the_outcome(monkeypatch: pytest.MonkeyPatch,
