@@ -18,6 +18,7 @@ function el(tag, attrs = {}, text = null, ns = null) {
 }
 const svg = (tag, attrs = {}, text = null) => el(tag, attrs, text, SVG);
 const $ = (id) => document.getElementById(id);
+const plural = (n, noun) => `${n} ${noun}${n === 1 ? "" : "s"}`;
 const mm = (m, digits = 3) => (m === null || m === undefined) ? "n/a" : (m * 1e3).toFixed(digits) + " mm";
 
 // -- the connection --------------------------------------------------------------------------
@@ -175,6 +176,9 @@ function renderLiveStream() {
     const src = "data:image/jpeg;base64," + frame.jpeg_b64;
     if (img.getAttribute("src") !== src) img.setAttribute("src", src);
     img.dataset.sample = String(frame.sample);
+  } else {
+    img.removeAttribute("src"); // no last map stays once live mode ends
+    delete img.dataset.sample;
   }
   $("live-stream-info").textContent = live
     ? `${live.held_s.toFixed(1)} s kept, ${(1e3 * live.behind_s).toFixed(0)} ms behind` : "";
@@ -195,18 +199,27 @@ function renderCameras() {
     if (!card) {
       card = el("figure", { "data-camera": name, class: "camera" });
       const view = el("div", { class: "view" });
-      view.append(el("img", { alt: `preview of ${name}` }), svg("svg", { class: "overlay" }));
+      view.append(el("img", { alt: `preview of ${name}`, class: "hidden" }), svg("svg", { class: "overlay" }),
+        el("p", { class: "no-preview" }, ""));
       card.append(view, el("figcaption"));
       box.append(card);
     }
     const p = previews[name];
     const img = card.querySelector("img");
     const overlay = card.querySelector("svg");
+    // An image only with a picture in it: never an empty frame with a broken-image icon.
+    img.classList.toggle("hidden", !p);
+    const live = state.status && state.status.live;
+    card.querySelector(".no-preview").textContent = p ? "" : live
+      ? "live mode: the cameras feed the live acoustic view" : "no preview yet";
     if (p) {
       const src = "data:image/jpeg;base64," + p.jpeg_b64;
       if (img.getAttribute("src") !== src) img.setAttribute("src", src);
       overlay.setAttribute("viewBox", `0 0 ${p.width} ${p.height}`);
       card.dataset.found = p.found ? "yes" : "no";
+    } else {
+      img.removeAttribute("src");
+      delete card.dataset.found;
     }
     overlay.replaceChildren();
     if (p && name === d.cameras[0]) drawHint(overlay, p);
@@ -215,7 +228,7 @@ function renderCameras() {
     caption.replaceChildren(
       el("strong", {}, name), " ",
       el("span", { class: "badge " + (p ? (p.found ? "good" : "bad") : "") }, p ? (p.found ? "board found" : "board NOT found") : "no preview"),
-      " ", el("span", { class: "poses-seen" }, `${c.poses_seen} poses seen`),
+      " ", el("span", { class: "poses-seen" }, plural(c.poses_seen, "pose") + " seen"),
     );
     if (c.warning) caption.append(el("div", { class: "warning" }, c.warning));
     card.classList.toggle("uncalibrated", Boolean(c.warning));
@@ -287,7 +300,12 @@ const pct = (db) => Math.max(0, Math.min(100, 100 * ((db ?? FLOOR_DBFS) - FLOOR_
 function renderLevels() {
   const lv = state.levels;
   const box = $("levels");
-  if (!lv) return;
+  if (!lv) { // a new session, or none: nothing recorded in it yet
+    $("levels-step").textContent = "";
+    box.replaceChildren(el("p", { class: "small" }, "no recording yet"));
+    $("flags").replaceChildren();
+    return;
+  }
   $("levels-step").textContent = `${lv.step} ${lv.file}`;
   box.replaceChildren();
   if (lv.reference) {
@@ -361,7 +379,13 @@ function renderLive() {
   const live = state.live;
   const history = state.live_history || [];
   const target = state.target_m;
-  if (!live) return;
+  if (!live) { // a new session, or none: no calibration of it yet
+    $("live-summary").textContent = "no live calibration yet";
+    delete $("live-summary").dataset.poses;
+    $("enough").classList.add("hidden");
+    for (const id of ["view-top", "view-front", "chart-accuracy", "chart-c", "uncertainty-legend"]) $(id).replaceChildren();
+    return;
+  }
   const umax = Math.max(...live.microphones.map((m) => m.uncertainty_m), 1e-6);
   $("live-summary").textContent = `${live.poses} poses: mean uncertainty ${mm(live.mean_uncertainty_m)}, predicted accuracy ` +
     `${mm(live.predicted_accuracy_m)}${target ? ` (target ${mm(target, 2)})` : ""}, c ${live.speed_of_sound_m_s.toFixed(2)} m/s`;
