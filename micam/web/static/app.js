@@ -478,7 +478,16 @@ async function showReport(id) {
     fig.append(el("img", { src: `/api/sessions/${encodeURIComponent(id)}/files/${f.path}`, alt: f.path }), el("figcaption", {}, f.path));
     box.append(fig);
   }
-  box.append(el("p", { class: "small" }, "files: " + r.files.map((f) => f.path).join(", ")));
+  // Every file to take home, each a download link (the page serves calibration files only).
+  const files = el("ul", { id: "report-files", class: "files" });
+  for (const f of r.files) {
+    const name = f.path.split("/").pop();
+    const link = el("a", { href: `/api/sessions/${encodeURIComponent(id)}/files/${f.path}`, download: name }, f.path);
+    const item = el("li");
+    item.append(link, ` (${(f.bytes / 1024).toFixed(1)} kB)`);
+    files.append(item);
+  }
+  box.append(el("h4", {}, "files"), files);
 }
 
 // -- events ----------------------------------------------------------------------------------

@@ -17,6 +17,7 @@ from pathlib import Path
 
 from selenium.webdriver.common.by import By
 
+from calibration.report import FIGURES
 from micam.web.testing import Chromium
 
 from .conftest import Stack
@@ -144,6 +145,17 @@ def test_a_whole_session_from_the_page(stack: Stack, chromium: type[Chromium],
         assert summary.startswith("complete") and f"{SESSION_POSES}/{SESSION_POSES + 2} poses" \
             in summary
         assert "48 microphones" in b.driver.find_element(By.ID, "report-result").text
+        # the worker's report beside the result: its figures shown, every file a download
+        links = b.js("return [...document.querySelectorAll('#report-files a[download]')]"
+                     ".map((a) => a.getAttribute('download'))")
+        assert {"result.json", "report.md", *FIGURES} <= set(links), links
+        b.wait(f"[...document.querySelectorAll('.picture img')].filter((i) => i.complete"
+               f" && i.naturalWidth > 0).length >= {len(FIGURES)}", what="the report's figures")
+        kind = b.driver.execute_async_script(
+            "const done = arguments[0]; fetch(document.querySelector("
+            "'#report-files a[download=\"geometry.png\"]').href)"
+            ".then((r) => done([r.status, r.headers.get('content-type')]));")
+        assert kind == [200, "image/png"], kind
         b.js("document.getElementById('report').scrollIntoView()")
         b.driver.save_screenshot(str(screenshots / "report.png"))
         _a_second_session_shows_nothing_of_the_first(b, stack, screenshots)
