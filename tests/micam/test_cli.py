@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 from datetime import UTC, datetime
 from pathlib import Path
 from types import SimpleNamespace
@@ -239,7 +240,7 @@ def test_watch_says_target_reached_only_while_its_session_is_open(
 
     def live(seq: int) -> LiveCalibrationEvent:
         return LiveCalibrationEvent(seq=seq, time_utc=datetime.now(UTC), session_id="s1",
-                                    job_id="live-p0002", update=update)
+                                    job_id="s1.live-to-p0001", update=update)
 
     closed = StateEvent(seq=2, time_utc=datetime.now(UTC), state="idle", previous="stopping",
                         reason="stopped", session_id="s1")
@@ -300,3 +301,57 @@ def test_the_parser_loads_nothing_heavy() -> None:
     loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                             check=True).stdout.strip()
     assert loaded == "[]", f"building the parser loads {loaded}"
+
+
+def test_sigterm_to_simulate_ends_it_as_interrupted_and_resumable(tmp_path: Path) -> None:
+    """README "Exit status": 3 for an interrupted `simulate`, whatever interrupted it."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "s"
+    proc = subprocess.Popen([sys.executable, "-m", "micam.cli", "simulate", "--out", str(out),
+                             "--array", "scatter48", "--poses", "20", "--mls-order", "9",
+                             "--quiet"], stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONPATH": str(Path(cli.__file__).parents[1])})
+    deadline = time.monotonic() + 60
+    while not list(out.glob("references/*")):  # a step under way: the capture has begun
+        assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read()
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == cli.EXIT_INCOMPLETE, err
+    assert "terminated (SIGTERM)" in err and f"micam simulate --resume --out {out}" in err
+
+
+@pytest.mark.parametrize("action", ["abort", "stop"])
+def test_session_abort_and_stop_say_which_session_closed(
+        action: str, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """The daemon closes an aborted session at once: the status after the request has no
+    session any more, and the command used to print nothing."""
+    session = SessionSummary(id="s7", path="/s7", status="open", steps_done=3, steps_total=9,
+                             poses_done=0, n_poses=2, created_utc=datetime.now(UTC))
+    client = FakeDaemonClient(_status(state="waiting_for_pose", session=session))
+
+    def closed(**_args: object) -> dict:
+        client._status = _status()  # closed before the command returns
+        return {}
+
+    client.replies[f"session.{action}"] = closed
+    _fake_daemon(monkeypatch, client)
+    assert main(["session", action]) == 0
+    assert capsys.readouterr().out == f"session s7 closed ({action})\n"
+
+
+def test_rates_read_as_people_write_them(capsys: pytest.CaptureFixture[str]) -> None:
+    from micam.commands.daq import rate_text
+
+    assert [rate_text(r) for r in (500, 96_000, 2_730_511)] == ["500 S/s", "96 kS/s",
+                                                               "2.73 MS/s"]
+    assert main(["daq", "selftest", "--emulate", "--seconds", "0.1"]) == 0
+    out = capsys.readouterr().out
+    assert "at 96 kS/s (emulated, not paced: read at " in out, out
+    assert not re.search(r"\d{5,} S/s", out), out
