@@ -153,19 +153,29 @@ def test_log_level_from_the_option_or_the_environment(
 
 
 @pytest.mark.parametrize("argv", [
-    ["calibrate", "SESSION", "--out", "{tmp}/result.json", "--acoular-xml", "{tmp}/no/mics.xml"],
-    ["calibrate", "SESSION", "--out", "{tmp}/no/result.json"],
+    ["calibrate", "SESSION", "--out", "{tmp}/result.json", "--acoular-xml", "{tmp}/f/mics.xml"],
+    ["calibrate", "SESSION", "--out", "{tmp}/f/no/result.json"],
     ["image", "SESSION", "--geometry", "g.json", "--pose", "0", "--speaker", "0", "--band",
-     "8000", "--out", "{tmp}/no/map.png"],
-    ["evaluate-imaging", "SESSION", "--geometry", "g.json", "--json", "{tmp}/no/e.json"],
+     "8000", "--out", "{tmp}/f/map.png"],
+    ["evaluate-imaging", "SESSION", "--geometry", "g.json", "--json", "{tmp}/f/e.json"],
 ])
 def test_outputs_are_checked_before_any_work(argv: list[str], tmp_path: Path,
                                              capsys: pytest.CaptureFixture[str]) -> None:
-    """The session does not even exist: the unwritable output is found first."""
+    """The session does not even exist: the unwritable output (under a file) is found first."""
+    (tmp_path / "f").write_text("a file")
     assert main([a.replace("{tmp}", str(tmp_path)) for a in argv]) == cli.EXIT_USAGE
     err = capsys.readouterr().err
-    assert "does not exist; create it first" in err and err.count("\n") == 1
-    assert not any(tmp_path.iterdir())
+    assert "not a directory" in err and err.count("\n") == 1
+    assert [p.name for p in tmp_path.iterdir()] == ["f"]
+
+
+def test_every_out_makes_its_missing_parents(tmp_path: Path,
+                                             capsys: pytest.CaptureFixture[str]) -> None:
+    """docs: `micam config template import --out lab/import.toml` with no lab/ yet."""
+    out = tmp_path / "lab" / "deeper" / "import.toml"
+    assert main(["config", "template", "import", "--out", str(out)]) == 0, \
+        capsys.readouterr().err
+    assert out.is_file() and out.stat().st_size > 0
 
 
 def test_an_output_that_is_a_directory_is_refused(tmp_path: Path,
