@@ -365,3 +365,24 @@ def test_rates_read_as_people_write_them(capsys: pytest.CaptureFixture[str]) -> 
     out = capsys.readouterr().out
     assert "at 96 kS/s (emulated, not paced: read at " in out, out
     assert not re.search(r"\d{5,} S/s", out), out
+
+
+def _command_paths(parser: argparse.ArgumentParser, path: tuple[str, ...] = ()
+                   ) -> list[tuple[str, ...]]:
+    paths = [path]
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, child in action.choices.items():
+                paths += _command_paths(child, (*path, name))
+    return paths
+
+
+def test_every_command_has_version(capsys: pytest.CaptureFixture[str]) -> None:
+    """README: "Every command has `--help` ... and `--version`" (`micam capture` had not)."""
+    paths = _command_paths(build_parser())
+    assert ("capture",) in paths and ("session", "start") in paths and len(paths) >= 40
+    for path in paths:
+        with pytest.raises(SystemExit) as ended:
+            main([*path, "--version"])
+        assert ended.value.code == 0, path
+        assert capsys.readouterr().out.startswith("micam "), path
