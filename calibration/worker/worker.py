@@ -288,11 +288,11 @@ class Worker:
             if isinstance(out, LiveUpdate):
                 report(Live(job_id=job.job_id, attempt=job.attempt, update=out))
             else:
-                files = [ReportFile(name=name, sha256=hashlib.sha256(data).hexdigest())
-                         for name, data in out.report.items()]
+                announced = [ReportFile(name=name, sha256=hashlib.sha256(data).hexdigest())
+                             for name, data in out.report.items()]
                 report((Done(job_id=job.job_id, attempt=job.attempt,
                              result_sha256=hashlib.sha256(out.result).hexdigest(),
-                             report=files), [out.result, *out.report.values()]))
+                             report=announced), [out.result, *out.report.values()]))
         except FetchFailed as exc:
             report(self._failure(job, f"cannot fetch the session: {exc}", exc.retryable))
         except ChecksumMismatch as exc:
