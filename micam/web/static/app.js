@@ -370,9 +370,31 @@ function drawChart(target, points, key, scale, unit, title, target_line = null) 
   if (target_line !== null) target.append(svg("line", { x1: 40, y1: Y(target_line), x2: 290, y2: Y(target_line), class: "target" }));
   target.append(svg("polyline", { points: points.map((p) => `${X(p.poses)},${Y(p[key] * scale)}`).join(" "), class: "series" }));
   for (const p of points) target.append(svg("circle", { cx: X(p.poses), cy: Y(p[key] * scale), r: 3, class: "point" }));
-  target.append(svg("text", { x: 2, y: 34, class: "axis" }, y1.toPrecision(4)), svg("text", { x: 2, y: 140, class: "axis" }, y0.toPrecision(4)));
-  target.append(svg("text", { x: 40, y: 156, class: "axis" }, `poses ${x0}`), svg("text", { x: 250, y: 156, class: "axis" }, String(x1)));
+  // Round ticks, each labelled with as many decimals as its step needs (two ends that print
+  // alike, "343.9" and "343.9", said nothing of the range between them).
+  const yt = niceTicks(y0, y1, 4);
+  for (const t of yt.values) {
+    target.append(svg("line", { x1: 36, y1: Y(t), x2: 40, y2: Y(t), class: "frame tick" }));
+    target.append(svg("text", { x: 34, y: Y(t) + 3, class: "axis tick-label", "text-anchor": "end" }, t.toFixed(yt.decimals)));
+  }
+  const xt = niceTicks(x0, x1, 5, 1);
+  for (const t of xt.values) {
+    target.append(svg("line", { x1: X(t), y1: 140, x2: X(t), y2: 144, class: "frame tick" }));
+    target.append(svg("text", { x: X(t), y: 153, class: "axis tick-label", "text-anchor": "middle" }, t.toFixed(0)));
+  }
+  target.append(svg("text", { x: 290, y: 158, class: "axis", "text-anchor": "end" }, "poses"));
   target.append(svg("text", { x: 230, y: 14, class: "axis" }, unit));
+}
+
+function niceTicks(lo, hi, wanted, minStep = 0) {
+  // Round values (1, 2 or 5 times a power of ten apart) within [lo, hi], and the decimals
+  // that tell them apart.
+  const raw = Math.max((hi - lo) / Math.max(1, wanted), minStep, 1e-12);
+  const power = Math.pow(10, Math.floor(Math.log10(raw)));
+  const step = [1, 2, 5, 10].map((m) => m * power).find((v) => v >= raw - 1e-12) * 1;
+  const values = [];
+  for (let v = Math.ceil(lo / step - 1e-9) * step; v <= hi + step * 1e-9; v += step) values.push(v);
+  return { values, decimals: Math.max(0, -Math.floor(Math.log10(step) + 1e-9)) };
 }
 
 function renderLive() {

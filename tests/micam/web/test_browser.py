@@ -114,6 +114,13 @@ def test_a_whole_session_from_the_page(stack: Stack, chromium: type[Chromium],
         assert len(live_poses) >= 2, f"the live calibration updated: {sorted(live_poses)}"
         history = b.js("return document.querySelectorAll('#chart-accuracy .point').length")
         assert history >= 2
+        for chart in ("chart-accuracy", "chart-c"):  # ticks that tell their values apart
+            ticks = b.js(f"return [...document.querySelectorAll('#{chart} .tick-label')]"
+                         ".map((t) => [t.getAttribute('text-anchor'), t.textContent])")
+            y = [text for anchor, text in ticks if anchor == "end"]
+            x = [text for anchor, text in ticks if anchor == "middle"]
+            assert len(y) >= 2 and len(set(y)) == len(y), (chart, y)
+            assert len(x) >= 2 and len(set(x)) == len(x), (chart, x)
         assert b.js("return document.querySelectorAll('#view-top .mic').length") >= 40
 
         outline = b.wait("document.getElementById('hint-outline')"
