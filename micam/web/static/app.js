@@ -294,6 +294,18 @@ function meter(ch, big = false) {
   m.firstChild.append(level, peak);
   return m;
 }
+function dbScale() {
+  // The meters' scale: dBFS at the height each level reaches (0 = full scale at the top).
+  const scale = el("div", { class: "db-scale", title: "dBFS (0 = full scale of the channel's range)" });
+  const tube = el("div", { class: "tube" });
+  for (let db = 0; db >= FLOOR_DBFS; db -= 30) {
+    const tick = el("span", { class: "db-tick" }, String(db));
+    tick.style.bottom = pct(db) + "%";
+    tube.append(tick);
+  }
+  scale.append(tube, el("span", { class: "label" }, "dBFS"));
+  return scale;
+}
 const fmt = (v) => (v === null || v === undefined) ? "n/a" : v.toFixed(1);
 const pct = (db) => Math.max(0, Math.min(100, 100 * ((db ?? FLOOR_DBFS) - FLOOR_DBFS) / -FLOOR_DBFS));
 
@@ -316,6 +328,7 @@ function renderLevels() {
   for (const group of lv.boards) {
     const b = el("div", { class: "board", "data-board": group.board });
     const row = el("div", { class: "meters" });
+    row.append(dbScale());
     for (const ch of group.channels) row.append(meter(ch));
     b.append(el("h3", {}, `board ${group.board}`), row);
     box.append(b);

@@ -102,6 +102,9 @@ def test_a_whole_session_from_the_page(stack: Stack, chromium: type[Chromium],
             meters = b.js("return document.querySelectorAll('.board:not(.reference) .meter')"
                           ".length")
             assert meters == 48, "one meter per microphone"
+            scale = b.js("return [...document.querySelector('.board:not(.reference)')"
+                         ".querySelectorAll('.db-tick')].map((t) => t.textContent)")
+            assert scale == ["0", "-30", "-60", "-90"], scale  # the meters' dBFS scale
             title = b.js("return document.querySelector('.board:not(.reference) .meter')"
                          ".getAttribute('title')")
             assert title.startswith("mic ") and "board" in title and "SNR" in title
