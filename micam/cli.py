@@ -97,15 +97,28 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="Exit status: 0 done, 1 a check failed, 2 bad options or input, 3 a capture "
                "did not complete, 70 a bug in micam, 130 interrupted, 141 output pipe closed.",
     )
-    parser.add_argument("--version", action="version", version=f"micam {_version()}",
-                        help="print micam's version and exit")
     _common_options(parser, None)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for module in SUBCOMMANDS:
         module.register(sub)
     for command in {id(p): p for p in sub.choices.values()}.values():
         _common_options(command, argparse.SUPPRESS)
+    version = f"micam {_version()}"
+    for command in _every_parser(parser):  # `micam session start --version` too
+        command.add_argument("--version", action="version", version=version,
+                             help="print micam's version and exit")
     return parser
+
+
+def _every_parser(parser: argparse.ArgumentParser) -> list[argparse.ArgumentParser]:
+    """`parser` and every (sub)command's parser under it, each once (aliases share one)."""
+    found = {id(parser): parser}
+    for action in parser._actions:  # argparse has no public walk of its subcommands
+        if isinstance(action, argparse._SubParsersAction):
+            for child in action.choices.values():
+                for p in _every_parser(child):
+                    found.setdefault(id(p), p)
+    return list(found.values())
 
 
 def _log_level(args: argparse.Namespace) -> int:

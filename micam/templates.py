@@ -29,6 +29,10 @@ TEMPLATES = ("paper", "generic", "audio", "uma16", "import")
 
 _SPEAKERS_M = [[round(v / 1000.0, 4) for v in p] for p in PAPER_SPEAKERS_MM]
 
+PLACEHOLDER = "CHANGE-ME"
+"""What a template writes where only the lab knows the value (a device name); `micam config
+check` refuses a file that still holds it."""
+
 
 def template(name: str) -> str:
     """The template called `name` (one of TEMPLATES), as TOML text."""
@@ -54,14 +58,14 @@ def template(name: str) -> str:
             "Focusrite, Behringer, ...): 15 microphones and the reference microphone on its "
             "inputs, the six speakers on its outputs, one camera",
             [("audio", "interface", 16, 6)], n_mics=15, reference=("interface", 15),
-            cameras=["cam0"], audio=([("interface", "CHANGE-ME", None)], False))
+            cameras=["cam0"], audio=([("interface", PLACEHOLDER, None)], False))
     if name == "uma16":
         return _daemon(
             "a miniDSP UMA-16 USB array (16 MEMS microphones) and an audio interface for the "
             "reference microphone and the six speakers, on one word clock, one camera",
             [("audio", "uma16", 16, 0), ("audio", "interface", 1, 6)], n_mics=16,
             reference=("interface", 0), cameras=["cam0"],
-            audio=([("uma16", "UMA16", None), ("interface", "CHANGE-ME", None)], True),
+            audio=([("uma16", "UMA16", None), ("interface", PLACEHOLDER, None)], True),
             notes=_UMA16, rate_hz=48_000.0)
     if name == "import":
         return _IMPORT
@@ -214,7 +218,7 @@ def _daemon(title: str, boards: list[tuple[str, str, int, int]], n_mics: int,
         lines += [
             "[[hardware.cameras]]",
             f'name = "{camera}"',
-            f'device = "/dev/v4l/by-id/usb-CHANGE-ME-{camera}-video-index0"   # ls /dev/v4l/by-id/',
+            f'device = "/dev/v4l/by-id/usb-{PLACEHOLDER}-{camera}-video-index0"   # ls /dev/v4l/by-id/',
             "width = 1280",
             "height = 960",
             'fourcc = "MJPG"',

@@ -143,13 +143,29 @@ class Live(_Msg):
     update: LiveUpdate
 
 
+MAX_REPORT_FILES = 16
+"""The most report files (report.md and its figures) a `done` message carries."""
+ReportName = Annotated[str, Field(pattern=r"^[a-z0-9_]{1,40}\.(md|png)$")]
+"""A report file's name: a plain name, Markdown or PNG only (stored beside result.json)."""
+
+
+class ReportFile(_Msg):
+    """One file of the report the worker wrote beside its result (calibration.report)."""
+
+    name: ReportName
+    sha256: Sha256
+
+
 class Done(_Msg):
-    """A final job's result; the result.json bytes follow in the second frame."""
+    """A final job's result; the result.json bytes follow in the second frame, then one frame
+    per file of `report`, in its order (report.md and its figures, as `micam calibrate`
+    writes them), to be stored beside result.json."""
 
     type: Literal["done"] = "done"
     job_id: JobId
     attempt: int = Field(ge=1)
     result_sha256: Sha256
+    report: list[ReportFile] = Field(default=[], max_length=MAX_REPORT_FILES)
 
 
 class Failed(_Msg):

@@ -297,6 +297,12 @@ class CameraPoses(_Message):
 
     camera: str
     poses_seen: int = Field(ge=0)
+    board_views: int | None = Field(
+        default=None, ge=0, description="completed steps whose image shows the board, the "
+                                        "refmic image's included: the views the camera's "
+                                        "calibration gets (None: a daemon that does not say)")
+    views_left: int | None = Field(
+        default=None, ge=0, description="steps still to capture that take a board view")
 
 
 class PoseOutline(_Message):

@@ -15,8 +15,9 @@ and Majordomo patterns:
   (fencing): a late answer of a dead or timed-out lease is acknowledged as stale and ignored;
 - results are checked against their session (result_check.py: a rogue or broken worker
   cannot replace a calibration with nonsense), then stored once, beside the session
-  (calibration/result.json for the final job, the latest calibration/live.json for live
-  ones), before the job is marked done. If result.json is there already (an earlier attempt
+  (calibration/result.json for the final job, after its report: report.md and its PNG
+  figures, plain names checked by the message's model, each against its checksum; the latest
+  calibration/live.json for live ones), before the job is marked done. If result.json is there already (an earlier attempt
   stored it and the daemon stopped before marking the job done) that file is kept and its own
   checksum recorded, so the outbox always describes the file on disk;
 - a message of another protocol version, or with none, is answered with `refused` and why.
@@ -252,9 +253,10 @@ class Broker:
             self._finish(worker, message.job_id, message.attempt,
                          lambda job: self._store_live(job, worker, message))
         elif isinstance(message, Done):
-            result = frames[1] if len(frames) == 2 else b""
+            result = frames[1] if len(frames) >= 2 else b""
             self._finish(worker, message.job_id, message.attempt,
-                         lambda job: self._store_result(job, worker, message, result))
+                         lambda job: self._store_result(job, worker, message, result,
+                                                        frames[2:]))
         elif isinstance(message, Failed):
             self._finish(worker, message.job_id, message.attempt,
                          lambda job: self._failed(job, worker, message))
@@ -328,18 +330,24 @@ class Broker:
         return ""
 
     def _store_result(self, job: JobRecord, worker: _Worker, message: Done,
-                      result: bytes) -> str:
+                      result: bytes, report: list[bytes]) -> str:
         digest = hashlib.sha256(result).hexdigest()
         if digest != message.result_sha256:
             self._requeue(job, f"the result from {worker.name} arrived damaged (sha256 "
                                f"{digest}, announced {message.result_sha256})")
             return "result checksum mismatch"
+        damaged = _damaged_report(message, report)
+        if damaged:
+            self._requeue(job, f"the report from {worker.name} arrived damaged: {damaged}")
+            return f"report damaged: {damaged}"
         try:
             check_result(parse_result(result), self._session_facts(job))
         except ResultRejected as exc:
             self._requeue(job, f"worker {worker.name} sent a result that does not describe the "
                                f"session: {exc}")
             return f"rejected: {exc}"
+        for file, data in zip(message.report, report, strict=True):  # before the result, which
+            _store_once(_calibration_dir(job) / file.name, data)   # says the report is there
         path = _calibration_dir(job) / RESULT_FILE
         partial_path(path).unlink(missing_ok=True)  # a crash mid-write; this is its one writer
         try:
@@ -472,6 +480,26 @@ def _calibration_dir(job: JobRecord) -> Path:
         directory.mkdir()
         fsync_dir(directory.parent)
     return directory
+
+
+def _damaged_report(message: Done, report: list[bytes]) -> str:
+    """What is wrong with the report files that came with `message` ('' if nothing): one
+    frame per announced file, each with its announced checksum."""
+    if len(report) != len(message.report):
+        return f"{len(report)} files sent, {len(message.report)} announced"
+    for file, data in zip(message.report, report, strict=True):
+        if hashlib.sha256(data).hexdigest() != file.sha256:
+            return f"{file.name}: checksum mismatch"
+    return ""
+
+
+def _store_once(path: Path, data: bytes) -> None:
+    """Write `path` once (a file an earlier attempt stored is kept)."""
+    partial_path(path).unlink(missing_ok=True)
+    try:
+        write_atomic(path, lambda fh: fh.write(data))
+    except SessionError:
+        log.warning("%s already exists; keeping it", path)
 
 
 def _replace(path: Path, data: bytes) -> None:

@@ -29,7 +29,7 @@ from ..sequencer import CaptureSequencer, Progress, plan_steps
 from acquisition.contracts.session import SessionWriter
 from acquisition.contracts.session._layout import attempt_dir
 from acquisition.contracts.stimulus import mls_length
-from acquisition.contracts.step_ids import is_pose_step
+from acquisition.contracts.step_ids import REFMIC_STEP, is_pose_step
 from .config import DaemonConfig
 from .hardware import Hardware
 from .previews import Previews
@@ -121,6 +121,12 @@ class _Stillness:
     since: float | None = None
 
 
+def _is_view_step(step: str) -> bool:
+    """Whether `step`'s camera images are board views for the camera calibration (see
+    calibration.camera_calibration.calibrate_session: the poses' and the refmic image)."""
+    return step == REFMIC_STEP or is_pose_step(step)
+
+
 def _rounded(values: np.ndarray) -> list[float]:
     return [round(float(v), 1) for v in values]
 
@@ -136,7 +142,9 @@ class SessionRun:
         self.config = config
         self.created_utc = created_utc
         self.capture = CaptureConfig.of_session(writer.capture, writer.path)
-        self.steps_total = len(plan_steps(self.capture))
+        plan = plan_steps(self.capture)
+        self.steps_total = len(plan)
+        self._view_steps = [s.id for s in plan if _is_view_step(s.id)]
         self.sequencer = CaptureSequencer(
             self.capture, hardware.group, hardware.cameras, operator=self,
             writer=_ObservedWriter(writer, self),
@@ -159,14 +167,15 @@ class SessionRun:
         self._attempt: _Attempt | None = None
         self._still = _Stillness()
         self.camera_poses: Counter[str] = Counter()
+        self.camera_views: Counter[str] = Counter()
         self.coverage: list[PoseOutline] = []
         self._count_completed_poses()
 
     def _count_completed_poses(self) -> None:
-        """The board views and camera-0 outlines of the poses completed before this run (a
-        resumed session), from their quality.json."""
+        """The board views and camera-0 outlines of the poses (and the refmic image) completed
+        before this run (a resumed session), from their quality.json."""
         for step, attempt in self.completed().items():
-            if not is_pose_step(step):
+            if not _is_view_step(step):
                 continue
             try:
                 quality = json.loads((self.path / attempt_dir(step, attempt)
@@ -176,16 +185,26 @@ class SessionRun:
                 pose = PoseOutline(step=step, outline=outline) if outline else None
             except (OSError, ValueError, KeyError, TypeError, AttributeError):
                 continue  # a quality.json of another version: it only counts for the display
-            self._count_pose(found, pose)
+            self._count_views(step, found, pose)
 
-    def _count_pose(self, found: dict[str, bool], outline: PoseOutline | None) -> None:
-        self.camera_poses.update(name for name, ok in found.items() if ok)
+    def _count_views(self, step: str, found: dict[str, bool],
+                     outline: PoseOutline | None) -> None:
+        """Count a completed step's board views (the calibration uses the refmic image's as
+        well as the poses'), and a pose's outline in camera 0."""
+        seen = [name for name, ok in found.items() if ok]
+        self.camera_views.update(seen)
+        if is_pose_step(step):
+            self.camera_poses.update(seen)
         if outline is not None:
             self.coverage = [*self.coverage[-(MAX_COVERAGE - 1):], outline]
 
     def cameras_seen(self) -> list[CameraPoses]:
-        """Completed poses with the board found, by camera (every camera, in order)."""
-        return [CameraPoses(camera=c.name, poses_seen=self.camera_poses[c.name])
+        """Completed poses with the board found, by camera (every camera, in order), with the
+        board views the camera calibration gets so far and the steps left that may add one."""
+        done = self.completed()
+        left = sum(step not in done for step in self._view_steps)
+        return [CameraPoses(camera=c.name, poses_seen=self.camera_poses[c.name],
+                            board_views=self.camera_views[c.name], views_left=left)
                 for c in self.capture.cameras]
 
     # -- what the daemon asks ---------------------------------------------------------------
@@ -351,10 +370,10 @@ class SessionRun:
 
     def after_end(self, step: str) -> None:
         attempt = self._current(step)
-        if is_pose_step(step):
+        if _is_view_step(step):
             outline = attempt.outlines.get(self.capture.cameras[0].name)
-            self._count_pose(attempt.found,
-                             PoseOutline(step=step, outline=outline) if outline else None)
+            self._count_views(step, attempt.found, PoseOutline(step=step, outline=outline)
+                              if outline and is_pose_step(step) else None)
         self.host.publish(CaptureEvent, step=step, outcome="complete",
                           reason="; ".join(attempt.warnings))
         self.last_capture = LastCapture(number=self.captures_requested, step=step,

@@ -40,6 +40,8 @@ class RecordingMap:
         node_error_m: the distance of its grid node from the speaker.
         spacing_m: the grid spacing used.
         n_components: CLEAN-SC components.
+        speaker_in_view: whether the camera sees the imaged speaker (outside its view, the map
+            covers only what it sees, and its peak cannot be at the speaker).
     """
 
     figure: Figure
@@ -49,6 +51,7 @@ class RecordingMap:
     node_error_m: float
     spacing_m: float
     n_components: int
+    speaker_in_view: bool
 
 
 def recording_map(reader: SessionReader, geometry: ArrayGeometry, pose: int, speaker: int,
@@ -95,4 +98,4 @@ def recording_map(reader: SessionReader, geometry: ArrayGeometry, pose: int, spe
     return RecordingMap(figure, speakers_px, sources_px,
                         float(np.linalg.norm(points[0] - target)),
                         float(np.linalg.norm(grid.points[node] - target)), spacing,
-                        len(clean.components))
+                        len(clean.components), bool(view.sees(target[None, :])[0]))

@@ -70,6 +70,14 @@ class CameraView:
         px, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), self.K, self.dist)
         return px.reshape(-1, 2)
 
+    def sees(self, points_cam0: np.ndarray) -> np.ndarray:
+        """Whether each point (N, 3) of the camera-0 frame is in this camera's image: in front
+        of it and projected within its width and height (pixels)."""
+        in_front = self.to_camera(points_cam0)[:, 2] > 0
+        px = self.project(points_cam0)
+        inside = ((px >= 0) & (px < np.array([self.width, self.height]))).all(axis=1)
+        return np.asarray(in_front & inside)
+
 
 @dataclass(frozen=True)
 class BoardPose:

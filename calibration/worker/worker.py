@@ -47,6 +47,7 @@ from acquisition.contracts.job_messages import (
     Ready,
     Reconnect,
     Refused,
+    ReportFile,
     WorkerError,
     encode,
     version_problem,
@@ -117,7 +118,7 @@ class Worker:
         self.memo = WorkMemo()
         self._context = zmq.Context()
         self._stop = threading.Event()
-        self._reports: queue.Queue[BaseModel | tuple[Done, bytes] | None] = queue.Queue()
+        self._reports: queue.Queue[BaseModel | tuple[Done, list[bytes]] | None] = queue.Queue()
         self._thread: threading.Thread | None = None
         # a job offered while the last one's thread was still ending (see `_start`)
         self._deferred: Job | None = None
@@ -190,12 +191,12 @@ class Worker:
         if s.server_key is not None and s.client_key is not None:
             secure_client(sock, s.server_key, s.client_key)
 
-    def _send(self, message: BaseModel, data: bytes | None = None) -> bool:
+    def _send(self, message: BaseModel, *data: bytes) -> bool:
         """Send now or not at all: with no daemon connected, the message is dropped (a lease
         the daemon no longer sees is given to another worker anyway). True if sent."""
         if self._sock is None:
             return False
-        frames = [encode(message)] + ([data] if data is not None else [])
+        frames = [encode(message), *data]
         try:
             self._sock.send_multipart(frames, zmq.NOBLOCK)
         except zmq.Again:
@@ -287,8 +288,11 @@ class Worker:
             if isinstance(out, LiveUpdate):
                 report(Live(job_id=job.job_id, attempt=job.attempt, update=out))
             else:
+                announced = [ReportFile(name=name, sha256=hashlib.sha256(data).hexdigest())
+                             for name, data in out.report.items()]
                 report((Done(job_id=job.job_id, attempt=job.attempt,
-                             result_sha256=hashlib.sha256(out).hexdigest()), out))
+                             result_sha256=hashlib.sha256(out.result).hexdigest(),
+                             report=announced), [out.result, *out.report.values()]))
         except FetchFailed as exc:
             report(self._failure(job, f"cannot fetch the session: {exc}", exc.retryable))
         except ChecksumMismatch as exc:
@@ -322,7 +326,7 @@ class Worker:
                     job, self._deferred = self._deferred, None
                     self._start(job)
             elif isinstance(report, tuple):
-                self._send(*report)
+                self._send(report[0], *report[1])
             else:
                 self._send(report)
 

@@ -63,11 +63,31 @@ def run_check(args: argparse.Namespace) -> int:
     from micam.daemon import check_config
     from micam.hardware import daemon_config_of
 
+    from micam.templates import PLACEHOLDER
+
     document = read_toml(args.file, "configuration", UserError)
+    unedited = placeholders(document, PLACEHOLDER)
+    if unedited:
+        raise UserError(f"config file {args.file}: still the template's {PLACEHOLDER} at "
+                        f"{', '.join(unedited)}; put this lab's values there (the comment "
+                        "beside each says where to find them)")
     if "recordings" in document:
         return _check_import(document, args.file)
     print(check_config(daemon_config_of(document, f"config file {args.file}")))
     return 0
+
+
+def placeholders(value: object, mark: str, where: str = "") -> list[str]:
+    """Where (dotted keys) a template's placeholder `mark` is still in a TOML document."""
+    if isinstance(value, str):
+        return [where or "the top level"] if mark in value else []
+    if isinstance(value, dict):
+        return [w for key, item in value.items()
+                for w in placeholders(item, mark, f"{where}.{key}".lstrip("."))]
+    if isinstance(value, list):
+        return [w for n, item in enumerate(value)
+                for w in placeholders(item, mark, f"{where}[{n}]")]
+    return []
 
 
 def _check_import(document: dict, path: Path) -> int:

@@ -101,8 +101,8 @@ def run_audio_selftest(args: argparse.Namespace) -> int:
         dbfs = 20 * math.log10(peak / 32768) if peak else -math.inf
         status = "ok" if report.ok else f"FAILED: {report.error}"
         print(f"{device}: {report.received}/{report.samples} samples on {len(report.channels)} "
-              f"inputs at {report.rate_hz:.0f} S/s (achieved {report.achieved_rate_hz:.0f} "
-              f"S/s), peak {dbfs:.1f} dBFS: {status}")
+              f"inputs at {rate_text(report.rate_hz)} ({_achieved(report.achieved_rate_hz)}), "
+              f"peak {dbfs:.1f} dBFS: {status}")
         failed += not report.ok
     return 1 if failed else 0
 
@@ -128,6 +128,22 @@ def run_list(args: argparse.Namespace) -> int:
         print(f"{b.family:8s} {b.model or '?':12s} {b.serial or '?':>10s} {state:9s} "
               f"{b.usb_id:10s} {b.location}" + (f"  ({b.error})" if b.error else ""))
     return 0
+
+
+def rate_text(hz: float) -> str:
+    """A sample rate as a person reads it: "96 kS/s", "2.73 MS/s", "500 S/s"."""
+    for scale, unit in ((1e6, "MS/s"), (1e3, "kS/s")):
+        if hz >= scale:
+            return f"{hz / scale:.3g} {unit}"
+    return f"{hz:.0f} S/s"
+
+
+def _achieved(hz: float, emulated: bool = False) -> str:
+    """The rate a self-test's samples arrived at; an emulated board is not paced by a clock,
+    so its rate says how fast this computer reads, not the board."""
+    if emulated:
+        return f"emulated, not paced: read at {rate_text(hz)}"
+    return f"achieved {rate_text(hz)}"
 
 
 def _usb_unusable(exc: Exception) -> UserError:
@@ -160,7 +176,8 @@ def run_selftest(args: argparse.Namespace) -> int:
         rms = [c.rms_v for c in report.channels]
         status = "ok" if report.ok else f"FAILED: {report.error}"
         print(f"{report.board}: {report.received}/{report.samples} samples at "
-              f"{report.rate_hz:.0f} S/s (achieved {report.achieved_rate_hz:.0f} S/s), "
+              f"{rate_text(report.rate_hz)} "
+              f"({_achieved(report.achieved_rate_hz, args.emulate)}), "
               f"input RMS {min(rms, default=0):.4f}-{max(rms, default=0):.4f} V: {status}")
         failed += not report.ok
     return 1 if failed else 0

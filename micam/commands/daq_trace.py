@@ -19,6 +19,8 @@ from typing import Any
 
 from acquisition.contracts.errors import UserError
 
+from ..outputs import check_outputs
+
 from .bounded import number
 
 TRACE_SECONDS = number(0, 1e7, " s")
@@ -160,10 +162,9 @@ def run_probe(args: argparse.Namespace) -> int:
     from daq.usb.bringup import probe
 
     out: Path = args.out
-    if not out.is_dir():
-        raise UserError(f"--out {out} is not a directory; create it first")
     stem = out / time.strftime("micam-probe-%Y%m%d-%H%M%S")
     report_path, trace_path = stem.with_suffix(".json"), stem.with_suffix(".trace.jsonl")
+    check_outputs(("--out", report_path))  # makes a missing --out directory
     for path in (report_path, trace_path):
         if path.exists():
             raise UserError(f"{path} exists; wait a second or choose another --out")

@@ -5,6 +5,7 @@ that pose over the camera's whole view of the rig plane."""
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from acquisition.contracts.errors import UserError
@@ -67,6 +68,10 @@ def run(args: argparse.Namespace) -> int:
           f"{args.speaker} as the geometry places it (sub-grid; its grid node "
           f"{significant(1e3 * drawn.node_error_m)} mm away on the "
           f"{significant(1e3 * drawn.spacing_m)} mm grid), {drawn.n_components} components")
+    if not drawn.speaker_in_view:
+        print(f"warning: speaker {args.speaker} is outside {args.camera}'s view at pose "
+              f"{args.pose}: the map covers only what {args.camera} sees, so its peak cannot be "
+              "at the speaker; image it with a camera that sees it", file=sys.stderr)
     if (args.pose, args.speaker) in calibrated_from:
         print("note: this recording calibrated the channels (--csm-calibration), so its map "
               "fits the speaker's position by construction; image another one to judge it")

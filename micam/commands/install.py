@@ -4,6 +4,7 @@ written where udev and systemd read them, with what was written printed."""
 from __future__ import annotations
 
 import argparse
+import textwrap
 import shutil
 import sys
 from pathlib import Path
@@ -71,8 +72,9 @@ def run(args: argparse.Namespace) -> int:
         if path.exists() and path.read_text() != content and not args.force:
             raise UserError(f"{path} exists with other content; pass --force to replace it")
     for path, content in plan:
-        if args.dry_run:
-            print(f"would write {path}")
+        if args.dry_run:  # what would be written, in full: the rules or units to review
+            print(f"would write {path}:")
+            print(textwrap.indent(content.rstrip("\n"), "    "))
             continue
         try:
             path.parent.mkdir(parents=True, exist_ok=True)

@@ -56,12 +56,11 @@ def run(args: argparse.Namespace) -> int:
             print(format_status(client.status()))
             return 0
         command = f"session.{args.action}"
-        client.request(command)
-        if args.action in ("stop", "abort") and not args.no_wait:
-            session_id = client.status().session
+        closing = client.status().session if args.action in ("stop", "abort") else None
+        client.request(command)  # (an abort may close the session before any status after it)
+        if closing is not None and not args.no_wait:
             client.wait_until(lambda s: s.session is None, args.wait_timeout)
-            if session_id is not None:
-                print(f"session {session_id.id} closed ({args.action})")
+            print(f"session {closing.id} closed ({args.action})")
             return 0
         print(format_status(client.status()))
     return 0

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 import textwrap
 from pathlib import Path
@@ -121,6 +122,15 @@ def _options_from_args(args: argparse.Namespace):
         raise UserError(f"invalid simulation options: {problems}") from None
 
 
+class Terminated(Exception):
+    """SIGTERM arrived during the capture: it ends as interrupted, resumable (exit status 3,
+    README "Exit status"), not killed by the signal (143)."""
+
+
+def _terminate(_signum: int, _frame: object) -> None:
+    raise Terminated("terminated (SIGTERM)")
+
+
 def _first_line(exc: BaseException) -> str:
     return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
 
@@ -148,6 +158,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"cannot create the session {out}: {exc}; choose a --out on a "
                         "writable disk with free space") from None
     remaining = len(sequencer.remaining_steps())
+    previous = signal.signal(signal.SIGTERM, _terminate)
     try:
         with tqdm(total=remaining, unit="step", disable=args.quiet, desc="capture") as bar:
             def progress(p: Progress) -> None:
@@ -156,13 +167,14 @@ def run(args: argparse.Namespace) -> int:
 
             sequencer.on_progress = progress
             sequencer.run()
-    except (DaqError, CameraError, SessionError, OSError) as exc:
+    except (DaqError, CameraError, SessionError, OSError, Terminated) as exc:
         print(f"micam: capture interrupted: {_first_line(exc)}\n"
               f"Every completed step in {out} is safe; fix the cause (for a full or read-only "
               f"disk: free space, or make it writable) and continue with\n"
               f"  micam simulate --resume --out {out}", file=sys.stderr)
         return 3
     finally:
+        signal.signal(signal.SIGTERM, previous)
         sequencer.writer.close()
     if not args.quiet:
         print(f"session written to {out} ({sim.options.poses} poses, "

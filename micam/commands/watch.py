@@ -29,7 +29,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from acquisition.daemon.client import client_from_args
     from acquisition.daemon.display import format_event, format_live, format_status
-    from acquisition.contracts.protocol import LiveCalibrationEvent
+    from acquisition.contracts.protocol import LiveCalibrationEvent, StateEvent
+    from acquisition.daemon.states import SESSION_STATES, State
+
+    open_states = {s.value for s in SESSION_STATES - {State.STOPPING}}
 
     deadline = time.monotonic() + args.duration if args.duration is not None else None
     with client_from_args(args) as client:
@@ -40,6 +43,7 @@ def run(args: argparse.Namespace) -> int:
             note = sys.stderr if args.json else sys.stdout
             seen = 0
             last_seq = None
+            open_session = status.session.id if status.session is not None else None
             while args.count is None or seen < args.count:
                 wait = 1.0 if deadline is None else deadline - time.monotonic()
                 if wait <= 0:
@@ -54,10 +58,14 @@ def run(args: argparse.Namespace) -> int:
                     print(f"(missed {event.seq - last_seq - 1} events)", file=note, flush=True)
                 last_seq = event.seq
                 seen += 1
+                if isinstance(event, StateEvent):
+                    open_session = event.session_id if event.state in open_states else None
                 if args.json:
                     line = event.model_dump_json()
                 elif isinstance(event, LiveCalibrationEvent) and args.target_mm is not None:
-                    line = format_live(event.update, args.target_mm / 1e3)
+                    # "you may stop" only while its session is open (a worker may answer late)
+                    is_open = event.session_id is not None and event.session_id == open_session
+                    line = format_live(event.update, args.target_mm / 1e3 if is_open else None)
                 else:
                     line = format_event(event)
                 print(line, flush=True)

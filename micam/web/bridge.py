@@ -6,6 +6,13 @@ connected, and keeps the page's state: what the daemon is doing, what it capture
 latest levels and previews, the live calibration and its history, the sessions. Each browser
 gets a snapshot of that state when it connects, then one update per event, in order.
 
+What belongs to a session (its levels, board views per camera, progress, live calibration and
+history) is kept in one place, `SESSION_STATE`'s keys, for the open session only: it starts
+again from `SESSION_STATE` whenever the open session changes (a new one, or none after stop or
+abort), so that nothing of one session shows in the next, and a page that connects later gets
+it whole in its snapshot. Events of another session than the open one (a worker's late live
+calibration of a closed session) do not touch it.
+
 It picks up where the daemon is whenever it (re)connects: a restarted page reads the daemon's
 status, its description and the open session's live calibration files, and a restarted daemon
 (its event numbers start again at 0) is read afresh the same way. A browser that cannot keep
@@ -60,6 +67,11 @@ LIVE_FILE = "calibration/live.json"
 LIVE_HISTORY_FILE = "calibration/live_history.jsonl"
 MAX_FILE_BYTES = 4 * 2**20
 """The longest session file the page reads (the daemon sends at most as much)."""
+SESSION_STATE: dict[str, Any] = {"cameras": [], "levels": None, "progress": None, "live": None,
+                                 "live_history": []}
+"""The page's state of the open session, as it is when a session opens (or none is open)."""
+CLOSED_REMEMBERED = 100
+"""Closed sessions remembered, whose late events never reopen them on the page."""
 
 
 class Browser:
@@ -101,14 +113,14 @@ class Bridge:
         self.state: dict[str, Any] = {
             "daemon": {"connected": False, "error": "connecting to the daemon",
                        "control": client.control},
-            "describe": None, "status": None, "cameras": [], "levels": None, "previews": {},
-            "live": None, "live_history": [], "sessions": None, "log": [],
-            "target_m": target_m, "live_stream": None,
+            "describe": None, "status": None, "previews": {}, "sessions": None, "log": [],
+            "target_m": target_m, "live_stream": None, "session_id": None, **SESSION_STATE,
         }
         self._log: deque[dict[str, Any]] = deque(maxlen=LOG_LINES)
         self._describe: DescribeResult | None = None
         self._last_seq: int | None = None
-        self._session_id: str | None = None
+        self._closed: deque[str] = deque(maxlen=CLOSED_REMEMBERED)
+        self._live_unread = False  # the open session's live files are still to be read
         self._tasks: list[asyncio.Task] = []
         self._context = zmq.asyncio.Context()
         self._resync = asyncio.Event()
@@ -191,6 +203,7 @@ class Bridge:
             return
         if self._last_seq is not None and event.seq <= self._last_seq:
             self._resync.set()  # numbers start again: the daemon was restarted
+            self._live_unread = True
         self._last_seq = event.seq
         changed = self._apply(event)
         summary = {"seq": event.seq, "type": event.type,
@@ -203,15 +216,26 @@ class Bridge:
         self._send(changed, summary)
 
     def _apply(self, event: Event) -> dict[str, Any]:
-        """The parts of the page's state that `event` changes."""
+        """The parts of the page's state that `event` changes (nothing of the open session's
+        for an event of another)."""
+        if isinstance(event, StateEvent | CalibrationEvent):
+            self._resync.set()  # a session opened or closed, a result arrived: read again
         if isinstance(event, PreviewEvent):
             return {"previews": {**self.state["previews"], event.camera: event.model_dump(
                 mode="json", exclude={"v", "seq", "time_utc", "session_id", "type"})}}
+        changed: dict[str, Any] = {}
+        if (isinstance(event, LevelsEvent | ProgressEvent) and event.session_id is not None
+                and event.session_id != self.state["session_id"]
+                and event.session_id not in self._closed):
+            changed = self._open(event.session_id)  # the capture's events come before status
+            self.state.update(changed)
+        if event.session_id is None or event.session_id != self.state["session_id"]:
+            return changed  # another session's (a worker's late reply), or none
         if isinstance(event, LevelsEvent) and self._describe is not None:
-            return {"levels": levels_view(event, self._describe)}
+            return {**changed, "levels": levels_view(event, self._describe)}
         if isinstance(event, ProgressEvent):
             status = self.state["status"]
-            changed: dict[str, Any] = {"progress": event.model_dump(mode="json")}
+            changed["progress"] = event.model_dump(mode="json")
             if self._describe is not None:
                 changed["cameras"] = cameras_view(self._describe, event.cameras,
                                                   event.poses_done, event.n_poses)
@@ -227,8 +251,6 @@ class Bridge:
                 return {}
             history = [p for p in self.state["live_history"] if p["poses"] != point["poses"]]
             return {"live": live, "live_history": [*history, point][-HISTORY_LIMIT:]}
-        if isinstance(event, StateEvent | CalibrationEvent):
-            self._resync.set()  # a session opened or closed, a result arrived: read again
         return {}
 
     def _disconnected(self, why: str) -> None:
@@ -247,6 +269,7 @@ class Bridge:
             try:
                 if not connected or self._resync.is_set():
                     self._resync.clear()
+                    self._live_unread |= not connected
                     await self._read_all()
                     connected = True
                     next_sessions = time.monotonic() + self.sessions_every_s
@@ -272,22 +295,37 @@ class Bridge:
         self._send({"describe": self._describe.model_dump(mode="json"),
                     "daemon": {"connected": True, "error": None, "control": self.client.control},
                     "sessions": await self.request("sessions.list")})
-        self._session_id = None  # read the open session's live files again
         await self._on_status(await asyncio.to_thread(self.client.status))
 
     async def _on_status(self, status: StatusResult) -> None:
         if self.live_stream is not None:  # maps only while live and looked at
             self.live_stream.want(bool(self.browsers) and status.live is not None)
-        changed: dict[str, Any] = {"status": status.model_dump(mode="json")}
         session = status.session
+        if (session.id if session else None) != self.state["session_id"]:
+            self._send(self._open(session.id if session else None))
+        changed: dict[str, Any] = {"status": status.model_dump(mode="json")}
+        if status.live is None and self.state["live_stream"] is not None:
+            changed["live_stream"] = None  # left live: no last map stays on the page
         if session is not None and self._describe is not None:
             changed["cameras"] = cameras_view(self._describe, status.cameras,
                                               session.poses_done, session.n_poses)
-        if session is not None and session.id != self._session_id:
-            self._session_id = session.id
+        if session is not None and self._live_unread:
+            self._live_unread = False
             changed.update(await self._live_files(session.id))
         if changed != {k: self.state.get(k) for k in changed}:
             self._send(changed)
+
+    def _open(self, session_id: str | None) -> dict[str, Any]:
+        """The page's state of a session that opens (or of none), from nothing; the session
+        that was open is remembered as closed, its live files to be read if it is resumed."""
+        closing = self.state["session_id"]
+        if closing is not None and closing != session_id:
+            self._closed.append(closing)
+        if session_id is not None:
+            with contextlib.suppress(ValueError):
+                self._closed.remove(session_id)  # resumed: it is open again
+            self._live_unread = True
+        return {**SESSION_STATE, "session_id": session_id}
 
     async def _live_files(self, session_id: str) -> dict[str, Any]:
         """The open session's latest live update and its history, from its files (what
@@ -302,8 +340,7 @@ class Bridge:
         with contextlib.suppress(DaemonError):
             lines = (await self.file(session_id, LIVE_HISTORY_FILE)).splitlines()
             history = _dedup(list(_history_points(session_id, lines)))
-        return {"live": live, "live_history": history[-HISTORY_LIMIT:], "levels": None,
-                "previews": {}}
+        return {"live": live, "live_history": history[-HISTORY_LIMIT:]}
 
     async def file(self, session_id: str, path: str) -> bytes:
         """A file of a session's calibration directory (DaemonError if it cannot be had)."""

@@ -86,11 +86,16 @@ class HeadDeadlineProtocol(H11Protocol):
         self.transport.close()
 
 
+WS_PROTOCOL = "websockets-sansio"
+"""uvicorn's WebSocket implementation on the websockets package's Sans-I/O core (its legacy
+one, "websockets", warns that it is deprecated on every start)."""
+
+
 def serve(app: ASGIApp, host: str, port: int, request_timeout_s: float) -> None:
     """Serve `app` on `host`:`port` until SIGINT or SIGTERM (see the module docstring)."""
     protocol = type("HeadDeadlineProtocol", (HeadDeadlineProtocol,),
                     {"timeout_s": request_timeout_s})
-    uvicorn.run(app, host=host, port=port, log_level="warning", ws="websockets",
+    uvicorn.run(app, host=host, port=port, log_level="warning", ws=WS_PROTOCOL,
                 lifespan="on", http=protocol, h11_max_incomplete_event_size=MAX_HEAD_BYTES,
                 limit_concurrency=MAX_CONNECTIONS, timeout_keep_alive=KEEP_ALIVE_S,
                 ws_max_size=MAX_WS_MESSAGE_BYTES)

@@ -72,23 +72,24 @@ def levels_view(event: LevelsEvent, describe: DescribeResult) -> dict[str, Any]:
     }
 
 
-def camera_warning(poses_seen: int, poses_done: int, n_poses: int,
+def camera_warning(views: int, views_left: int, poses_seen: int, poses_done: int,
                    min_views: int) -> str | None:
     """Why a camera is on course to stay uncalibrated, or None.
 
-    It cannot be calibrated when even a board in every remaining pose leaves it short of
-    `min_views`; it is on course to stay uncalibrated when it keeps finding the board at the
-    rate so far (`poses_seen` of `poses_done`) and ends the session short of `min_views`.
+    `views` are the board views its calibration gets so far (the poses' and the refmic
+    image's), `views_left` the steps still to capture that may add one. It cannot be
+    calibrated when even a board in every one of them leaves it short of `min_views`; it is
+    on course to stay uncalibrated when it keeps finding the board at the rate so far
+    (`poses_seen` of `poses_done` poses) and ends the session short of `min_views`.
     """
-    if poses_seen >= min_views:
+    if views >= min_views:
         return None
-    remaining = max(0, n_poses - poses_done)
-    if poses_seen + remaining < min_views:
-        return (f"cannot be calibrated: {poses_seen} of {min_views} board views needed, and "
-                f"only {remaining} poses left")
+    if views + views_left < min_views:
+        return (f"cannot be calibrated: {views} of {min_views} board views needed, and "
+                f"only {views_left} left to capture")
     if poses_done == 0:
         return None
-    projected = poses_seen + remaining * poses_seen / poses_done
+    projected = views + views_left * poses_seen / poses_done
     if projected < min_views:
         return (f"on course to stay uncalibrated: the board was seen in {poses_seen} of "
                 f"{poses_done} poses; it needs {min_views} views (hold the board in its view)")
@@ -97,12 +98,18 @@ def camera_warning(poses_seen: int, poses_done: int, n_poses: int,
 
 def cameras_view(describe: DescribeResult, seen: list[CameraPoses], poses_done: int,
                  n_poses: int) -> list[dict[str, Any]]:
-    """Every camera with its board views so far and its warning (if any)."""
-    counts = {c.camera: c.poses_seen for c in seen}
-    return [{"camera": name, "poses_seen": counts.get(name, 0),
-             "warning": camera_warning(counts.get(name, 0), poses_done, n_poses,
-                                       describe.camera_min_views)}
-            for name in describe.cameras]
+    """Every camera with its board views so far and its warning (if any). A daemon that does
+    not count views (`board_views` None) is judged on its poses alone."""
+    by_name = {c.camera: c for c in seen}
+    cameras = []
+    for name in describe.cameras:
+        c = by_name.get(name, CameraPoses(camera=name, poses_seen=0))
+        views = c.poses_seen if c.board_views is None else c.board_views
+        left = max(0, n_poses - poses_done) if c.views_left is None else c.views_left
+        cameras.append({"camera": name, "poses_seen": c.poses_seen, "board_views": views,
+                        "warning": camera_warning(views, left, c.poses_seen, poses_done,
+                                                  describe.camera_min_views)})
+    return cameras
 
 
 class ViewError(UserError):

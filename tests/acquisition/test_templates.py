@@ -14,7 +14,7 @@ import pytest
 from micam.cli import main
 from micam.hardware import load_daemon_config as load_config
 from acquisition.importer import load_spec
-from micam.templates import TEMPLATES, template
+from micam.templates import PLACEHOLDER, TEMPLATES, template
 from daq import board_model
 
 
@@ -26,9 +26,18 @@ def _written(tmp_path: Path, name: str) -> Path:
 
 
 @pytest.mark.parametrize("name", TEMPLATES)
-def test_each_template_passes_its_check(tmp_path: Path, name: str,
-                                        capsys: pytest.CaptureFixture) -> None:
+def test_each_template_passes_its_check_once_its_placeholders_are_filled_in(
+        tmp_path: Path, name: str, capsys: pytest.CaptureFixture) -> None:
+    """As written, a template with a placeholder (a device only the lab can name) is refused
+    and each place named; with real values in them it passes."""
     path = _written(tmp_path, name)
+    text = path.read_text()
+    if PLACEHOLDER in text:
+        assert main(["config", "check", str(path)]) == 2
+        err = capsys.readouterr().err
+        assert f"still the template's {PLACEHOLDER} at " in err and err.count("\n") == 1
+        assert "device" in err
+        path.write_text(text.replace(PLACEHOLDER, "lab-value"))
     assert main(["config", "check", str(path)]) == 0
     assert "OK" in capsys.readouterr().out
     assert main(["config", "template", name, "--out", str(path)]) == 2  # never overwritten

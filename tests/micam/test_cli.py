@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 from datetime import UTC, datetime
 from pathlib import Path
 from types import SimpleNamespace
@@ -152,19 +153,29 @@ def test_log_level_from_the_option_or_the_environment(
 
 
 @pytest.mark.parametrize("argv", [
-    ["calibrate", "SESSION", "--out", "{tmp}/result.json", "--acoular-xml", "{tmp}/no/mics.xml"],
-    ["calibrate", "SESSION", "--out", "{tmp}/no/result.json"],
+    ["calibrate", "SESSION", "--out", "{tmp}/result.json", "--acoular-xml", "{tmp}/f/mics.xml"],
+    ["calibrate", "SESSION", "--out", "{tmp}/f/no/result.json"],
     ["image", "SESSION", "--geometry", "g.json", "--pose", "0", "--speaker", "0", "--band",
-     "8000", "--out", "{tmp}/no/map.png"],
-    ["evaluate-imaging", "SESSION", "--geometry", "g.json", "--json", "{tmp}/no/e.json"],
+     "8000", "--out", "{tmp}/f/map.png"],
+    ["evaluate-imaging", "SESSION", "--geometry", "g.json", "--json", "{tmp}/f/e.json"],
 ])
 def test_outputs_are_checked_before_any_work(argv: list[str], tmp_path: Path,
                                              capsys: pytest.CaptureFixture[str]) -> None:
-    """The session does not even exist: the unwritable output is found first."""
+    """The session does not even exist: the unwritable output (under a file) is found first."""
+    (tmp_path / "f").write_text("a file")
     assert main([a.replace("{tmp}", str(tmp_path)) for a in argv]) == cli.EXIT_USAGE
     err = capsys.readouterr().err
-    assert "does not exist; create it first" in err and err.count("\n") == 1
-    assert not any(tmp_path.iterdir())
+    assert "not a directory" in err and err.count("\n") == 1
+    assert [p.name for p in tmp_path.iterdir()] == ["f"]
+
+
+def test_every_out_makes_its_missing_parents(tmp_path: Path,
+                                             capsys: pytest.CaptureFixture[str]) -> None:
+    """docs: `micam config template import --out lab/import.toml` with no lab/ yet."""
+    out = tmp_path / "lab" / "deeper" / "import.toml"
+    assert main(["config", "template", "import", "--out", str(out)]) == 0, \
+        capsys.readouterr().err
+    assert out.is_file() and out.stat().st_size > 0
 
 
 def test_an_output_that_is_a_directory_is_refused(tmp_path: Path,
@@ -192,8 +203,8 @@ def test_daq_selftest_without_libusb_is_one_line(monkeypatch: pytest.MonkeyPatch
 
 
 def _status(**fields: Any) -> StatusResult:
-    return StatusResult(state="idle", simulated=True, events_endpoint="ipc:///x/events",
-                        last_event_seq=0, **fields)
+    return StatusResult(**{"state": "idle", "simulated": True,
+                           "events_endpoint": "ipc:///x/events", "last_event_seq": 0, **fields})
 
 
 def _event(seq: int) -> StateEvent:
@@ -224,6 +235,32 @@ def test_watch_text_says_the_daemon_restarted(monkeypatch: pytest.MonkeyPatch,
     assert main(["watch", "--count", "2"]) == 0
     out = capsys.readouterr().out
     assert "the daemon restarted" in out and "missed -" not in out
+
+
+def test_watch_says_target_reached_only_while_its_session_is_open(
+        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """A worker's live calibration may arrive after stop: "you may stop" is then wrong."""
+    from acquisition.contracts.job_messages import LiveUpdate
+    from acquisition.contracts.protocol import LiveCalibrationEvent
+
+    session = SessionSummary(id="s1", path="/s1", status="open", steps_done=9, steps_total=9,
+                             poses_done=2, n_poses=2, created_utc=datetime.now(UTC))
+    update = LiveUpdate(session_id="s1", poses=2, microphones=[], mean_uncertainty_m=1e-4,
+                        predicted_accuracy_m=1e-4, speed_of_sound_m_s=343.0)
+
+    def live(seq: int) -> LiveCalibrationEvent:
+        return LiveCalibrationEvent(seq=seq, time_utc=datetime.now(UTC), session_id="s1",
+                                    job_id="s1.live-to-p0001", update=update)
+
+    closed = StateEvent(seq=2, time_utc=datetime.now(UTC), state="idle", previous="stopping",
+                        reason="stopped", session_id="s1")
+    _fake_daemon(monkeypatch, FakeDaemonClient(_status(state="waiting_for_pose",
+                                                       session=session),
+                                               [live(1), closed, live(3)]))
+    assert main(["watch", "--count", "3", "--target-mm", "0.5"]) == 0
+    out = capsys.readouterr().out
+    assert out.count("REACHED") == 1
+    assert out.index("REACHED") < out.index("stopped")
 
 
 def test_capture_quiet_prints_only_the_outcome(monkeypatch: pytest.MonkeyPatch,
@@ -274,3 +311,78 @@ def test_the_parser_loads_nothing_heavy() -> None:
     loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                             check=True).stdout.strip()
     assert loaded == "[]", f"building the parser loads {loaded}"
+
+
+def test_sigterm_to_simulate_ends_it_as_interrupted_and_resumable(tmp_path: Path) -> None:
+    """README "Exit status": 3 for an interrupted `simulate`, whatever interrupted it."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "s"
+    proc = subprocess.Popen([sys.executable, "-m", "micam.cli", "simulate", "--out", str(out),
+                             "--array", "scatter48", "--poses", "20", "--mls-order", "9",
+                             "--quiet"], stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONPATH": str(Path(cli.__file__).parents[1])})
+    deadline = time.monotonic() + 60
+    while not list(out.glob("references/*")):  # a step under way: the capture has begun
+        assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read()
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == cli.EXIT_INCOMPLETE, err
+    assert "terminated (SIGTERM)" in err and f"micam simulate --resume --out {out}" in err
+
+
+@pytest.mark.parametrize("action", ["abort", "stop"])
+def test_session_abort_and_stop_say_which_session_closed(
+        action: str, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """The daemon closes an aborted session at once: the status after the request has no
+    session any more, and the command used to print nothing."""
+    session = SessionSummary(id="s7", path="/s7", status="open", steps_done=3, steps_total=9,
+                             poses_done=0, n_poses=2, created_utc=datetime.now(UTC))
+    client = FakeDaemonClient(_status(state="waiting_for_pose", session=session))
+
+    def closed(**_args: object) -> dict:
+        client._status = _status()  # closed before the command returns
+        return {}
+
+    client.replies[f"session.{action}"] = closed
+    _fake_daemon(monkeypatch, client)
+    assert main(["session", action]) == 0
+    assert capsys.readouterr().out == f"session s7 closed ({action})\n"
+
+
+def test_rates_read_as_people_write_them(capsys: pytest.CaptureFixture[str]) -> None:
+    from micam.commands.daq import rate_text
+
+    assert [rate_text(r) for r in (500, 96_000, 2_730_511)] == ["500 S/s", "96 kS/s",
+                                                               "2.73 MS/s"]
+    assert main(["daq", "selftest", "--emulate", "--seconds", "0.1"]) == 0
+    out = capsys.readouterr().out
+    assert "at 96 kS/s (emulated, not paced: read at " in out, out
+    assert not re.search(r"\d{5,} S/s", out), out
+
+
+def _command_paths(parser: argparse.ArgumentParser, path: tuple[str, ...] = ()
+                   ) -> list[tuple[str, ...]]:
+    paths = [path]
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, child in action.choices.items():
+                paths += _command_paths(child, (*path, name))
+    return paths
+
+
+def test_every_command_has_version(capsys: pytest.CaptureFixture[str]) -> None:
+    """README: "Every command has `--help` ... and `--version`" (`micam capture` had not)."""
+    paths = _command_paths(build_parser())
+    assert ("capture",) in paths and ("session", "start") in paths and len(paths) >= 40
+    for path in paths:
+        with pytest.raises(SystemExit) as ended:
+            main([*path, "--version"])
+        assert ended.value.code == 0, path
+        assert capsys.readouterr().out.startswith("micam "), path

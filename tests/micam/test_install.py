@@ -36,10 +36,15 @@ def test_systemd_units_name_the_installed_micam(tmp_path: Path) -> None:
         assert "/opt/micam" not in text
 
 
-def test_dry_run_writes_nothing(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["install", "systemd", "--prefix", str(tmp_path), "--dry-run"]) == 0
+@pytest.mark.parametrize("what", ["systemd", "udev"])
+def test_dry_run_writes_nothing_and_shows_what_it_would(
+        what: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["install", what, "--prefix", str(tmp_path), "--dry-run"]) == 0
     assert not any(tmp_path.iterdir())
-    assert "would write" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "would write" in out
+    marker = 'ATTRS{idVendor}=="0867"' if what == "udev" else "ExecStart="
+    assert marker in out, out  # the rules and units themselves, not only their paths
 
 
 def test_a_changed_file_is_kept_without_force(tmp_path: Path,

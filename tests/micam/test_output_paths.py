@@ -56,7 +56,7 @@ def test_an_unusable_output_is_named_before_any_work(
     else:
         (tmp_path / "file").write_text("x")
         out = tmp_path / "file" / "out"
-        words = "not a directory" if directory else "does not exist"
+        words = "not a directory"
     assert _run(tmp_path, argv, out) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("micam: error: ") and flag in err and words in err, err

@@ -18,6 +18,7 @@ function el(tag, attrs = {}, text = null, ns = null) {
 }
 const svg = (tag, attrs = {}, text = null) => el(tag, attrs, text, SVG);
 const $ = (id) => document.getElementById(id);
+const plural = (n, noun) => `${n} ${noun}${n === 1 ? "" : "s"}`;
 const mm = (m, digits = 3) => (m === null || m === undefined) ? "n/a" : (m * 1e3).toFixed(digits) + " mm";
 
 // -- the connection --------------------------------------------------------------------------
@@ -175,6 +176,9 @@ function renderLiveStream() {
     const src = "data:image/jpeg;base64," + frame.jpeg_b64;
     if (img.getAttribute("src") !== src) img.setAttribute("src", src);
     img.dataset.sample = String(frame.sample);
+  } else {
+    img.removeAttribute("src"); // no last map stays once live mode ends
+    delete img.dataset.sample;
   }
   $("live-stream-info").textContent = live
     ? `${live.held_s.toFixed(1)} s kept, ${(1e3 * live.behind_s).toFixed(0)} ms behind` : "";
@@ -195,18 +199,27 @@ function renderCameras() {
     if (!card) {
       card = el("figure", { "data-camera": name, class: "camera" });
       const view = el("div", { class: "view" });
-      view.append(el("img", { alt: `preview of ${name}` }), svg("svg", { class: "overlay" }));
+      view.append(el("img", { alt: `preview of ${name}`, class: "hidden" }), svg("svg", { class: "overlay" }),
+        el("p", { class: "no-preview" }, ""));
       card.append(view, el("figcaption"));
       box.append(card);
     }
     const p = previews[name];
     const img = card.querySelector("img");
     const overlay = card.querySelector("svg");
+    // An image only with a picture in it: never an empty frame with a broken-image icon.
+    img.classList.toggle("hidden", !p);
+    const live = state.status && state.status.live;
+    card.querySelector(".no-preview").textContent = p ? "" : live
+      ? "live mode: the cameras feed the live acoustic view" : "no preview yet";
     if (p) {
       const src = "data:image/jpeg;base64," + p.jpeg_b64;
       if (img.getAttribute("src") !== src) img.setAttribute("src", src);
       overlay.setAttribute("viewBox", `0 0 ${p.width} ${p.height}`);
       card.dataset.found = p.found ? "yes" : "no";
+    } else {
+      img.removeAttribute("src");
+      delete card.dataset.found;
     }
     overlay.replaceChildren();
     if (p && name === d.cameras[0]) drawHint(overlay, p);
@@ -215,7 +228,7 @@ function renderCameras() {
     caption.replaceChildren(
       el("strong", {}, name), " ",
       el("span", { class: "badge " + (p ? (p.found ? "good" : "bad") : "") }, p ? (p.found ? "board found" : "board NOT found") : "no preview"),
-      " ", el("span", { class: "poses-seen" }, `${c.poses_seen} poses seen`),
+      " ", el("span", { class: "poses-seen" }, plural(c.poses_seen, "pose") + " seen"),
     );
     if (c.warning) caption.append(el("div", { class: "warning" }, c.warning));
     card.classList.toggle("uncalibrated", Boolean(c.warning));
@@ -281,13 +294,30 @@ function meter(ch, big = false) {
   m.firstChild.append(level, peak);
   return m;
 }
+function dbScale() {
+  // The meters' scale: dBFS at the height each level reaches (0 = full scale at the top).
+  const scale = el("div", { class: "db-scale", title: "dBFS (0 = full scale of the channel's range)" });
+  const tube = el("div", { class: "tube" });
+  for (let db = 0; db >= FLOOR_DBFS; db -= 30) {
+    const tick = el("span", { class: "db-tick" }, String(db));
+    tick.style.bottom = pct(db) + "%";
+    tube.append(tick);
+  }
+  scale.append(tube, el("span", { class: "label" }, "dBFS"));
+  return scale;
+}
 const fmt = (v) => (v === null || v === undefined) ? "n/a" : v.toFixed(1);
 const pct = (db) => Math.max(0, Math.min(100, 100 * ((db ?? FLOOR_DBFS) - FLOOR_DBFS) / -FLOOR_DBFS));
 
 function renderLevels() {
   const lv = state.levels;
   const box = $("levels");
-  if (!lv) return;
+  if (!lv) { // a new session, or none: nothing recorded in it yet
+    $("levels-step").textContent = "";
+    box.replaceChildren(el("p", { class: "small" }, "no recording yet"));
+    $("flags").replaceChildren();
+    return;
+  }
   $("levels-step").textContent = `${lv.step} ${lv.file}`;
   box.replaceChildren();
   if (lv.reference) {
@@ -298,6 +328,7 @@ function renderLevels() {
   for (const group of lv.boards) {
     const b = el("div", { class: "board", "data-board": group.board });
     const row = el("div", { class: "meters" });
+    row.append(dbScale());
     for (const ch of group.channels) row.append(meter(ch));
     b.append(el("h3", {}, `board ${group.board}`), row);
     box.append(b);
@@ -352,16 +383,44 @@ function drawChart(target, points, key, scale, unit, title, target_line = null) 
   if (target_line !== null) target.append(svg("line", { x1: 40, y1: Y(target_line), x2: 290, y2: Y(target_line), class: "target" }));
   target.append(svg("polyline", { points: points.map((p) => `${X(p.poses)},${Y(p[key] * scale)}`).join(" "), class: "series" }));
   for (const p of points) target.append(svg("circle", { cx: X(p.poses), cy: Y(p[key] * scale), r: 3, class: "point" }));
-  target.append(svg("text", { x: 2, y: 34, class: "axis" }, y1.toPrecision(4)), svg("text", { x: 2, y: 140, class: "axis" }, y0.toPrecision(4)));
-  target.append(svg("text", { x: 40, y: 156, class: "axis" }, `poses ${x0}`), svg("text", { x: 250, y: 156, class: "axis" }, String(x1)));
+  // Round ticks, each labelled with as many decimals as its step needs (two ends that print
+  // alike, "343.9" and "343.9", said nothing of the range between them).
+  const yt = niceTicks(y0, y1, 4);
+  for (const t of yt.values) {
+    target.append(svg("line", { x1: 36, y1: Y(t), x2: 40, y2: Y(t), class: "frame tick" }));
+    target.append(svg("text", { x: 34, y: Y(t) + 3, class: "axis tick-label", "text-anchor": "end" }, t.toFixed(yt.decimals)));
+  }
+  const xt = niceTicks(x0, x1, 5, 1);
+  for (const t of xt.values) {
+    target.append(svg("line", { x1: X(t), y1: 140, x2: X(t), y2: 144, class: "frame tick" }));
+    target.append(svg("text", { x: X(t), y: 153, class: "axis tick-label", "text-anchor": "middle" }, t.toFixed(0)));
+  }
+  target.append(svg("text", { x: 290, y: 158, class: "axis", "text-anchor": "end" }, "poses"));
   target.append(svg("text", { x: 230, y: 14, class: "axis" }, unit));
+}
+
+function niceTicks(lo, hi, wanted, minStep = 0) {
+  // Round values (1, 2 or 5 times a power of ten apart) within [lo, hi], and the decimals
+  // that tell them apart.
+  const raw = Math.max((hi - lo) / Math.max(1, wanted), minStep, 1e-12);
+  const power = Math.pow(10, Math.floor(Math.log10(raw)));
+  const step = [1, 2, 5, 10].map((m) => m * power).find((v) => v >= raw - 1e-12) * 1;
+  const values = [];
+  for (let v = Math.ceil(lo / step - 1e-9) * step; v <= hi + step * 1e-9; v += step) values.push(v);
+  return { values, decimals: Math.max(0, -Math.floor(Math.log10(step) + 1e-9)) };
 }
 
 function renderLive() {
   const live = state.live;
   const history = state.live_history || [];
   const target = state.target_m;
-  if (!live) return;
+  if (!live) { // a new session, or none: no calibration of it yet
+    $("live-summary").textContent = "no live calibration yet";
+    delete $("live-summary").dataset.poses;
+    $("enough").classList.add("hidden");
+    for (const id of ["view-top", "view-front", "chart-accuracy", "chart-c", "uncertainty-legend"]) $(id).replaceChildren();
+    return;
+  }
   const umax = Math.max(...live.microphones.map((m) => m.uncertainty_m), 1e-6);
   $("live-summary").textContent = `${live.poses} poses: mean uncertainty ${mm(live.mean_uncertainty_m)}, predicted accuracy ` +
     `${mm(live.predicted_accuracy_m)}${target ? ` (target ${mm(target, 2)})` : ""}, c ${live.speed_of_sound_m_s.toFixed(2)} m/s`;
@@ -454,7 +513,16 @@ async function showReport(id) {
     fig.append(el("img", { src: `/api/sessions/${encodeURIComponent(id)}/files/${f.path}`, alt: f.path }), el("figcaption", {}, f.path));
     box.append(fig);
   }
-  box.append(el("p", { class: "small" }, "files: " + r.files.map((f) => f.path).join(", ")));
+  // Every file to take home, each a download link (the page serves calibration files only).
+  const files = el("ul", { id: "report-files", class: "files" });
+  for (const f of r.files) {
+    const name = f.path.split("/").pop();
+    const link = el("a", { href: `/api/sessions/${encodeURIComponent(id)}/files/${f.path}`, download: name }, f.path);
+    const item = el("li");
+    item.append(link, ` (${(f.bytes / 1024).toFixed(1)} kB)`);
+    files.append(item);
+  }
+  box.append(el("h4", {}, "files"), files);
 }
 
 // -- events ----------------------------------------------------------------------------------

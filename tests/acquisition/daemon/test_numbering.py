@@ -67,3 +67,12 @@ def test_instructions_name_the_number_of_their_step_and_directory(
         f"next: pose/0002: {pose_text}")
     ended = {e.step for e in received if isinstance(e, (CaptureEvent, ProgressEvent))}
     assert set(poses) <= ended <= set(steps)
+
+
+def test_a_live_job_is_named_by_the_last_pose_it_includes(small_session: Path) -> None:
+    """Poses 0-2 done: the live job is "live-to-p0002" (it was "live-p0003", read as pose 3)."""
+    from acquisition.daemon.jobs import job_for_session
+
+    job = job_for_session(small_session, "live")
+    assert job.job_id.endswith(".live-to-p0002") and job.poses == 3
+    assert job_for_session(small_session, "final").job_id.endswith(".final")

@@ -98,6 +98,8 @@ def test_levels_flags_poses_seen_and_coverage(daemon: ThreadDaemon) -> None:
     progress = [e for e in events if isinstance(e, ProgressEvent) and e.step == "pose/0000"]
     assert progress[-1].cameras[0].poses_seen == 1 and progress[-1].outline is not None
     assert [c.poses_seen for c in status.cameras] == [1]
+    # the refmic image is a board view of the camera calibration too; one pose is left
+    assert [(c.board_views, c.views_left) for c in status.cameras] == [(2, 1)]
     (outline,) = status.coverage
     assert outline.step == "pose/0000" and len(outline.outline) == 4
     assert all(0 <= x <= 1 and 0 <= y <= 1 for x, y in outline.outline)

@@ -348,3 +348,49 @@ def test_a_retryable_failure_is_offered_again_after_a_growing_delay(tmp_path: Pa
         running.stop()
     record = json.loads(next((tmp_path / "sessions.outbox").glob("*.final.json")).read_text())
     assert record["state"] == "failed" and "gave up after 3 attempts" in record["reason"]
+
+
+def test_a_results_report_is_stored_beside_it_only_as_announced(daemon: ThreadDaemon) -> None:
+    """The report's files come after the result, each announced by a plain .md/.png name and
+    its checksum: a path, another kind of file, a damaged or an unannounced frame are
+    refused (and nothing stored); what arrives whole is stored beside result.json."""
+    with daemon.client() as client:
+        session = Path(client.request("session.start", poses=1)["session"]["path"])
+        capture_all(client)
+        wait_state(client, "idle")
+    result = json.dumps(_result(session)).encode()
+    figure, text = b"\x89PNG not really", b"# report\n"
+
+    def done(job: dict, report: list[tuple[str, bytes]], *frames: bytes) -> dict:
+        worker.send({"v": 2, "type": "done", "job_id": job["job_id"], "attempt": job["attempt"],
+                     "result_sha256": hashlib.sha256(result).hexdigest(),
+                     "report": [{"name": n, "sha256": hashlib.sha256(d).hexdigest()}
+                                for n, d in report]}, result, *frames)
+        return worker.receive("ack")[0]
+
+    calibration = session / "calibration"
+    worker = _jobs(daemon)
+    try:
+        worker.send({"v": 2, "type": "ready", "worker": "rogue"})
+        job, _ = worker.receive("job")
+        for name in ("../escape.png", "page.html", "result.json", "a/b.png"):
+            worker.send({"v": 2, "type": "done", "job_id": job["job_id"],
+                         "attempt": job["attempt"],
+                         "result_sha256": hashlib.sha256(result).hexdigest(),
+                         "report": [{"name": name, "sha256": "0" * 64}]}, result, figure)
+            refused, _ = worker.receive("refused")
+            assert "report" in refused["reason"], (name, refused)
+        for report, frames, why in (([("geometry.png", figure)], (text,), "checksum"),
+                                    ([("geometry.png", figure)], (), "1 announced"),
+                                    ([], (figure,), "0 announced")):
+            ack = done(job, report, *frames)
+            assert not ack["accepted"] and why in ack["reason"], ack
+            assert not calibration.exists() or not any(calibration.iterdir())
+            job, _ = worker.receive("job")  # requeued
+        ack = done(job, [("report.md", text), ("geometry.png", figure)], text, figure)
+        assert ack["accepted"], ack
+    finally:
+        worker.close()
+    assert (calibration / "report.md").read_bytes() == text
+    assert (calibration / "geometry.png").read_bytes() == figure
+    assert (calibration / "result.json").read_bytes() == result

@@ -75,6 +75,7 @@ def test_map_figure_marks_speakers_and_sources_at_their_pixels(session: Path,
 
     drawn = recording_map(SessionReader(session), load_geometry(session / "truth.json"), 0, 2,
                           8000.0, ImagingSettings(bands_hz=(8000.0,)), dynamic_range_db=20.0)
+    assert drawn.speaker_in_view
     fig = drawn.figure
     path = save(fig, tmp_path / "map.png")
     rgb = cv2.imread(str(path))[..., ::-1].astype(float)

@@ -93,3 +93,17 @@ def test_map_of_the_wrong_size_is_refused(scene) -> None:
     world, grid, _, maps = scene
     with pytest.raises(ValueError, match="grid"):
         map_to_image(maps[0][:-1], grid, view_of(world.layout.cameras[0]))
+
+
+def test_a_camera_sees_only_what_is_in_front_of_it_and_within_its_image() -> None:
+    """What `micam image` warns about: a speaker outside the camera's view."""
+    from acquisition.contracts.rigid import RigidTransform
+
+    view = CameraView(name="cam1", width=640, height=480,
+                      K=np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]]), dist=np.zeros(5),
+                      cam0_to_cam=RigidTransform.identity())
+    points = np.array([[0.0, 0.0, 1.0],     # straight ahead: the image's centre
+                       [0.0, 0.0, -1.0],    # behind the camera (it projects into the image)
+                       [1.0, 0.0, 1.0],     # 45 degrees right: x = 820 px, off the image
+                       [0.3, 0.2, 1.0]])    # x = 470, y = 340: in it
+    assert view.sees(points).tolist() == [True, False, False, True]

@@ -13,6 +13,7 @@ from acquisition.contracts.job_messages import Done, Job, JobFile, JournalPrefix
 from calibration.worker import Worker, WorkerSettings
 from calibration.errors import CalibrationInputError
 from calibration.worker.cache import DEFAULT_MAX_BYTES, JOURNAL, FileCache, parse_size
+from calibration.worker.compute import Final
 
 SHA = "0" * 64
 
@@ -124,10 +125,10 @@ def test_the_worker_keeps_its_session_while_calibrating(
         return 600
 
     def compute(job: Job, session: Path, _joint: bool, _on_stage: object,
-                _memo: object = None) -> bytes:
+                _memo: object = None) -> Final:
         seen["in_use"] = worker.cache.in_use()
         seen["files"] = sorted(p.name for p in session.rglob("*") if p.is_file())
-        return b"{}"
+        return Final(b"{}", {"report.md": b"# r"})
 
     monkeypatch.setattr(worker_module, "fetch_job_files", fetch)
     monkeypatch.setattr(worker_module, "compute", compute)
@@ -136,6 +137,8 @@ def test_the_worker_keeps_its_session_while_calibrating(
     assert _cached(worker.cache) == ["new"]  # `old` made room
     reports = [worker._reports.get_nowait() for _ in range(worker._reports.qsize())]
     assert isinstance(reports[-2], tuple) and isinstance(reports[-2][0], Done)
+    assert [f.name for f in reports[-2][0].report] == ["report.md"]
+    assert reports[-2][1] == [b"{}", b"# r"]  # the result's frame, then the report's
     worker._context.destroy(linger=0)
 
 

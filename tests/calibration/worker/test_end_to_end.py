@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from acquisition.daemon.outbox import JobRecord
+from calibration.report import FIGURES
 from acquisition.contracts.protocol import CalibrationEvent, JobEvent
 from tests.acquisition.daemon.helpers import DaemonProcess, capture_all
 
@@ -32,9 +33,11 @@ def _final_job(root: Path) -> JobRecord:
 
 
 def _stored_once(session: Path, job: JobRecord) -> None:
-    """One result beside the session, the one the outbox records."""
-    assert sorted(p.name for p in (session / "calibration").iterdir()) in (
-        ["result.json"], ["live.json", "live_history.jsonl", "result.json"])
+    """One result beside the session, the one the outbox records, with its report (the files
+    `micam calibrate` writes)."""
+    names = {p.name for p in (session / "calibration").iterdir()}
+    assert names - {"live.json", "live_history.jsonl"} == {"result.json", "report.md", *FIGURES}
+    assert "![geometry](geometry.png)" in (session / "calibration" / "report.md").read_text()
     data = (session / "calibration" / "result.json").read_bytes()
     assert hashlib.sha256(data).hexdigest() == job.result_sha256
     result = json.loads(data)

@@ -18,6 +18,7 @@ from pathlib import Path
 import pytest
 from selenium.webdriver.common.by import By
 
+from calibration.report import FIGURES
 from micam.web.testing import Chromium
 
 from .conftest import Stack
@@ -98,11 +99,15 @@ def test_a_whole_session_from_the_page(stack: Stack, chromium: type[Chromium],
             b.wait(f"document.querySelector('#progress').dataset.poses == {pose}")
             b.wait("document.querySelector('[data-camera=cam0]').dataset.found === 'yes'",
                    what="the board found in cam0")
+            seen = "1 pose seen" if pose == 1 else f"{pose} poses seen"
             b.wait(f"document.querySelector('[data-camera=cam0] .poses-seen').textContent"
-                   f" === '{pose} poses seen'", what=f"{pose} poses seen by cam0")
+                   f" === '{seen}'", what=f"{seen} by cam0")
             meters = b.js("return document.querySelectorAll('.board:not(.reference) .meter')"
                           ".length")
             assert meters == 48, "one meter per microphone"
+            scale = b.js("return [...document.querySelector('.board:not(.reference)')"
+                         ".querySelectorAll('.db-tick')].map((t) => t.textContent)")
+            assert scale == ["0", "-30", "-60", "-90"], scale  # the meters' dBFS scale
             title = b.js("return document.querySelector('.board:not(.reference) .meter')"
                          ".getAttribute('title')")
             assert title.startswith("mic ") and "board" in title and "SNR" in title
@@ -115,6 +120,13 @@ def test_a_whole_session_from_the_page(stack: Stack, chromium: type[Chromium],
         assert len(live_poses) >= 2, f"the live calibration updated: {sorted(live_poses)}"
         history = b.js("return document.querySelectorAll('#chart-accuracy .point').length")
         assert history >= 2
+        for chart in ("chart-accuracy", "chart-c"):  # ticks that tell their values apart
+            ticks = b.js(f"return [...document.querySelectorAll('#{chart} .tick-label')]"
+                         ".map((t) => [t.getAttribute('text-anchor'), t.textContent])")
+            y = [text for anchor, text in ticks if anchor == "end"]
+            x = [text for anchor, text in ticks if anchor == "middle"]
+            assert len(y) >= 2 and len(set(y)) == len(y), (chart, y)
+            assert len(x) >= 2 and len(set(x)) == len(x), (chart, x)
         assert b.js("return document.querySelectorAll('#view-top .mic').length") >= 40
 
         outline = b.wait("document.getElementById('hint-outline')"
@@ -130,6 +142,7 @@ def test_a_whole_session_from_the_page(stack: Stack, chromium: type[Chromium],
 
         b.driver.find_element(By.ID, "stop").click()
         b.wait("document.body.dataset.state === 'idle'", what="the session closed")
+        b.wait(NOTHING_OF_A_SESSION, what="the closed session's state gone")
         row = "document.querySelector('#sessions tbody tr')"
         b.wait(f"{row} && {row}.dataset.status === 'complete'", timeout_s=20,
                what="the session listed as complete")
@@ -145,10 +158,68 @@ def test_a_whole_session_from_the_page(stack: Stack, chromium: type[Chromium],
         assert summary.startswith("complete") and f"{SESSION_POSES}/{SESSION_POSES + 2} poses" \
             in summary
         assert "48 microphones" in b.driver.find_element(By.ID, "report-result").text
+        # the worker's report beside the result: its figures shown, every file a download
+        links = b.js("return [...document.querySelectorAll('#report-files a[download]')]"
+                     ".map((a) => a.getAttribute('download'))")
+        assert {"result.json", "report.md", *FIGURES} <= set(links), links
+        b.wait(f"[...document.querySelectorAll('.picture img')].filter((i) => i.complete"
+               f" && i.naturalWidth > 0).length >= {len(FIGURES)}", what="the report's figures")
+        kind = b.driver.execute_async_script(
+            "const done = arguments[0]; fetch(document.querySelector("
+            "'#report-files a[download=\"geometry.png\"]').href)"
+            ".then((r) => done([r.status, r.headers.get('content-type')]));")
+        assert kind == [200, "image/png"], kind
         b.js("document.getElementById('report').scrollIntoView()")
         b.driver.save_screenshot(str(screenshots / "report.png"))
+        _a_second_session_shows_nothing_of_the_first(b, stack, screenshots)
     finally:
         b.close()
+
+
+NOTHING_OF_A_SESSION = """(() => {
+  const text = (id) => document.getElementById(id).textContent;
+  return text('live-summary') === 'no live calibration yet'
+    && !document.getElementById('live-summary').dataset.poses
+    && document.getElementById('enough').offsetParent === null
+    && document.querySelectorAll('#view-top .mic, #chart-accuracy .point').length === 0
+    && !document.getElementById('hint-text') && !document.getElementById('hint-outline')
+    && document.querySelectorAll('.camera .warning').length === 0
+    && [...document.querySelectorAll('.poses-seen')].every((e) => e.textContent === '0 poses seen')
+    && text('levels') === 'no recording yet' && text('levels-step') === ''
+    && document.querySelectorAll('.meter').length === 0;
+})()"""
+
+
+def _a_second_session_shows_nothing_of_the_first(b: Chromium, stack: Stack,
+                                                 screenshots: Path) -> None:
+    """After a whole session: a second one (3 poses, whose refmic image makes cam0's 4th
+    board view) starts from nothing, and a page opened in its middle gets its levels in the
+    first state (no recording comes after the reload)."""
+    b.driver.find_element(By.ID, "start-poses").clear()
+    b.driver.find_element(By.ID, "start-poses").send_keys("3")
+    b.driver.find_element(By.ID, "start").click()
+    b.wait("document.body.dataset.state === 'references'", what="the second session")
+    b.wait(NOTHING_OF_A_SESSION, what="nothing of the first session")
+    _capture_from_page(b)
+    b.wait("document.querySelectorAll('.board.reference .meter').length === 1",
+           what="the second session's first levels")
+    step = b.driver.find_element(By.ID, "levels-step").text
+    b.driver.refresh()
+    b.wait("window.micam.snapshots === 1 && document.body.dataset.state === 'references'",
+           what="the reloaded page's snapshot")
+    assert b.driver.find_element(By.ID, "levels-step").text == step
+    assert b.js("return document.querySelectorAll('.board.reference .meter').length") == 1
+    assert b.js("return document.querySelectorAll('.camera .warning').length") == 0, \
+        "3 poses and the refmic image make 4 board views: nothing to warn about"
+    late = b.js("return document.getElementById('live-summary').textContent")
+    assert late == "no live calibration yet", late
+    assert b.js("return document.getElementById('live-stream').offsetParent") is None, \
+        "no live view (nor its alt text) while not live"
+    b.driver.save_screenshot(str(screenshots / "second-session.png"))
+    with stack.loop.client() as client:
+        client.request("session.abort")
+        client.wait_until(lambda s: s.session is None, 30)
+    b.wait(NOTHING_OF_A_SESSION, what="the aborted session's state gone")
 
 
 # -- another site's pages: DNS rebinding and cross-site requests -----------------------------

@@ -128,3 +128,9 @@ def test_a_slow_client_is_cut_off_at_the_request_timeout(lone_web: WebProcess, c
     assert reply.status == 408, answer
     assert f"did not arrive within {LONE_TIMEOUT_S:g} s" in reply.error()
     assert elapsed < READ_S / 2, f"cut off after {elapsed:.1f} s"
+
+
+def test_the_page_starts_without_a_deprecation_warning(lone_web: WebProcess) -> None:
+    """uvicorn's legacy WebSocket implementation warned on every start."""
+    log = lone_web.log.read_text()
+    assert "deprecat" not in log.lower(), log

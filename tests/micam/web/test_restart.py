@@ -11,9 +11,12 @@ import pytest
 
 from acquisition.contracts.session import SessionReader, journal_records
 
+from micam.web.bridge import LIVE_FILE
+
 from .conftest import Stack
 
-POSES = 4  # live calibration starts once 4 poses are in (after pose 3)
+POSES = 5  # live calibration starts once 4 poses are in (after pose 3), one pose before the end
+LIVE_WAIT_S = 90.0
 
 
 def _state(url: str) -> dict:
@@ -59,6 +62,15 @@ def test_killing_the_page_never_disturbs_a_capture(stack: Stack) -> None:
                 assert state["status"]["state"] == status.state
                 assert [c["poses_seen"] for c in state["cameras"]] == [POSES - 1]
                 assert len(state["status"]["coverage"]) == POSES - 1
+            if n == total - 2:  # the live calibration of 4 poses on disk, the session open
+                deadline = time.monotonic() + LIVE_WAIT_S
+                while not (session / LIVE_FILE).exists():
+                    assert time.monotonic() < deadline, "no live calibration"
+                    time.sleep(0.2)
+                web = stack.restart_web()  # the restarted page reads it from the daemon
+                state = _wait_state(web.url, lambda s: s["live"] is not None
+                                    and s["live"]["poses"] == POSES - 1)
+                assert [p["poses"] for p in state["live_history"]] == [POSES - 1]
         final = client.wait_until(lambda s: s.session is None, 60)
     assert killed_during is not None
     assert final.state == "idle"
@@ -66,10 +78,9 @@ def test_killing_the_page_never_disturbs_a_capture(stack: Stack) -> None:
     assert reader.status == "complete" and reader.verify() == []
     ends = [r.step for r in journal_records(session) if r.kind == "step_end"]
     assert len(ends) == len(set(ends)) == total  # every step recorded once, none twice
-    # The restarted page reads the live calibration of the session from the daemon's files.
-    state = _wait_state(stack.web.url, lambda s: s["live"] is not None
-                        and s["live"]["poses"] == POSES, timeout_s=90)
-    assert [p["poses"] for p in state["live_history"]] == [POSES]
+    # A closed session's live calibration leaves the page (its final one is in its report).
+    state = _wait_state(stack.web.url, lambda s: s["status"]["session"] is None)
+    assert state["live"] is None and state["live_history"] == [] and state["levels"] is None
     web = stack.restart_web()
     again = _wait_state(web.url, lambda s: s["status"] is not None)
     assert again["status"]["session"] is None and again["status"]["state"] == "idle"

@@ -63,8 +63,18 @@ def test_levels_are_named_by_microphone_and_board_with_the_reference_apart() -> 
 ])
 def test_a_camera_on_course_to_stay_uncalibrated_is_warned_about(
         seen: int, done: int, n: int, warned: str | None) -> None:
-    warning = camera_warning(seen, done, n, 4)
+    warning = camera_warning(seen, n - done, seen, done, 4)
     assert (warning is None) if warned is None else (warned in warning)
+
+
+def test_the_refmic_image_counts_as_a_board_view() -> None:
+    """A 3-pose session with the refmic image still to take gets 4 views: no warning (the
+    calibration will use all 4), where counting poses alone said "cannot be calibrated"."""
+    before = CameraPoses(camera="cam0", poses_seen=0, board_views=0, views_left=4)
+    view = cameras_view(_describe(), [before], 0, 3)
+    assert view[0]["warning"] is None
+    short = CameraPoses(camera="cam0", poses_seen=0, board_views=0, views_left=3)
+    assert "cannot be calibrated: 0 of 4" in cameras_view(_describe(), [short], 0, 3)[0]["warning"]
 
 
 def test_every_camera_is_listed_with_its_poses() -> None:
