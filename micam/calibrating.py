@@ -1,15 +1,30 @@
 """What `micam calibrate` does to one session, shared by `micam calibrate` and `micam batch`.
 
-The checks of its options against the session (a prior geometry, the known air, known camera
-intrinsics, the truth file), each raising a `UserError` that names the option, before any work.
+`calibrate_session` takes the options of `micam calibrate` (micam/commands/calibrate.py
+declares them), checks them against the session (each problem a `UserError` naming the option,
+before any work), calibrates, and writes result.json, and the report and Acoular files when
+asked. Both commands call it, so a batch's result.json is the one `micam calibrate` writes for
+the same session and options.
 """
 
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from acquisition.contracts.errors import UserError
+
+from .outputs import check_output_dirs, check_outputs
+
+if TYPE_CHECKING:
+    from calibration.pipeline import CalibrationRun
+
+STAGES = ("load", "cameras", "speakers", "times of flight", "solver", "dispersion", "joint fit",
+          "responses")
+"""The stages of a calibration, in order, as `calibrate`'s `on_stage` names them."""
 
 
 def _prior(args: argparse.Namespace):
@@ -106,6 +121,62 @@ def _truth(args: argparse.Namespace, data) -> dict | None:
         raise UserError(f"{flag}: {exc}") from None
 
 
-def _report_dir(out: Path) -> Path:
+def default_report_dir(out: Path) -> Path:
     """The report's directory when --report is not given: beside the result."""
     return out.parent / (out.stem + "-report")
+
+
+@dataclass(frozen=True)
+class Calibrated:
+    """What `calibrate_session` made: the run, the truth it was compared with (None: none)
+    and the report's directory (None: not written)."""
+
+    run: CalibrationRun
+    truth: dict | None
+    report: Path | None
+
+
+def calibrate_session(args: argparse.Namespace, on_stage: Callable[[str], None] | None = None,
+                      report: bool = True) -> Calibrated:
+    """`micam calibrate`'s work on `args.session`: check the outputs and the options, calibrate
+    (telling `on_stage` each stage's name), write `args.out` (result.json) and, with `report`,
+    the report (`args.report`, default beside `args.out`), then the Acoular files asked for.
+
+    Raises:
+        UserError: an output that cannot be written, an option that does not fit the session,
+            a session that cannot be calibrated; nothing is written then.
+    """
+    from calibration.pipeline import CalibrationOptions, calibrate
+    from calibration.report import write_report
+    from calibration.result import write_acoular_calib_xml, write_acoular_xml
+    from calibration.session_data import load_session
+
+    out: Path = args.out
+    check_outputs(("--out", out), ("--acoular-xml", args.acoular_xml),
+                  ("--acoular-calib", args.acoular_calib))
+    if out.exists() and not args.force:
+        raise UserError(f"{out} exists; choose another --out or pass --force to overwrite it")
+    report_dir = (args.report or default_report_dir(out)) if report else None
+    check_output_dirs(("--report", report_dir), reuse=True)
+    if args.acoular_calib is not None and (args.no_joint or args.method == "paper"):
+        raise UserError("--acoular-calib needs the joint fit (it estimates the responses); "
+                        "leave out --no-joint and --method paper")
+    data = load_session(args.session, args.allow_interrupted)
+    truth = _truth(args, data)
+    prior = _prior(args)
+    options = CalibrationOptions(
+        method=args.method, latency=args.latency, speed_of_sound=args.speed_of_sound,
+        refine_poses=args.refine_poses, weighting=args.weighting,
+        allow_interrupted=args.allow_interrupted, joint=not args.no_joint,
+        prior=prior, speed_of_sound_prior=_known_air(args),
+        intrinsics=_known_intrinsics(args, data) or None)
+    run = calibrate(args.session, options, on_stage)  # input errors are UserErrors
+    run.result.write(out)
+    if report_dir is not None:
+        report_dir = write_report(run, report_dir, truth,
+                                  None if prior is None else prior.positions_m)
+    if args.acoular_xml is not None:
+        write_acoular_xml(run.result, args.acoular_xml)
+    if args.acoular_calib is not None:
+        write_acoular_calib_xml(run.result, args.acoular_calib)
+    return Calibrated(run, truth, report_dir)

@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Sequence
 from pathlib import Path
 
 from acquisition.contracts.errors import UserError
 
-from ..calibrating import _known_air, _known_intrinsics, _prior, _report_dir, _truth
-from ..outputs import check_output_dirs, check_outputs
+from ..calibrating import STAGES, calibrate_session
 from .bounded import number, positive
 
 
@@ -28,6 +28,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--acoular-calib", type=Path, default=None, metavar="FILE",
                    help="also write the microphones' relative sensitivities in Acoular's "
                         "calibration XML format (acoular.Calib)")
+    add_calibration_options(p)
+    p.add_argument("--truth", type=Path, default=None,
+                   help="a micam truth file to compare with: microphones [{id, position_m}], "
+                        "speed_of_sound_m_s, cameras [{name, K}] (default: SESSION/truth.json "
+                        "if present)")
+    p.add_argument("--force", action="store_true", help="overwrite an existing result file")
+    p.set_defaults(run=run)
+
+
+def add_calibration_options(p: argparse.ArgumentParser) -> None:
+    """The options of the calibration itself (not of its outputs), with their bounds."""
     p.add_argument("--method", choices=("micam", "paper"), default="micam",
                    help="micam (default) or the paper's coordinate search (baseline)")
     p.add_argument("--latency", choices=("per_board", "common", "none"), default="per_board",
@@ -77,59 +88,49 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "field) or phat (GCC-PHAT)")
     p.add_argument("--allow-interrupted", action="store_true",
                    help="calibrate the completed poses of an interrupted session")
-    p.add_argument("--truth", type=Path, default=None,
-                   help="a micam truth file to compare with: microphones [{id, position_m}], "
-                        "speed_of_sound_m_s, cameras [{name, K}] (default: SESSION/truth.json "
-                        "if present)")
-    p.add_argument("--force", action="store_true", help="overwrite an existing result file")
-    p.set_defaults(run=run)
+
+
+class _OptionsParser(argparse.ArgumentParser):
+    """A parser whose errors are `UserError`s (argparse's own would exit the process)."""
+
+    def error(self, message: str):  # type: ignore[override]
+        raise UserError(f"calibrate options: {message}")
+
+
+def calibration_options(argv: Sequence[str] = ()) -> dict[str, object]:
+    """The calibration options (`add_calibration_options`) written in `argv`, e.g.
+    ["--latency", "common"], by name ("latency"), the others at their defaults.
+
+    Raises:
+        UserError: an option that is not one of them, or a value it does not take.
+    """
+    parser = _OptionsParser(prog="micam calibrate", add_help=False)
+    add_calibration_options(parser)
+    return vars(parser.parse_args(list(argv)))
 
 
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from calibration.pipeline import CalibrationOptions, calibrate
-    from calibration.report import summary_lines, write_report
-    from calibration.result import write_acoular_calib_xml, write_acoular_xml
-    from calibration.session_data import load_session
+    from calibration.report import summary_lines
 
-    out: Path = args.out
-    check_outputs(("--out", out), ("--acoular-xml", args.acoular_xml),
-                  ("--acoular-calib", args.acoular_calib))
-    if out.exists() and not args.force:
-        raise UserError(f"{out} exists; choose another --out or pass --force to overwrite it")
-    check_output_dirs(("--report", args.report or _report_dir(out)), reuse=True)
-    if args.acoular_calib is not None and (args.no_joint or args.method == "paper"):
-        raise UserError("--acoular-calib needs the joint fit (it estimates the responses); "
-                        "leave out --no-joint and --method paper")
-    data = load_session(args.session, args.allow_interrupted)
-    truth = _truth(args, data)
-    prior = _prior(args)
-    options = CalibrationOptions(
-        method=args.method, latency=args.latency, speed_of_sound=args.speed_of_sound,
-        refine_poses=args.refine_poses, weighting=args.weighting,
-        allow_interrupted=args.allow_interrupted, joint=not args.no_joint,
-        prior=prior, speed_of_sound_prior=_known_air(args),
-        intrinsics=_known_intrinsics(args, data) or None)
-    stages = ["load", "cameras", "speakers", "times of flight", "solver", "dispersion",
-              "joint fit", "responses"]
-    with tqdm(total=len(stages), unit="stage", desc="calibrate") as bar:
-        def on_stage(name: str) -> None:
-            bar.set_postfix_str(name)
-            bar.n = stages.index(name)
-            bar.refresh()
+    bars: list[tqdm] = []  # the bar starts with the first stage, after the checks
 
-        run_ = calibrate(args.session, options, on_stage)  # input errors are UserErrors
-        bar.n = len(stages)
-        bar.refresh()
-    run_.result.write(out)
-    report = write_report(run_, args.report or _report_dir(out), truth,
-                          None if prior is None else prior.positions_m)
-    if args.acoular_xml is not None:
-        write_acoular_xml(run_.result, args.acoular_xml)
-    if args.acoular_calib is not None:
-        write_acoular_calib_xml(run_.result, args.acoular_calib)
-    for line in summary_lines(run_, truth):
+    def on_stage(name: str) -> None:
+        if not bars:
+            bars.append(tqdm(total=len(STAGES), unit="stage", desc="calibrate"))
+        bars[0].set_postfix_str(name)
+        bars[0].n = STAGES.index(name)
+        bars[0].refresh()
+
+    try:
+        done = calibrate_session(args, on_stage)
+        for bar in bars:
+            bar.n = len(STAGES)
+    finally:
+        for bar in bars:
+            bar.close()
+    for line in summary_lines(done.run, done.truth):
         print(line)
-    print(f"result: {out}\nreport: {report}")
+    print(f"result: {args.out}\nreport: {done.report}")
     return 0
