@@ -23,17 +23,19 @@ COLUMNS = tuple(BatchRow.model_fields)
 def write_table(rows: Sequence[BatchRow], options: Mapping[str, object], out: Path
                 ) -> tuple[Path, Path]:
     """Write `out`/batch.csv and `out`/batch.json; returns their paths."""
-    from acquisition.contracts.session import write_atomic  # here: `micam --help` stays light
-
     text = io.StringIO()
     writer = csv.DictWriter(text, COLUMNS, lineterminator="\n")
     writer.writeheader()
     for row in rows:
         writer.writerow({k: "" if v is None else v for k, v in row.model_dump().items()})
     document = {"options": dict(options), "rows": [row.model_dump() for row in rows]}
-    paths = out / CSV_NAME, out / JSON_NAME
-    for path, data in zip(paths, (text.getvalue(), json.dumps(document, indent=1) + "\n"),
-                          strict=True):
-        encoded = data.encode()
-        write_atomic(path, lambda fh, b=encoded: fh.write(b), replace=True)
-    return paths
+    for path, data in ((out / CSV_NAME, text.getvalue()),
+                       (out / JSON_NAME, json.dumps(document, indent=1) + "\n")):
+        _write(path, data.encode())
+    return out / CSV_NAME, out / JSON_NAME
+
+
+def _write(path: Path, data: bytes) -> None:
+    from acquisition.contracts.session import write_atomic  # here: `micam --help` stays light
+
+    write_atomic(path, lambda fh: fh.write(data), replace=True)
