@@ -3,8 +3,9 @@
 N small simulated sessions (scatter48, a few poses) are calibrated twice: one after another in
 this process (`micam.batch.cells.run_cell`, what a loop over `micam calibrate` does without
 its report), and as a batch (`micam.batch.run_batch`) on a LocalCluster of `--workers`
-processes of one thread each, started beforehand (its start-up is timed apart). Both include
-the imports of the calibration, once per process. The per-task overhead is what the batch
+processes of one thread each, configured as `micam batch` configures its own and started
+beforehand (its start-up is timed apart). Both include the imports of the calibration, once
+per process. The per-task overhead is what the batch
 spends beyond its tasks' own run time: (batch wall time x workers - sum of task times) / N.
 
     .venv/bin/python benchmarks/bench_batch.py [--sessions 20] [--workers 2] [--poses 4]
@@ -24,6 +25,7 @@ from pathlib import Path
 
 from micam.batch import run_batch
 from micam.batch.cells import plan_cells, portable_options, run_cell
+from micam.batch.runner import local_cluster_config
 from micam.commands.calibrate import calibration_options
 from micam.simulated import record_simulated_session
 from sim.capture import SimulationOptions
@@ -42,6 +44,7 @@ def _sessions(root: Path, n: int, poses: int, mls_order: int) -> list[Path]:
 
 
 def main() -> None:
+    import dask
     from distributed import LocalCluster
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -63,8 +66,9 @@ def main() -> None:
         assert all(r.status == "ok" for r in serial), [r.message for r in serial]
         print(f"serial loop: {serial_s:.1f} s", flush=True)
         t = time.perf_counter()
-        with LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True,
-                          dashboard_address=None) as cluster:
+        with dask.config.set(local_cluster_config(retries=2)), \
+                LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True,
+                             dashboard_address=None) as cluster:
             startup_s = time.perf_counter() - t
             t = time.perf_counter()
             outcome = run_batch(sessions, root / "batch", scheduler=cluster.scheduler_address,
