@@ -26,7 +26,11 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, ValidationError
 
-from acquisition.contracts.bounded_files import MAX_DOCUMENT_BYTES, UnreadableFile, read_bounded_text
+from acquisition.contracts.bounded_files import (
+    MAX_DOCUMENT_BYTES,
+    UnreadableFile,
+    read_bounded_text,
+)
 from acquisition.contracts.errors import UserError
 
 from ..calibrating import calibrate_session, default_report_dir
