@@ -41,11 +41,12 @@ from .commands import (
     web,
     worker,
 )
+from .batch import command as batch
 from acquisition.contracts.errors import UserError
 from acquisition.daemon.systemd import StderrHandler
 
 SUBCOMMANDS = (
-    simulate, import_session, inspect_session, calibrate, study, image, evaluate_imaging, daq,
+    simulate, import_session, inspect_session, calibrate, batch, study, image, evaluate_imaging, daq,
     daemon, config, session,
     capture, watch, sessions, web, live,
     worker, install,

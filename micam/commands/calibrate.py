@@ -4,16 +4,13 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from acquisition.contracts.errors import UserError
 
-from ..outputs import check_output_dirs, check_outputs
+from ..calibrating import STAGES, calibrate_session
 from .bounded import number, positive
-
-if TYPE_CHECKING:
-    from acquisition.contracts.air import SpeedOfSoundPrior
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -32,6 +29,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--acoular-calib", type=Path, default=None, metavar="FILE",
                    help="also write the microphones' relative sensitivities in Acoular's "
                         "calibration XML format (acoular.Calib)")
+    add_calibration_options(p)
+    p.add_argument("--truth", type=Path, default=None,
+                   help="a micam truth file to compare with: microphones [{id, position_m}], "
+                        "speed_of_sound_m_s, cameras [{name, K}] (default: SESSION/truth.json "
+                        "if present)")
+    p.add_argument("--force", action="store_true", help="overwrite an existing result file")
+    p.set_defaults(run=run)
+
+
+def add_calibration_options(p: argparse.ArgumentParser) -> None:
+    """The options of the calibration itself (not of its outputs), with their bounds."""
     p.add_argument("--method", choices=("micam", "paper"), default="micam",
                    help="micam (default) or the paper's coordinate search (baseline)")
     p.add_argument("--latency", choices=("per_board", "common", "none"), default="per_board",
@@ -81,160 +89,51 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "field) or phat (GCC-PHAT)")
     p.add_argument("--allow-interrupted", action="store_true",
                    help="calibrate the completed poses of an interrupted session")
-    p.add_argument("--truth", type=Path, default=None,
-                   help="a micam truth file to compare with: microphones [{id, position_m}], "
-                        "speed_of_sound_m_s, cameras [{name, K}] (default: SESSION/truth.json "
-                        "if present)")
-    p.add_argument("--force", action="store_true", help="overwrite an existing result file")
-    p.set_defaults(run=run)
 
 
-def _prior(args: argparse.Namespace):
-    """The --prior geometry in the session's microphone order (checked before any work)."""
-    if args.prior is None:
-        if args.prior_std_mm is not None:
-            raise UserError("--prior-std-mm needs --prior")
-        return None
-    from calibration.result import PriorFileError, load_prior_positions
-    from calibration.session_data import load_session
-    from calibration.solver import PriorGeometry
+class _OptionsParser(argparse.ArgumentParser):
+    """A parser whose errors are `UserError`s (argparse's own would exit the process)."""
 
-    if args.method == "paper":
-        raise UserError("--prior works with --method micam only (the paper's search has none)")
-    if args.prior_std_mm is not None and args.prior_std_mm <= 0:
-        raise UserError("--prior-std-mm must be positive")
-    data = load_session(args.session, args.allow_interrupted)
-    try:
-        positions = load_prior_positions(args.prior, data.mic_ids)
-    except PriorFileError as exc:
-        raise UserError(f"--prior: {exc}") from None
-    std = None if args.prior_std_mm is None else args.prior_std_mm / 1000.0
-    return PriorGeometry(positions, std)
+    def error(self, message: str):  # type: ignore[override]
+        raise UserError(f"calibrate options: {message}")
 
 
-_AIR_FLAGS = {"temperature_c": "--temperature", "temperature_std_c": "--temperature-std",
-              "relative_humidity": "--humidity", "relative_humidity_std": "--humidity-std",
-              "speed_of_sound_m_s": "--known-speed-of-sound",
-              "speed_of_sound_std_m_s": "--known-speed-of-sound-std"}
+def calibration_options(argv: Sequence[str] = ()) -> dict[str, object]:
+    """The calibration options (`add_calibration_options`) written in `argv`, e.g.
+    ["--latency", "common"], by name ("latency"), the others at their defaults.
 
-
-def _known_air(args: argparse.Namespace) -> SpeedOfSoundPrior | None:
-    """The known (c, std) of --temperature or --known-speed-of-sound, checked."""
-    from pydantic import ValidationError
-
-    from acquisition.contracts.rig_description import KnownAir
-
-    given = {key: getattr(args, flag[2:].replace("-", "_"))
-             for key, flag in _AIR_FLAGS.items()}
-    given = {k: v for k, v in given.items() if v is not None}
-    if not given:
-        return None
-    for value, std in (("temperature_c", "temperature_std_c"),
-                       ("relative_humidity", "relative_humidity_std"),
-                       ("speed_of_sound_m_s", "speed_of_sound_std_m_s")):
-        if (value in given) != (std in given):
-            raise UserError(f"{_AIR_FLAGS[value]} and {_AIR_FLAGS[std]} go together: write the "
-                            "measured value and how well it is known")
-    if "temperature_c" in given and "speed_of_sound_m_s" in given:
-        raise UserError("--temperature and --known-speed-of-sound: write only the one you "
-                        "measured")
-    try:
-        return KnownAir.model_validate(given).speed_of_sound_prior()
-    except ValidationError as exc:
-        problems = [f"{_AIR_FLAGS.get(str(e['loc'][0]), e['loc'][0])}: {e['msg']}"
-                    for e in exc.errors()]
-        raise UserError("; ".join(problems)) from None
-
-
-def _known_intrinsics(args: argparse.Namespace, data) -> dict:
-    """--intrinsics CAMERA=FILE, read for the session's cameras."""
-    from acquisition.intrinsics_file import IntrinsicsFileError, read_intrinsics
-
-    sizes = {c.name: (c.width, c.height) for c in data.description.cameras}
-    known = {}
-    for item in args.intrinsics:
-        camera, sep, file = item.partition("=")
-        if not sep or not file:
-            raise UserError(f"--intrinsics {item!r}: write CAMERA=FILE, e.g. cam0=cam0.yaml")
-        if camera not in sizes:
-            raise UserError(f"--intrinsics {item!r}: the session has no camera {camera!r} (it "
-                            f"has {', '.join(sizes)}); write one of those names")
-        try:
-            known[camera] = read_intrinsics(Path(file), camera, sizes[camera],
-                                            args.intrinsics_use)
-        except IntrinsicsFileError as exc:
-            raise UserError(f"--intrinsics {item!r}: {exc}") from None
-    return known
-
-
-def _truth(args: argparse.Namespace, data) -> dict | None:
-    """The truth file, checked against the session before any work (None: there is none)."""
-    from calibration.truth import TruthError, load_truth
-
-    path = args.truth or (args.session / "truth.json")
-    if args.truth is not None and not path.is_file():
-        raise UserError(f"--truth {path} is not a file")
-    if not path.is_file():
-        return None
-    try:
-        return load_truth(path, [int(i) for i in data.mic_ids], list(data.camera_names))
-    except TruthError as exc:
-        flag = "--truth" if args.truth is not None else "the session's truth.json"
-        raise UserError(f"{flag}: {exc}") from None
-
-
-def _report_dir(out: Path) -> Path:
-    """The report's directory when --report is not given: beside the result."""
-    return out.parent / (out.stem + "-report")
+    Raises:
+        UserError: an option that is not one of them, or a value it does not take.
+    """
+    parser = _OptionsParser(prog="micam calibrate", add_help=False)
+    add_calibration_options(parser)
+    return vars(parser.parse_args(list(argv)))
 
 
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from calibration.pipeline import CalibrationOptions, calibrate
-    from calibration.report import summary_lines, write_report
-    from calibration.result import write_acoular_calib_xml, write_acoular_xml
-    from calibration.session_data import load_session
+    from calibration.report import summary_lines
 
-    out: Path = args.out
-    check_outputs(("--out", out), ("--acoular-xml", args.acoular_xml),
-                  ("--acoular-calib", args.acoular_calib))
-    if out.exists() and not args.force:
-        raise UserError(f"{out} exists; choose another --out or pass --force to overwrite it")
-    check_output_dirs(("--report", args.report or _report_dir(out)), reuse=True)
-    if args.acoular_calib is not None and (args.no_joint or args.method == "paper"):
-        raise UserError("--acoular-calib needs the joint fit (it estimates the responses); "
-                        "leave out --no-joint and --method paper")
-    data = load_session(args.session, args.allow_interrupted)
-    truth = _truth(args, data)
-    prior = _prior(args)
-    options = CalibrationOptions(
-        method=args.method, latency=args.latency, speed_of_sound=args.speed_of_sound,
-        refine_poses=args.refine_poses, weighting=args.weighting,
-        allow_interrupted=args.allow_interrupted, joint=not args.no_joint,
-        prior=prior, speed_of_sound_prior=_known_air(args),
-        intrinsics=_known_intrinsics(args, data) or None)
-    stages = ["load", "cameras", "speakers", "times of flight", "solver", "dispersion",
-              "joint fit", "responses"]
-    with tqdm(total=len(stages), unit="stage", desc="calibrate") as bar:
-        def on_stage(name: str) -> None:
-            bar.set_postfix_str(name)
-            bar.n = stages.index(name)
-            bar.refresh()
+    bars: list[tqdm] = []  # the bar starts with the first stage, after the checks
 
-        run_ = calibrate(args.session, options, on_stage)  # input errors are UserErrors
-        bar.n = len(stages)
-        bar.refresh()
-    run_.result.write(out)
-    report = write_report(run_, args.report or _report_dir(out), truth,
-                          None if prior is None else prior.positions_m)
-    if args.acoular_xml is not None:
-        write_acoular_xml(run_.result, args.acoular_xml)
-    if args.acoular_calib is not None:
-        write_acoular_calib_xml(run_.result, args.acoular_calib)
-    for finding in run_.result.findings:
+    def on_stage(name: str) -> None:
+        if not bars:
+            bars.append(tqdm(total=len(STAGES), unit="stage", desc="calibrate"))
+        bars[0].set_postfix_str(name)
+        bars[0].n = STAGES.index(name)
+        bars[0].refresh()
+
+    try:
+        done = calibrate_session(args, on_stage)
+        for bar in bars:
+            bar.n = len(STAGES)
+    finally:
+        for bar in bars:
+            bar.close()
+    for finding in done.run.result.findings:
         print(f"micam: finding: {finding.line()}", file=sys.stderr)
-    for line in summary_lines(run_, truth):
+    for line in summary_lines(done.run, done.truth):
         print(line)
-    print(f"result: {out}\nreport: {report}")
+    print(f"result: {args.out}\nreport: {done.report}")
     return 0
