@@ -170,8 +170,10 @@ def measure_session_tofs(
                 tuple(signs.tolist()), _recording_hashes(data, reference_step))
     keys = [(_recording_hashes(data, _every_speaker_in(step)), settings)
             for step in data.pose_steps]
-    remembered = {i: est for i, key in enumerate(keys)
-                  if memo is not None and (est := memo.get(key)) is not None}
+    remembered: dict[int, PoseTofs] = {}
+    for i, key in enumerate(keys):
+        if memo is not None and (known := memo.get(key)) is not None:
+            remembered[i] = known
     todo = [i for i in range(len(keys)) if i not in remembered]
     samples = slice(first, stop)
     references = data.references(samples) if todo else None

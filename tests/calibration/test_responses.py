@@ -39,7 +39,8 @@ def _responses_with_a_reflection(delay_s: float) -> np.ndarray:
         peak_to_sidelobe_db=np.full(shape, 20.0), reference_tof_s=np.zeros((1, n_spk)),
         reference_std_s=np.full((1, n_spk), 1e-8), impulses=impulses.astype(np.float32),
         impulse_first_lag=np.full(shape, -HALF * STEP), impulse_step=STEP,
-        echo_energy=np.ones(shape), lead_energy=np.ones(shape))
+        echo_energy=np.ones(shape), lead_energy=np.ones(shape),
+        rail_samples=np.zeros(shape), dropout_share=np.zeros(shape), polarity=np.ones(n_mic))
     flights = Flights(("pose/0000",), np.zeros(shape), np.full(shape, 0.002), np.zeros(shape))
     responses = estimate_responses(tofs, [0], flights, FS, np.full(n_spk, 0.002), 343.0)
     return responses.phase_rad[0] - responses.phase_rad[1]

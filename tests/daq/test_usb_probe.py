@@ -96,8 +96,13 @@ def test_micam_daq_probe_writes_a_report_and_a_trace(tmp_path: Path,
     commands = [t for t in read_transfers(trace) if t.endpoint == 0x01]
     assert len(commands) == 20
     assert {type(decode_command(t.data)) for t in commands} == {ReadWord, ReadI2cBytes}
-    assert main(["daq", "probe", "--emulate", "--out", str(tmp_path / "none")]) == 2
-    assert "is not a directory" in capsys.readouterr().err
+    assert main(["daq", "probe", "--emulate", "--out", str(tmp_path / "new" / "dir")]) == 0
+    assert len(list((tmp_path / "new" / "dir").glob("micam-probe-*.json"))) == 1
+    a_file = tmp_path / "a-file"
+    a_file.write_text("")
+    capsys.readouterr()
+    assert main(["daq", "probe", "--emulate", "--out", str(a_file)]) == 2
+    assert "is a file, not a directory" in capsys.readouterr().err
 
 
 def test_probe_without_libusb_is_one_line_and_leaves_no_file(

@@ -105,7 +105,7 @@ def test_daq_selftest_scans_every_input_at_the_server_rate(jack_server, capsys) 
             break
         assert "input overflow" in capsys.readouterr().out
     out = capsys.readouterr().out
-    assert "19200/19200 samples on 16 inputs at 96000 S/s" in out and out.rstrip().endswith("ok")
+    assert "19200/19200 samples on 16 inputs at 96 kS/s" in out and out.rstrip().endswith("ok")
 
 
 def test_the_burst_and_the_microphones_share_one_clock(group: SyncGroup) -> None:
