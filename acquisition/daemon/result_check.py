@@ -4,8 +4,8 @@ Any process that can reach the jobs socket can claim to be a worker, so a result
 not truth. Before `calibration/result.json` is written (or `live.json`, or an event sent) the
 broker checks that the answer describes the session the job was about: its session id, one
 position for every microphone the session recorded (the ids and boards of its capture
-configuration) and for no other, cameras the session has, poses the session completed, and
-physically possible figures (finite numbers, a speed of sound of air, positions within
+configuration) and for no other (but those its findings left out, at most half), cameras
+the session has, poses the session completed, and physically possible figures (finite numbers, a speed of sound of air, positions within
 `MAX_DISTANCE_M` of camera 0). It cannot tell a careful forgery from a calibration; it stops a
 broken or rogue worker from replacing a session's calibration with nonsense.
 """
