@@ -61,9 +61,11 @@ def test_bad_input_to_the_same_command_is_still_status_2(
 # -- the class stays closed -----------------------------------------------------------------
 
 CATCHERS = [(path, None) for path in sorted((REPO / "micam" / "commands").glob("*.py"))] + [
-    (REPO / "calibration" / "worker" / "worker.py", "_work")]
-"""The code that turns errors into exit statuses or job outcomes: every command, and the
-worker's job thread (its message parsing may catch ValueError: that is reading input)."""
+    (REPO / "calibration" / "worker" / "worker.py", "_work"),
+    (REPO / "micam" / "batch" / "cells.py", "run_cell")]
+"""The code that turns errors into exit statuses or job outcomes: every command, the
+worker's job thread (its message parsing may catch ValueError: that is reading input), and
+a batch's cell (its errors become the failed rows of the batch's table)."""
 LIBRARIES = ("acquisition", "calibration", "sim", "daq", "micam")
 
 
