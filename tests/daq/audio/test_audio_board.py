@@ -34,7 +34,7 @@ from daq.audio import (
     find_device,
     open_audio_boards,
 )
-from daq.audio._stream import Fault
+from daq.audio._stream import Fault, refused
 from micam.cli import main
 from sim.capture import SimulationOptions
 from sim.jack_world import WorldProcess
@@ -149,6 +149,24 @@ def test_an_output_underflow_alone_is_an_underrun() -> None:
     with pytest.raises(UnderrunError, match=r'audio interface A \("USB Audio", ALSA\): output '
                                             r"underflow at sample index 24 \(an xrun"):
         board._raise_xrun(Fault(("output underflow",), 1024), playing=True)
+
+
+def test_a_device_another_program_holds_is_named_as_such() -> None:
+    """A JACK port can always be shared, so the server cannot show this: an ALSA device that
+    another program opened without dmix answers paDeviceUnavailable (-9985) as PortAudio
+    raises it, and the board says what to do instead of a bare PortAudio code."""
+    import sounddevice
+
+    device = AudioDeviceInfo(3, "USB Audio", "ALSA", 16, 8, 48_000.0)
+    error = refused(device, 48_000.0, 16, 1,
+                    sounddevice.PortAudioError("Error opening Stream: Device unavailable", -9985))
+    assert isinstance(error, DeviceDisconnectedError)
+    assert "another program holds it; close that program" in str(error)
+    assert '"USB Audio"' in str(error)
+    other = refused(device, 48_000.0, 16, 1,
+                    sounddevice.PortAudioError("Unanticipated host error", -9999))
+    assert isinstance(other, ConfigurationError)
+    assert "cannot open a stream of 16 inputs" in str(other)
 
 
 def test_a_rate_the_device_refuses_is_a_configuration_error(world: WorldProcess) -> None:
