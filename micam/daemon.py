@@ -37,10 +37,14 @@ def check_config(config: DaemonConfig) -> str:
             f"{config.sockets.events}, sessions in {config.session_root}")
 
 
-def run_daemon(config_path: Path | None, log_level: int = logging.INFO) -> int:
-    """Run the daemon in this process until it is told to stop; the process exit status."""
+def run_daemon(config_path: Path | None, log_level: int = logging.INFO,
+               only_boards: tuple[str, ...] | None = None) -> int:
+    """Run the daemon in this process until it is told to stop; the process exit status.
+    `only_boards` (`--boards`, `--cameras-only`) overrides the configuration's."""
     configure_logging(log_level)
     config = load_daemon_config(config_path)
+    if only_boards is not None:
+        config = config.model_copy(update={"only_boards": only_boards})
     check_exposure(config.sockets)  # before opening any hardware
     try:
         hardware = open_hardware(config)
