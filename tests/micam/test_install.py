@@ -118,7 +118,8 @@ it was)."""
 @pytest.mark.slow
 def test_the_built_wheel_ships_the_udev_rules_and_installs_them(tmp_path: Path) -> None:
     """`pip wheel` maps udev/ into the package; `micam install udev` run from the unpacked
-    wheel (a purelib wheel installs as its unpacked files) writes the rules of udev/."""
+    wheel (a purelib wheel installs as its unpacked files) writes the rules of udev/, and
+    `micam install systemd` the units, the sysusers file and the daemon's configuration."""
     source = tmp_path / "source"
     for name in BUILT_FROM:
         if (REPO / name).is_dir():
@@ -140,9 +141,11 @@ def test_the_built_wheel_ships_the_udev_rules_and_installs_them(tmp_path: Path) 
                      for p in (REPO / "micam/data/systemd").iterdir()}  # the sysusers file too
     site = tmp_path / "site"
     zipfile.ZipFile(wheel).extractall(site)
+    root = str(tmp_path / "root")
     code = ("import sys, micam; from micam.cli import main; "
             f"assert micam.__file__.startswith({str(site)!r}), micam.__file__; "
-            f"sys.exit(main(['install', 'udev', '--prefix', {str(tmp_path / 'root')!r}]))")
+            f"assert main(['install', 'systemd', '--prefix', {root!r}, '--venv', '/opt/m']) == 0;"
+            f"sys.exit(main(['install', 'udev', '--prefix', {root!r}]))")
     installed = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                                timeout=120, cwd=tmp_path,
                                env={**os.environ, "PYTHONPATH": str(site)})
@@ -150,3 +153,9 @@ def test_the_built_wheel_ships_the_udev_rules_and_installs_them(tmp_path: Path) 
     written = tmp_path / "root/etc/udev/rules.d"
     for name in ("60-micam-daq.rules", "61-micam-daq-uaccess.rules"):
         assert (written / name).read_text() == (REPO / "udev" / name).read_text()
+    etc = tmp_path / "root/etc"  # the units, the user and the configuration, from the wheel
+    assert "ExecStart=/opt/m/bin/micam daemon" in (
+        etc / "systemd/system/micam-daemon.service").read_text()
+    assert (etc / "sysusers.d/micam.conf").read_text() == (
+        REPO / "micam/data/systemd/micam.conf").read_text()
+    assert "[hardware.capture]" in (etc / "micam/daemon.toml").read_text()
