@@ -19,6 +19,7 @@ from daq import DaqError
 from acquisition.contracts.camera import CameraError
 from acquisition.contracts.errors import UserError
 from acquisition.daemon.config import DaemonConfig
+from acquisition.daemon.hardware import boards_to_bring_up
 from acquisition.daemon.security import check_exposure
 from acquisition.daemon.service import Daemon
 from acquisition.daemon.systemd import configure_logging, sd_notify
@@ -33,6 +34,9 @@ def check_config(config: DaemonConfig) -> str:
     validated it; this refuses sockets strangers could reach); a one-line summary of it."""
     check_exposure(config.sockets)
     what = "simulated world" if config.simulated else "real hardware"
+    if config.hardware is not None and config.only_boards is not None:
+        serials, _ = boards_to_bring_up(config.hardware.capture, config.only_boards)
+        what += f" ({'boards ' + ', '.join(serials) if serials else 'the cameras'} alone)"
     return (f"configuration OK: {what}, control {config.sockets.control}, events "
             f"{config.sockets.events}, sessions in {config.session_root}")
 

@@ -102,3 +102,18 @@ def test_micam_daemon_cameras_only_starts_and_refuses_a_capture(tmp_path: Path) 
     finally:
         if daemon.proc.poll() is None:
             daemon.kill()
+
+
+def test_config_check_names_what_comes_up_and_refuses_an_unknown_board(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from micam.cli import EXIT_USAGE, main
+    from micam.templates import template
+
+    config = tmp_path / "daemon.toml"
+    for only, expected in (('["36002"]', "boards 36002 alone"), ("[]", "the cameras alone")):
+        config.write_text(f"only_boards = {only}\n" + template("paper"))
+        assert main(["daemon", "--check", "--config", str(config)]) == 0
+        assert expected in capsys.readouterr().out
+    config.write_text('only_boards = ["XX"]\n' + template("paper"))
+    assert main(["daemon", "--check", "--config", str(config)]) == EXIT_USAGE
+    assert "no board XX" in capsys.readouterr().err
