@@ -59,3 +59,21 @@ def test_the_example_refuses_a_folder_that_holds_files(tmp_path: Path,
     assert main(["example", "import", str(tmp_path)]) == EXIT_USAGE
     assert "not empty" in capsys.readouterr().err
     assert [p.name for p in tmp_path.iterdir()] == ["notes.txt"]
+
+
+def test_the_docs_description_of_the_example_is_the_one_it_writes() -> None:
+    """The worked example's `lab/import.toml` as docs/import.md shows it (every table it
+    shows; the elided boards and poses aside) equals what `micam example import` writes."""
+    import tomllib
+
+    from sim.foreign_lab import import_toml
+
+    shown = tomllib.loads(re.findall(r"^```toml\n(.*?)^```", DOC.read_text(),
+                                     flags=re.M | re.S)[0])
+    written = tomllib.loads(import_toml(n_poses=4))
+    for table in ("sample_rate_hz", "rig", "reference", "burst", "air", "cameras"):
+        assert shown[table] == written[table], table
+    assert [shown["channels"][0], shown["channels"][-1]] == [written["channels"][0],
+                                                             written["channels"][-1]]
+    assert shown["recordings"]["references"] == written["recordings"]["references"]
+    assert shown["recordings"]["poses"][0] == written["recordings"]["poses"][0]
