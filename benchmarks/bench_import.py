@@ -1,7 +1,7 @@
 """Any rig, any recorder (issue 13): a foreign lab's folder imported and calibrated, against
 micam's own capture of the same world, over several seeds.
 
-The foreign lab (tests/calibration/foreign_rig.py, acoustics of its own): 48 microphones on
+The foreign lab (sim/foreign_lab.py, acoustics of its own): 48 microphones on
 8 boards x 6 channels, one camera, the opposite colour convention, the reference microphone on
 board 0 in the reference recordings only, a known temperature, 6 poses (36 sources). The native
 capture: the same microphones, camera, rig, poses and air through micam's capture sequencer on
@@ -24,12 +24,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the tests' forei
 from acquisition.importer import import_session
 from calibration.pipeline import calibrate
 from calibration.result import compare_with_truth
+from sim import foreign_lab
 from tests.calibration import foreign_rig
 
 
 def measure_seed(seed: int, root: Path) -> dict[str, float]:
-    world = foreign_rig.make_world(seed)
-    toml = foreign_rig.write_folder(world, root / "lab")
+    world = foreign_lab.make_world(seed)
+    toml = foreign_lab.write_folder(world, root / "lab")
     import_session(toml, root / "imported")
     native_truth = foreign_rig.same_world_natively(world, root / "native")
     out: dict[str, float] = {}

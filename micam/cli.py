@@ -28,6 +28,7 @@ from .commands import (
     daemon,
     daq,
     evaluate_imaging,
+    example,
     image,
     import_session,
     inspect_session,
@@ -46,7 +47,8 @@ from acquisition.contracts.errors import UserError
 from acquisition.daemon.systemd import StderrHandler
 
 SUBCOMMANDS = (
-    simulate, import_session, inspect_session, calibrate, batch, study, image, evaluate_imaging, daq,
+    simulate, example, import_session, inspect_session, calibrate, batch, study, image,
+    evaluate_imaging, daq,
     daemon, config, session,
     capture, watch, sessions, web, live,
     worker, install,

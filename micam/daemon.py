@@ -19,6 +19,7 @@ from daq import DaqError
 from acquisition.contracts.camera import CameraError
 from acquisition.contracts.errors import UserError
 from acquisition.daemon.config import DaemonConfig
+from acquisition.daemon.hardware import boards_to_bring_up
 from acquisition.daemon.security import check_exposure
 from acquisition.daemon.service import Daemon
 from acquisition.daemon.systemd import configure_logging, sd_notify
@@ -33,14 +34,21 @@ def check_config(config: DaemonConfig) -> str:
     validated it; this refuses sockets strangers could reach); a one-line summary of it."""
     check_exposure(config.sockets)
     what = "simulated world" if config.simulated else "real hardware"
+    if config.hardware is not None and config.only_boards is not None:
+        serials, _ = boards_to_bring_up(config.hardware.capture, config.only_boards)
+        what += f" ({'boards ' + ', '.join(serials) if serials else 'the cameras'} alone)"
     return (f"configuration OK: {what}, control {config.sockets.control}, events "
             f"{config.sockets.events}, sessions in {config.session_root}")
 
 
-def run_daemon(config_path: Path | None, log_level: int = logging.INFO) -> int:
-    """Run the daemon in this process until it is told to stop; the process exit status."""
+def run_daemon(config_path: Path | None, log_level: int = logging.INFO,
+               only_boards: tuple[str, ...] | None = None) -> int:
+    """Run the daemon in this process until it is told to stop; the process exit status.
+    `only_boards` (`--boards`, `--cameras-only`) overrides the configuration's."""
     configure_logging(log_level)
     config = load_daemon_config(config_path)
+    if only_boards is not None:
+        config = config.model_copy(update={"only_boards": only_boards})
     check_exposure(config.sockets)  # before opening any hardware
     try:
         hardware = open_hardware(config)

@@ -18,7 +18,7 @@ from pydantic import Field
 
 from acquisition.contracts.bounded_files import read_toml
 from acquisition.daemon.config import ConfigError, DaemonConfig, config_of
-from acquisition.daemon.hardware import Hardware, open_real_hardware
+from acquisition.daemon.hardware import Hardware, keep_boards, open_real_hardware
 
 log = logging.getLogger("micam.daemon")
 
@@ -55,13 +55,19 @@ def load_daemon_config(path: Path | None = None) -> DaemonConfig:
 
 def open_hardware(config: DaemonConfig) -> Hardware:
     """Open the configured hardware, or build the simulated world when none is configured (a
-    configuration without `[simulation]`, e.g. a bare `DaemonConfig`: the default world)."""
+    configuration without `[simulation]`, e.g. a bare `DaemonConfig`: the default world); only
+    the boards of `only_boards` when it is set."""
     if config.hardware is not None:
-        hardware = open_real_hardware(config.hardware)
+        hardware = open_real_hardware(config.hardware, config.only_boards)
     else:
         from .simulated_hardware import MicamDaemonConfig, SimulationConfig, simulated_hardware
 
-        hardware = simulated_hardware(config.simulation if isinstance(config, MicamDaemonConfig)
-                                      else SimulationConfig())
+        world = simulated_hardware(config.simulation if isinstance(config, MicamDaemonConfig)
+                                   else SimulationConfig())
+        try:
+            hardware = keep_boards(world, config.only_boards)
+        except BaseException:
+            world.close()
+            raise
     log.info("hardware: %s", hardware.description)
     return hardware

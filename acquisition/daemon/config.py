@@ -256,6 +256,12 @@ class DaemonConfig(BaseSettings):
         description="an interrupted session found at start-up (a crash, SIGTERM, a power cut): "
                     "offer it (log, `status.resumable`), or resume it at once (auto)")
     camera_timeout_s: float = Field(default=2.0, gt=0, le=30)
+    only_boards: tuple[str, ...] | None = Field(
+        default=None,
+        description="bring up only these boards of the capture configuration (serials, or the "
+                    "audio interfaces' labels), e.g. one board as it arrives; [] for the cameras "
+                    "alone (`micam daemon --boards` / `--cameras-only`). The previews and the "
+                    "cameras work; a capture and live mode, which need every board, are refused")
 
     @classmethod
     def settings_customise_sources(

@@ -59,6 +59,10 @@ class LiveControl:
 
     def start(self, args: LiveStartArgs) -> LiveStatus:
         hw = self.hardware
+        refusal = hw.recording_refusal("live mode")
+        if refusal is not None:
+            raise Refusal("wrong_state", refusal)
+        assert hw.group is not None  # every board is up
         cameras = hw.cameras
         if args.cameras is not None:
             known = {c.name: c for c in hw.cameras}

@@ -145,6 +145,7 @@ class SessionRun:
         plan = plan_steps(self.capture)
         self.steps_total = len(plan)
         self._view_steps = [s.id for s in plan if _is_view_step(s.id)]
+        assert hardware.group is not None  # the daemon refuses a capture without every board
         self.sequencer = CaptureSequencer(
             self.capture, hardware.group, hardware.cameras, operator=self,
             writer=_ObservedWriter(writer, self),

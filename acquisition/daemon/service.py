@@ -391,6 +391,9 @@ class Daemon:
                 "problems": listing.problems, "complete": listing.complete}
 
     def _start(self, args: SessionStartArgs) -> dict[str, Any]:
+        refusal = self.hardware.recording_refusal("a capture")
+        if refusal is not None:
+            raise Refusal("session_error", refusal)
         config = self.hardware.config
         if args.poses is not None:
             limit = self.hardware.max_poses

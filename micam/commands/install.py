@@ -1,12 +1,21 @@
 """`micam install udev|systemd`: the udev rules and systemd units shipped in the package,
-written where udev and systemd read them, with what was written printed."""
+written where udev and systemd read them, with what was written printed.
+
+`systemd` also writes what the units need to start: a sysusers.d file declaring the daemon's
+`micam` user and group (`systemd-sysusers` creates them), and /etc/micam/daemon.toml from a
+template when it is missing (an existing configuration is never touched). The units run the
+micam of an installation outside the home directories: the daemon's user and the page's
+dynamic user (ProtectHome=yes) cannot read a virtualenv under /home.
+"""
 
 from __future__ import annotations
 
 import argparse
-import textwrap
+import os
 import shutil
 import sys
+import textwrap
+from dataclasses import dataclass
 from pathlib import Path
 
 from acquisition.contracts.errors import UserError
@@ -18,6 +27,12 @@ SYSTEMD_DIR = Path("etc/systemd/system")
 UDEV_FLAG = "60-micam-daq.rules"
 UDEV_ACCESS = {"uaccess": "61-micam-daq-uaccess.rules", "plugdev": "61-micam-daq-plugdev.rules"}
 UNITS = ("micam-daemon.service", "micam-web.service")
+SYSUSERS = Path("etc/sysusers.d/micam.conf")
+DAEMON_CONFIG = Path("etc/micam/daemon.toml")
+"""The configuration micam-daemon.service reads (its ExecStart's --config)."""
+DAEMON_TEMPLATES = ("generic", "paper", "audio", "uma16")
+HOMES = (Path("/home"), Path("/root"), Path("/run/user"))
+"""Directories the services cannot read (ProtectHome=yes; a home's mode keeps others out)."""
 MICAM_TOKEN = "@MICAM@"
 """Where a unit names the micam executable; replaced by the installed one's path."""
 
@@ -34,9 +49,15 @@ def register(sub: argparse._SubParsersAction) -> None:
                       help="who gets the boards: the user at the seat (uaccess, default, "
                            "desktops with systemd-logind) or the plugdev group (headless)")
     systemd = what.add_parser("systemd", help="micam-daemon.service and micam-web.service")
-    systemd.add_argument("--micam", type=Path, default=None, metavar="PATH",
-                         help="the micam executable the units run (default: this one, "
-                              f"{_this_micam()})")
+    where = systemd.add_mutually_exclusive_group()
+    where.add_argument("--micam", type=Path, default=None, metavar="PATH",
+                       help="the micam executable the units run (default: this one, else "
+                            "the one on PATH)")
+    where.add_argument("--venv", type=Path, default=None, metavar="DIR",
+                       help="the virtualenv micam is installed in: the units run DIR/bin/micam")
+    systemd.add_argument("--config-template", choices=DAEMON_TEMPLATES, default="generic",
+                         help="the template /etc/micam/daemon.toml is written from when it is "
+                              "missing (default: generic; `micam config template --help`)")
     for command in (udev, systemd):
         command.add_argument("--prefix", type=Path, default=Path("/"), metavar="DIR",
                              help="write under DIR instead of / (a package's staging root)")
@@ -54,41 +75,84 @@ def _this_micam() -> Path:
     return beside if beside.exists() or found is None else Path(found)
 
 
-def planned(args: argparse.Namespace) -> list[tuple[Path, str]]:
-    """(path, content) of every file the command writes."""
+@dataclass(frozen=True)
+class Planned:
+    """A file the command writes; `keep` when an existing one is left as it is (a
+    configuration the lab has edited), else it is replaced with --force only."""
+
+    path: Path
+    content: str
+    keep: bool = False
+
+
+def units_micam(args: argparse.Namespace) -> Path:
+    """The micam the units run: --micam, --venv's, else this one; refused under a home."""
+    micam = (args.micam or (args.venv / "bin/micam" if args.venv else _this_micam())).absolute()
+    home = next((h for h in HOMES if micam.is_relative_to(h)), None)
+    if home is not None:
+        raise UserError(
+            f"the units would run {micam}, under {home}, which the services cannot read "
+            "(user micam; the page's dynamic user has ProtectHome=yes): install micam outside "
+            "the home directories, e.g. sudo python3 -m venv /opt/micam && sudo /opt/micam/bin"
+            "/pip install micam-VERSION-py3-none-any.whl, then pass --venv /opt/micam")
+    return micam
+
+
+def planned(args: argparse.Namespace) -> list[Planned]:
+    """Every file the command writes."""
     if args.what == "udev":
         names = (UDEV_FLAG, UDEV_ACCESS[args.access])
-        return [(args.prefix / UDEV_DIR / n, shipped("udev", n)) for n in names]
-    micam = str((args.micam or _this_micam()).absolute())
-    return [(args.prefix / SYSTEMD_DIR / n, shipped("systemd", n).replace(MICAM_TOKEN, micam))
-            for n in UNITS]
+        return [Planned(args.prefix / UDEV_DIR / n, shipped("udev", n)) for n in names]
+    from micam.templates import template
+
+    micam = str(units_micam(args))
+    return [*(Planned(args.prefix / SYSTEMD_DIR / n,
+                      shipped("systemd", n).replace(MICAM_TOKEN, micam)) for n in UNITS),
+            Planned(args.prefix / SYSUSERS, shipped("systemd", SYSUSERS.name)),
+            Planned(args.prefix / DAEMON_CONFIG, template(args.config_template), keep=True)]
 
 
 def run(args: argparse.Namespace) -> int:
     from acquisition.contracts.session import write_atomic
 
     plan = planned(args)
-    for path, content in plan:
-        if path.exists() and path.read_text() != content and not args.force:
-            raise UserError(f"{path} exists with other content; pass --force to replace it")
-    for path, content in plan:
+    for file in plan:
+        if (not file.keep and file.path.exists() and file.path.read_text() != file.content
+                and not args.force):
+            raise UserError(f"{file.path} exists with other content; pass --force to replace "
+                            "it")
+    for file in plan:
+        if file.keep and file.path.exists():
+            print(f"kept {file.path} (an existing configuration is never overwritten)")
+            continue
         if args.dry_run:  # what would be written, in full: the rules or units to review
-            print(f"would write {path}:")
-            print(textwrap.indent(content.rstrip("\n"), "    "))
+            print(f"would write {file.path}:")
+            print(textwrap.indent(file.content.rstrip("\n"), "    "))
             continue
         try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            data = content.encode()
-            write_atomic(path, lambda fh: fh.write(data), replace=True)  # called at once
+            file.path.parent.mkdir(parents=True, exist_ok=True)
+            data = file.content.encode()
+            write_atomic(file.path, lambda fh: fh.write(data), replace=True)  # called at once
+            os.chmod(file.path, 0o644)  # the services' users read them whatever the umask
         except PermissionError:
-            raise UserError(f"cannot write {path}: run it as root (sudo micam install "
+            raise UserError(f"cannot write {file.path}: run it as root (sudo micam install "
                             f"{args.what}) or pass --prefix DIR") from None
-        print(f"wrote {path}")
-    if args.what == "udev":
-        print("then: udevadm control --reload-rules && udevadm trigger --subsystem-match=usb,"
-              " and replug the boards" + (" (and add the user to plugdev)"
-                                          if args.access == "plugdev" else ""))
-    else:
-        print("then: systemctl daemon-reload && systemctl enable --now micam-daemon "
-              "(and micam-web for the operator's page)")
+        print(f"wrote {file.path}")
+    print(next_steps(args))
     return 0
+
+
+def next_steps(args: argparse.Namespace) -> str:
+    """What to run after the files are in place, with the paths they have on the target."""
+    if args.what == "udev":
+        return ("then: udevadm control --reload-rules && udevadm trigger --subsystem-match=usb,"
+                " and replug the boards" + (" (and add the user to plugdev)"
+                                            if args.access == "plugdev" else ""))
+    config = Path("/") / DAEMON_CONFIG
+    return "\n".join([
+        f"then: systemd-sysusers /{SYSUSERS}   # creates the user and group micam (or: "
+        "useradd --system --user-group --home-dir /var/lib/micam --shell /usr/sbin/nologin "
+        "micam)",
+        f"      edit {config} (what its comments point out), then micam config check {config}",
+        "      systemctl daemon-reload && systemctl enable --now micam-daemon (and micam-web "
+        "for the operator's page)"])

@@ -1,6 +1,7 @@
 """Any rig, any recorder: a foreign lab's plain folder of WAV and PNG files (written by
-tests/calibration/foreign_rig.py with its own acoustics), imported with `micam import` and
-calibrated with `micam calibrate`, against micam's own capture of the same world.
+sim/foreign_lab.py with its own acoustics, as `micam example import` does), imported with
+`micam import` and calibrated with `micam calibrate`, against micam's own capture of the same
+world.
 
 The foreign lab: 8 boards x 6 channels, one camera, the opposite colour convention, the
 reference microphone on board 0 recorded only in the reference recordings, a known air
@@ -23,6 +24,7 @@ import pytest
 from micam.cli import main
 from acquisition.contracts.session import SessionReader
 from calibration.result import compare_with_truth
+from sim import foreign_lab
 
 from . import foreign_rig
 
@@ -36,8 +38,8 @@ HARDWARE_KEYS = {"serial", "model", "boards", "range_v", "device_id", "n_poses",
 @pytest.fixture(scope="module")
 def lab(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     root = tmp_path_factory.mktemp("foreign")
-    world = foreign_rig.make_world(seed=5)
-    toml = foreign_rig.write_folder(world, root / "lab")
+    world = foreign_lab.make_world(seed=5)
+    toml = foreign_lab.write_folder(world, root / "lab")
     (root / "truth.json").write_text(json.dumps(world.truth()))
     assert main(["import", str(toml), "--out", str(root / "imported")]) == 0
     foreign_rig.same_world_natively(world, root / "native")
@@ -83,8 +85,8 @@ def test_import_reaches_the_accuracy_of_a_native_session(lab: dict[str, Path]) -
     assert frozen["mean_mic_error_m"] < 1e-3  # held to the known temperature's c
     assert imported["camera_frozen"]["speed_of_sound_from"] == "known"
     # the thermometer's 0.1 K, the hygrometer's 2 %, and 2 kPa of unknown pressure
-    c = foreign_rig.speed_of_sound
-    t, rh = foreign_rig.TEMPERATURE_C, foreign_rig.HUMIDITY
+    c = foreign_lab.speed_of_sound
+    t, rh = foreign_lab.TEMPERATURE_C, foreign_lab.HUMIDITY
     from acquisition.contracts.air import speed_of_sound as cramer
     expected = np.sqrt(((c(t + 0.01) - c(t - 0.01)) / 0.02 * 0.1) ** 2
                        + ((c(t, rh + 0.001) - c(t, rh - 0.001)) / 0.002 * 0.02) ** 2

@@ -36,15 +36,60 @@ def test_systemd_units_name_the_installed_micam(tmp_path: Path) -> None:
         assert "/opt/micam" not in text
 
 
-@pytest.mark.parametrize("what", ["systemd", "udev"])
+@pytest.mark.parametrize("what", [["systemd", "--micam", "/opt/micam/bin/micam"], ["udev"]])
 def test_dry_run_writes_nothing_and_shows_what_it_would(
-        what: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["install", what, "--prefix", str(tmp_path), "--dry-run"]) == 0
+        what: list[str], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["install", *what, "--prefix", str(tmp_path), "--dry-run"]) == 0
     assert not any(tmp_path.iterdir())
     out = capsys.readouterr().out
     assert "would write" in out
-    marker = 'ATTRS{idVendor}=="0867"' if what == "udev" else "ExecStart="
-    assert marker in out, out  # the rules and units themselves, not only their paths
+    # the rules, units, user and configuration themselves, not only their paths
+    markers = (['ATTRS{idVendor}=="0867"'] if what[0] == "udev" else
+               ["ExecStart=/opt/micam/bin/micam daemon", 'u micam - "micam', "[hardware.capture]",
+                "systemd-sysusers /etc/sysusers.d/micam.conf"])
+    assert all(m in out for m in markers), out
+
+
+def test_systemd_declares_the_user_and_writes_the_config_the_units_name(tmp_path: Path) -> None:
+    """What micam-daemon.service needs to start: its User= declared for systemd-sysusers, its
+    --config written from a template that validates; the units run the venv's micam."""
+    from micam.hardware import load_daemon_config
+
+    assert main(["install", "systemd", "--prefix", str(tmp_path), "--venv", "/opt/micam",
+                 "--config-template", "paper"]) == 0
+    daemon = (tmp_path / "etc/systemd/system/micam-daemon.service").read_text()
+    settings = dict(line.split("=", 1) for line in daemon.splitlines()
+                    if "=" in line and not line.startswith("#"))
+    exec_start = settings["ExecStart"].split()
+    assert exec_start[:2] == ["/opt/micam/bin/micam", "daemon"]
+    config = tmp_path / exec_start[exec_start.index("--config") + 1].lstrip("/")
+    hardware = load_daemon_config(config).hardware  # the template, validated
+    assert hardware is not None and len(hardware.capture.boards) == 10  # paper's, asked for
+    sysusers = (tmp_path / "etc/sysusers.d/micam.conf").read_text().splitlines()
+    (user,) = [line.split() for line in sysusers if line.startswith("u ")]
+    assert user[1] == settings["User"] == settings["Group"]
+    web = (tmp_path / "etc/systemd/system/micam-web.service").read_text()
+    assert f"SupplementaryGroups={user[1]}" in web
+
+
+def test_an_existing_daemon_config_is_never_overwritten(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    config = tmp_path / "etc/micam/daemon.toml"
+    config.parent.mkdir(parents=True)
+    config.write_text("# this lab's\n")
+    for extra in ([], ["--force"]):
+        assert main(["install", "systemd", "--prefix", str(tmp_path), "--micam",
+                     "/opt/micam/bin/micam", *extra]) == 0
+        assert config.read_text() == "# this lab's\n"
+        assert f"kept {config}" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("micam", ["--venv=/home/ana/.venv", "--micam=/root/venv/bin/micam"])
+def test_a_micam_under_a_home_the_services_cannot_read_is_refused(
+        micam: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["install", "systemd", "--prefix", str(tmp_path), micam]) == EXIT_USAGE
+    err = capsys.readouterr().err
+    assert "ProtectHome" in err and "--venv /opt/micam" in err and not any(tmp_path.iterdir())
 
 
 def test_a_changed_file_is_kept_without_force(tmp_path: Path,
@@ -73,7 +118,8 @@ it was)."""
 @pytest.mark.slow
 def test_the_built_wheel_ships_the_udev_rules_and_installs_them(tmp_path: Path) -> None:
     """`pip wheel` maps udev/ into the package; `micam install udev` run from the unpacked
-    wheel (a purelib wheel installs as its unpacked files) writes the rules of udev/."""
+    wheel (a purelib wheel installs as its unpacked files) writes the rules of udev/, and
+    `micam install systemd` the units, the sysusers file and the daemon's configuration."""
     source = tmp_path / "source"
     for name in BUILT_FROM:
         if (REPO / name).is_dir():
@@ -90,11 +136,16 @@ def test_the_built_wheel_ships_the_udev_rules_and_installs_them(tmp_path: Path) 
     shipped = {n for n in zipfile.ZipFile(wheel).namelist() if n.startswith("micam/data/udev/")}
     rules = sorted(p.name for p in (REPO / "udev").glob("*.rules"))
     assert shipped == {f"micam/data/udev/{n}" for n in [*rules, "README.md"]}
+    units = {n for n in zipfile.ZipFile(wheel).namelist() if n.startswith("micam/data/systemd/")}
+    assert units == {f"micam/data/systemd/{p.name}"
+                     for p in (REPO / "micam/data/systemd").iterdir()}  # the sysusers file too
     site = tmp_path / "site"
     zipfile.ZipFile(wheel).extractall(site)
+    root = str(tmp_path / "root")
     code = ("import sys, micam; from micam.cli import main; "
             f"assert micam.__file__.startswith({str(site)!r}), micam.__file__; "
-            f"sys.exit(main(['install', 'udev', '--prefix', {str(tmp_path / 'root')!r}]))")
+            f"assert main(['install', 'systemd', '--prefix', {root!r}, '--venv', '/opt/m']) == 0;"
+            f"sys.exit(main(['install', 'udev', '--prefix', {root!r}]))")
     installed = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                                timeout=120, cwd=tmp_path,
                                env={**os.environ, "PYTHONPATH": str(site)})
@@ -102,3 +153,9 @@ def test_the_built_wheel_ships_the_udev_rules_and_installs_them(tmp_path: Path) 
     written = tmp_path / "root/etc/udev/rules.d"
     for name in ("60-micam-daq.rules", "61-micam-daq-uaccess.rules"):
         assert (written / name).read_text() == (REPO / "udev" / name).read_text()
+    etc = tmp_path / "root/etc"  # the units, the user and the configuration, from the wheel
+    assert "ExecStart=/opt/m/bin/micam daemon" in (
+        etc / "systemd/system/micam-daemon.service").read_text()
+    assert (etc / "sysusers.d/micam.conf").read_text() == (
+        REPO / "micam/data/systemd/micam.conf").read_text()
+    assert "[hardware.capture]" in (etc / "micam/daemon.toml").read_text()
