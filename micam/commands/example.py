@@ -12,9 +12,8 @@ import argparse
 import json
 from pathlib import Path
 
-from acquisition.contracts.errors import UserError
-
 from ..outputs import check_output_dirs
+from .bounded import SEED, integer
 
 MIN_POSES = 4
 """The fewest poses that calibrate: the camera's intrinsics need the board in 4 images."""
@@ -32,18 +31,15 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "import.toml describing them, and truth.json (the simulated truth, for "
                     "`micam calibrate --truth`).")
     imp.add_argument("dir", type=Path, metavar="DIR", help="a new or empty directory")
-    imp.add_argument("--poses", type=int, default=MIN_POSES, metavar="N",
+    imp.add_argument("--poses", type=integer(MIN_POSES, 100), default=MIN_POSES, metavar="N",
                      help=f"rig poses to record (default and least: {MIN_POSES})")
-    imp.add_argument("--seed", type=int, default=5, help="the simulated lab's seed (default 5)")
+    imp.add_argument("--seed", type=SEED, default=5, help="the simulated lab's seed (default 5)")
     imp.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> int:
     from sim.foreign_lab import make_world, write_folder
 
-    if not MIN_POSES <= args.poses <= 100:
-        raise UserError(f"--poses {args.poses}: give {MIN_POSES} to 100 (the camera's "
-                        f"calibration needs the board in {MIN_POSES} images)")
     check_output_dirs(("DIR", args.dir))
     world = make_world(seed=args.seed, n_poses=args.poses)
     toml = write_folder(world, args.dir)
