@@ -200,8 +200,15 @@ Detection = tuple[np.ndarray | None, tuple[int, int]]
 DETECTION_CACHE_SIZE = 20_000
 """Images whose detections a worker's `DetectionMemo` remembers (about 1 kB each)."""
 
-DetectionMemo = LruMemo[tuple[str, Checkerboard], Detection]
-"""Detections by (image SHA-256, board): `DetectionMemo(DETECTION_CACHE_SIZE)`."""
+QuickFind = tuple[np.ndarray | None | Unsure, tuple[int, int]]
+"""The quick detectors' answer for an image (corners, None: no board, or Unsure) and the
+image's (width, height)."""
+
+DetectionMemo = LruMemo[tuple[str, Checkerboard, str], QuickFind]
+"""What the detectors found in an image, by (image SHA-256, board, "quick" or "robust"):
+`DetectionMemo(DETECTION_CACHE_SIZE)`. Only what depends on the image alone is remembered,
+never whether the board was predicted to run off it (that depends on the other images of the
+calibration), so a calibration with a memo finds exactly what one without finds."""
 
 
 def calibrate_session(
@@ -236,17 +243,10 @@ def calibrate_session(
     files = {(camera, step): record.files[f"{camera}.png"]
              for step, record in sorted(reader.steps().items())
              for camera in cameras if f"{camera}.png" in record.files}
-    remembered = {key: None if detections is None else detections.get((file.sha256, board))
-                  for key, file in files.items()}
-    new = [key for key, found in remembered.items() if found is None]
-    detected = _detect_all(new, lambda key: reader.read_image(key[1], f"{key[0]}.png"),
-                           {k: v for k, v in remembered.items() if v is not None},
-                           cameras, board, known, min_views, min_shared_views)
-    for key, detection in detected.items():
-        if detections is not None:
-            detections.put((files[key].sha256, board), detection)
-    found_all = {key: remembered[key] or detected[key] for key in files}
-    return calibrate_detections(found_all, cameras, board, min_views, min_shared_views, known)
+    found = _detect_all(list(files), lambda key: reader.read_image(key[1], f"{key[0]}.png"),
+                        {key: file.sha256 for key, file in files.items()}, detections,
+                        cameras, board, known, min_views, min_shared_views)
+    return calibrate_detections(found, cameras, board, min_views, min_shared_views, known)
 
 
 ROUGH_STEPS = 24
@@ -317,42 +317,54 @@ def calibrate_images(
     known: dict[str, KnownIntrinsics] | None = None,
 ) -> CameraCalibration:
     """Calibrate cameras from images keyed by (camera, step) (see `calibrate_detections`)."""
-    found = _detect_all(list(images), images.__getitem__, {}, cameras, board, known,
+    found = _detect_all(list(images), images.__getitem__, {}, None, cameras, board, known,
                         min_views, min_shared_views)
     return calibrate_detections(found, cameras, board, min_views, min_shared_views, known)
 
 
 def _detect_all(
     keys: list[tuple[str, str]], read: Callable[[tuple[str, str]], np.ndarray],
-    seen: dict[tuple[str, str], Detection], cameras: list[str], board: Checkerboard,
-    known: dict[str, KnownIntrinsics] | None, min_views: int, min_shared_views: int,
+    hashes: dict[tuple[str, str], str], memo: DetectionMemo | None, cameras: list[str],
+    board: Checkerboard, known: dict[str, KnownIntrinsics] | None, min_views: int,
+    min_shared_views: int,
 ) -> dict[tuple[str, str], Detection]:
     """The detections of the images `keys` (camera, step), each read by `read`: the quick
     detectors on every image, then the robust one on those it was unsure of, except where
-    the board runs off the image (`_runs_off_the_image`, predicted with `seen`, detections of
-    other images already made, too).
+    the board runs off the image (`_runs_off_the_image`, predicted from the quick detectors'
+    finds of these images alone). With a `memo`, each detector's answer for an image is
+    remembered by the image's SHA-256 (`hashes`) and not searched again.
 
     PNG decoding and OpenCV's search release the interpreter lock: one image per core."""
 
-    def quickly(key: tuple[str, str]) -> tuple[np.ndarray | None | Unsure, tuple[int, int]]:
+    def remembered(key: tuple[str, str], detector: str,
+                   search: Callable[[np.ndarray, Checkerboard], np.ndarray | None | Unsure]
+                   ) -> QuickFind:
+        entry = None if memo is None else (hashes[key], board, detector)
+        if memo is not None and entry is not None and (answer := memo.get(entry)) is not None:
+            return answer
         image = read(key)
-        return detect_corners_quickly(image, board), image.shape[1::-1]
+        answer = (search(image, board), image.shape[1::-1])
+        if memo is not None and entry is not None:
+            memo.put(entry, answer)
+        return answer
 
     def robustly(key: tuple[str, str]) -> Detection:
-        image = read(key)
-        return detect_corners_robustly(image, board), image.shape[1::-1]
+        corners, size = remembered(key, "robust", detect_corners_robustly)
+        assert not isinstance(corners, Unsure)  # the robust detector is always sure
+        return corners, size
 
     detected: dict[tuple[str, str], Detection] = {}
     unsure: dict[tuple[str, str], tuple[int, int]] = {}
     # one BLAS thread: the images' threads already fill the cores (the corner fit's small
     # batched solves gain nothing from more)
     with single_threaded_blas(), ThreadPoolExecutor(default_workers()) as pool:
-        for key, (found, size) in zip(keys, pool.map(quickly, keys), strict=True):
-            if isinstance(found, Unsure):
+        quick = pool.map(lambda key: remembered(key, "quick", detect_corners_quickly), keys)
+        for key, (corners, size) in zip(keys, quick, strict=True):
+            if isinstance(corners, Unsure):
                 unsure[key] = size
             else:
-                detected[key] = (found, size)
-        cut = _runs_off_the_image(list(unsure), seen | detected, cameras, board, known,
+                detected[key] = (corners, size)
+        cut = _runs_off_the_image(list(unsure), dict(detected), cameras, board, known,
                                   min_views, min_shared_views) if unsure else set()
         robust = [key for key in unsure if key not in cut]
         detected |= dict(zip(robust, pool.map(robustly, robust), strict=True))

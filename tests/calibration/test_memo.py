@@ -5,6 +5,7 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from acquisition.contracts.session import SessionError, SessionReader
@@ -58,3 +59,30 @@ def test_without_a_memo_every_file_is_read_again(small_session: Path, tmp_path: 
     _damage(session, "pose/0001", name)
     with pytest.raises(SessionError, match=rf"{name} \(step 'pose/0001'\): checksum mismatch"):
         measure(session)
+
+
+def test_a_memo_never_remembers_a_board_predicted_to_run_off_its_image(monkeypatch) -> None:
+    """Whether an unsure image's board runs off the image is predicted from the other images
+    of the calibration, so it is not the image's alone: a worker's live job with few poses
+    may search an image robustly that the final job predicts cut. The final job must then
+    find what `micam calibrate` finds (no board there), not what the live job remembered;
+    else the worker's result depended on which live jobs it had run."""
+    from calibration import camera_calibration as cc
+    from calibration.corners import UNSURE
+
+    corners = np.zeros((4, 2))
+    monkeypatch.setattr(cc, "detect_corners_quickly", lambda image, board: UNSURE)
+    monkeypatch.setattr(cc, "detect_corners_robustly", lambda image, board: corners)
+    key = ("cam0", "pose/0000")
+    image = np.zeros((48, 64), np.uint8)
+    memo = cc.DetectionMemo(10)
+
+    def detect(cut: set, with_memo: bool) -> dict:
+        monkeypatch.setattr(cc, "_runs_off_the_image", lambda *args: cut)
+        return cc._detect_all([key], lambda _: image, {key: "sha"}, memo if with_memo else None,
+                              ["cam0"], None, None, 1, 1)  # type: ignore[arg-type]
+
+    assert detect(set(), with_memo=True)[key][0] is corners  # the live job: searched, found
+    no_board = {key: (None, (64, 48))}
+    assert detect({key}, with_memo=True) == detect({key}, with_memo=False) == no_board
+    assert detect(set(), with_memo=True)[key][0] is corners  # the robust search is remembered
