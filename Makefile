@@ -29,8 +29,9 @@ demo-offline: $(STAMP)
 	$(BIN)/micam calibrate $(DEMO_DIR)/session --out $(DEMO_DIR)/result.json \
 		--acoular-xml $(DEMO_DIR)/microphones.xml
 
+# On every core (pytest-xdist), each test module whole on one worker (tests/conftest.py).
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_simulation.py

@@ -8,6 +8,23 @@ import pytest
 
 from sim.capture import SimulationOptions
 
+AUDIO_TESTS = "tests/daq/audio/"
+"""The audio backend's tests, each module with a JACK server of its own in real time."""
+
+
+def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object:
+    """`make test` runs the suite on every core (pytest-xdist's -n): each test module goes
+    whole to one worker, so a module's session fixtures are made once, and the audio modules
+    all go to one worker, one after the other, so that two JACK servers never compete for the
+    cores in real time (an xrun fails a recording)."""
+    from xdist.scheduler import LoadScopeScheduling
+
+    class ModulesAndAudioTogether(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return AUDIO_TESTS if nodeid.startswith(AUDIO_TESTS) else super()._split_scope(nodeid)
+
+    return ModulesAndAudioTogether(config, log)
+
 
 @pytest.fixture(autouse=True, scope="session")
 def bug_logs(tmp_path_factory: pytest.TempPathFactory) -> Path:
