@@ -40,6 +40,7 @@ class FakeBridge:
     daemon's refusal), every request is recorded in `requests`."""
 
     target_m = 5e-4
+    live_stream = None  # started without --geometry: no live maps
 
     def __init__(self, files: dict[str, bytes] | None = None) -> None:
         self.files = files if files is not None else {}
