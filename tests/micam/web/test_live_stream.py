@@ -45,7 +45,7 @@ def live_page(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Loop, 
 def test_the_page_shows_live_maps_records_and_leaves(live_page, chromium: type[Chromium],
                                                       screenshots: Path) -> None:
     loop, web = live_page
-    b = chromium(width=1000, height=1400)
+    b = chromium(width=1000, height=1800)
     try:
         b.driver.get(web.url + "/")
         b.wait("window.micam.snapshots > 0 && !document.getElementById('live-start').disabled",
