@@ -58,9 +58,10 @@ def retuned(settings: LiveSettings, args: dict[str, Any],
     if unknown:
         raise LiveViewError(f"live.view takes {', '.join(sorted(ARGUMENTS))}, not "
                             f"{', '.join(sorted(unknown))}")
-    fraction = int(_number(args, "fraction", (1, 3), settings.fraction))
-    if fraction not in FRACTIONS:
-        raise LiveViewError(f"fraction {fraction}: 1 (octave) or 3 (third octave)")
+    number = _number(args, "fraction", (1, 3), settings.fraction)
+    if number not in FRACTIONS:
+        raise LiveViewError(f"fraction {number:g}: 1 (octave) or 3 (third octave)")
+    fraction = int(number)
     band = _band(_number(args, "band_hz", BAND_RANGE_HZ, settings.band_hz), fraction)
     new = replace(settings, band_hz=band, fraction=fraction,
                   dynamic_range_db=_number(args, "range_db", RANGE_DB,

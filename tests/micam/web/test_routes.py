@@ -12,7 +12,6 @@ from starlette.testclient import TestClient
 from calibration.imaging.live import LiveSettings
 from micam.web.app import create_app
 from micam.web.hosts import ServedHosts
-from micam.web.live_stream import LiveStream
 
 from .asgi import HOST, PORT, FakeBridge
 
@@ -69,17 +68,6 @@ def test_every_refusal_of_a_route_says_why() -> None:
         assert reply.status_code == status and why in reply.json()["error"], (path, reply.text)
 
 
-class LiveBridge(FakeBridge):
-    """A fake bridge with a live view (never started: only its settings are used)."""
-
-    def __init__(self) -> None:
-        super().__init__({})
-        self.live_stream = LiveStream(lambda: None, None, LiveSettings())  # type: ignore
-
-    def retune_live(self, args: dict) -> dict:
-        return self.live_stream.retune(args)
-
-
 def _view(bridge: FakeBridge, args: dict) -> tuple[int, dict]:
     app = create_app(bridge, None, ServedHosts(PORT, "127.0.0.1"), 5.0)
     reply = TestClient(app, base_url=f"http://{HOST}").post(
@@ -88,7 +76,8 @@ def _view(bridge: FakeBridge, args: dict) -> tuple[int, dict]:
 
 
 def test_the_live_view_is_changed_within_its_bounds_and_refused_beyond() -> None:
-    bridge = LiveBridge()
+    bridge = FakeBridge()
+    assert bridge.live_stream is not None
     status, data = _view(bridge, {"band_hz": 2000, "fraction": 1, "range_db": 30})
     assert status == 200 and data["result"]["band_hz"] == 2000.0, data
     assert bridge.live_stream.settings == LiveSettings(band_hz=2000.0, fraction=1,
@@ -103,6 +92,7 @@ def test_the_live_view_is_changed_within_its_bounds_and_refused_beyond() -> None
                       ({"depth_m": True}, "depth_m True is not a number"),
                       ({"band_hz": 3000, "fraction": 3}, "the nearest is 3175 Hz"),
                       ({"fraction": 2}, "1 (octave) or 3 (third octave)"),
+                      ({"fraction": 2.9}, "fraction 2.9: 1 (octave) or 3"),
                       ({"window_s": 1}, "live.view takes the arguments")):
         before = bridge.live_stream.settings
         status, data = _view(bridge, args)
@@ -111,5 +101,7 @@ def test_the_live_view_is_changed_within_its_bounds_and_refused_beyond() -> None
 
 
 def test_a_page_without_live_maps_says_how_to_have_them() -> None:
-    status, data = _view(FakeBridge({}), {"band_hz": 2000})
+    bridge = FakeBridge()
+    bridge.live_stream = None  # micam web without --geometry
+    status, data = _view(bridge, {"band_hz": 2000})
     assert status == 409 and "--geometry" in data["error"]
