@@ -70,10 +70,12 @@ class MapFrames:
 
     def retune(self, imager: LiveImager, caption: str) -> None:
         """Draw with another imager of the same stream (a band, range or plane changed while
-        running): the camera frames are kept, its window fills from the next samples on."""
+        running): the camera frames are kept; a new CSM's window fills from the next samples
+        on (one shared with the imager before, `LiveImager.with_range`, goes on)."""
         if imager.sample_rate_hz != self.imager.sample_rate_hz:
             raise CalibrationInputError("a live view is retuned within one stream (one rate)")
-        imager.csm.restart(self.imager.csm.samples_in)  # the stream goes on, without a gap
+        if imager.csm is not self.imager.csm:
+            imager.csm.restart(self.imager.csm.samples_in)  # the stream goes on, without a gap
         self.imager, self.caption = imager, caption
 
     def add_frame(self, sample: int, image: np.ndarray) -> None:
