@@ -133,10 +133,18 @@ class LiveMode:
         self._t0 = self._next_frame = self._clock()
 
     def stop(self) -> None:
-        """Stop the boards; wait for recordings being written."""
+        """Stop the boards; wait for recordings being written, and announce them (a client
+        waiting for its recording must hear of it even when live mode ends first)."""
         self.stream.stop()
         for thread in self._recorders:
             thread.join()
+        self._announce_written()
+
+    def _announce_written(self) -> None:
+        """A `live_recorded` event for every recording finished since the last call."""
+        while self._written:
+            path, error = self._written.pop(0)
+            self._publish_event(LiveRecordedEvent, path=str(path), error=error)
 
     def behind_s(self) -> float:
         """How far the reads trail the clock."""
@@ -160,9 +168,7 @@ class LiveMode:
                 self._publish_frames(SAMPLES_TOPIC, [header.model_dump_json().encode(),
                                                      np.ascontiguousarray(codes, "<i2").data])
         self.max_behind_s = max(self.max_behind_s, self.behind_s())
-        while self._written:
-            path, error = self._written.pop(0)
-            self._publish_event(LiveRecordedEvent, path=str(path), error=error)
+        self._announce_written()
         if self._clock() >= self._next_frame:
             self._next_frame += 1.0 / self.options.camera_fps
             self._next_frame = max(self._next_frame, self._clock())  # no burst after a stall

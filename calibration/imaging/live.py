@@ -23,7 +23,8 @@ uses the board latencies only (`ArrayGeometry.without_own_delays`), as `micam im
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import copy
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -168,6 +169,15 @@ class LiveImager:
         self.mapper = ImageMapper(self.grid, self.camera, settings.image_scale)
         self._clean = CleanScOptions(max_iterations=settings.max_components,
                                      min_peak_db=settings.dynamic_range_db)
+
+    def with_range(self, dynamic_range_db: float) -> LiveImager:
+        """This imager drawing down to another dynamic range: it shares the CSM, steering and
+        pixel table (nothing is set up again, the window goes on); checked as LiveSettings."""
+        other = copy.copy(self)
+        other.settings = replace(self.settings, dynamic_range_db=dynamic_range_db)
+        other._clean = CleanScOptions(max_iterations=self.settings.max_components,
+                                      min_peak_db=dynamic_range_db)
+        return other
 
     def push(self, samples: np.ndarray) -> int:
         """Append microphone samples (n, M) (volts or pascals, columns in the geometry's

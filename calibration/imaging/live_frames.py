@@ -3,7 +3,8 @@
 `MapFrames` feeds the samples to a `LiveImager` and, every `1 / fps` seconds of the stream
 (stream time, not wall-clock time: a recording is rendered frame for frame however long it
 takes), makes the map of the latest window and draws it over the camera frame taken nearest
-the window's centre (the matching frame: the map shows the sound of the window). It serves
+the window's centre (the matching frame: the map shows the sound of the window), with the
+array's mean spectrum over the same window when asked for (`live_spectrum`). It serves
 the live stream (samples from the daemon, `live_feed`) and a recording (`micam live video
 --recording`) alike. `VideoFile` writes the frames with OpenCV's VideoWriter: MJPEG in an
 .avi, MPEG-4 part 2 in an .mp4.
@@ -19,8 +20,9 @@ import cv2
 import numpy as np
 
 from ..errors import CalibrationInputError
-from .live import LiveImager, LiveMap
+from .live import LiveImager, LiveMap, LiveSettings
 from .live_draw import draw_live_frame
+from .live_spectrum import MeanSpectrum
 
 FRAMES_KEPT = 64
 """Camera frames kept to match maps to (several seconds at video rates)."""
@@ -30,12 +32,16 @@ FOURCC = {".avi": "MJPG", ".mp4": "mp4v"}
 
 @dataclass(frozen=True)
 class DrawnFrame:
-    """A video frame: the BGR image, its map, and the camera frame's stream index (or -1
-    when no frame of the camera had arrived)."""
+    """A video frame: the BGR image, its map, the camera frame's stream index (or -1
+    when no frame of the camera had arrived), the settings it was drawn with, and the band
+    levels of the array's mean spectrum (dB, `MeanSpectrum.centres_hz`; None unless asked
+    for)."""
 
     image: np.ndarray
     live_map: LiveMap
     camera_sample: int
+    settings: LiveSettings
+    spectrum_db: np.ndarray | None = None
 
 
 class MapFrames:
@@ -45,17 +51,32 @@ class MapFrames:
         imager: the live imager (its settings name the camera).
         fps: video frames per second of stream time.
         caption: drawn on every frame (band, method, range).
+        spectrum: give every frame the array's mean spectrum over the map's window.
     """
 
-    def __init__(self, imager: LiveImager, fps: float, caption: str = "") -> None:
+    def __init__(self, imager: LiveImager, fps: float, caption: str = "",
+                 spectrum: bool = False) -> None:
         if not fps > 0:
             raise CalibrationInputError(f"a video needs a positive frame rate, not {fps}")
         self.imager = imager
         self.hop = max(1, round(imager.sample_rate_hz / fps))
         self.caption = caption
+        self.spectrum = MeanSpectrum(imager.n_mics, imager.sample_rate_hz,
+                                     imager.csm.window_samples,
+                                     imager.settings.block_size) if spectrum else None
         self._frames: deque[tuple[int, np.ndarray]] = deque(maxlen=FRAMES_KEPT)
         self._next = 0  # the stream index at which the next map is due
         self._blank = np.zeros((imager.camera.height, imager.camera.width), dtype=np.uint8)
+
+    def retune(self, imager: LiveImager, caption: str) -> None:
+        """Draw with another imager of the same stream (a band, range or plane changed while
+        running): the camera frames are kept; a new CSM's window fills from the next samples
+        on (one shared with the imager before, `LiveImager.with_range`, goes on)."""
+        if imager.sample_rate_hz != self.imager.sample_rate_hz:
+            raise CalibrationInputError("a live view is retuned within one stream (one rate)")
+        if imager.csm is not self.imager.csm:
+            imager.csm.restart(self.imager.csm.samples_in)  # the stream goes on, without a gap
+        self.imager, self.caption = imager, caption
 
     def add_frame(self, sample: int, image: np.ndarray) -> None:
         """A frame of the imager's camera, taken at stream index `sample`."""
@@ -68,6 +89,8 @@ class MapFrames:
         if start != self.imager.csm.samples_in:
             self.imager.csm.restart(start)
             self._next = max(self._next, start)
+            if self.spectrum is not None:
+                self.spectrum.restart()
         out = []
         done = 0
         while done < volts.shape[0]:
@@ -75,6 +98,8 @@ class MapFrames:
             take = volts.shape[0] - done if until_due <= 0 else min(volts.shape[0] - done,
                                                                     until_due)
             self.imager.push(volts[done: done + take])
+            if self.spectrum is not None:
+                self.spectrum.push(volts[done: done + take])
             done += take
             if self.imager.ready and self.imager.csm.samples_in >= self._next:
                 out.append(self.draw())
@@ -91,7 +116,8 @@ class MapFrames:
         drawn = draw_live_frame(image, self.imager.level_image(live_map),
                                 settings.dynamic_range_db, live_map.peak_px, self.caption,
                                 settings.image_scale)
-        return DrawnFrame(drawn, live_map, sample)
+        levels = self.spectrum.levels_db() if self.spectrum is not None else None
+        return DrawnFrame(drawn, live_map, sample, settings, levels)
 
 
 def caption_of(imager: LiveImager) -> str:

@@ -72,6 +72,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                                                "Acoular's HDF5 time data)")
     record.add_argument("--seconds", type=positive(30, " s"), default=5.0,
                         help="seconds to store (default 5, at most the ring's)")
+    record.add_argument("--no-wait", action="store_true",
+                        help="return once the daemon has taken the seconds, before they are "
+                             "written (a live_recorded event says when they are)")
+    record.add_argument("--write-timeout", type=positive(3600, " s"), default=300.0,
+                        metavar="S", help="seconds to wait for the recording to be written "
+                                          "(default 300)")
     video = actions.add_parser("video", help="an acoustic video of live mode or of a recording")
     _add_imaging_arguments(video)
     video.add_argument("--recording", type=Path, metavar="DIR",
@@ -98,10 +104,42 @@ def run(args: argparse.Namespace) -> int:
             client.request("live.stop")
             print("live mode left")
         else:
-            result = client.request("live.record", seconds=args.seconds)
-            print(f"recording {result['seconds']:.2f} s into {result['path']} (Acoular: "
-                  f"{result['acoular_file']}); a live_recorded event says when it is written")
+            _record(client, args)
     return 0
+
+
+def _record(client, args: argparse.Namespace) -> None:
+    """`micam live record`: by default it returns once the recording can be read."""
+    from contextlib import closing
+
+    if args.no_wait:
+        result = client.request("live.record", seconds=args.seconds)
+        print(f"recording {result['seconds']:.2f} s into {result['path']} (Acoular: "
+              f"{result['acoular_file']}); a live_recorded event says when it is written")
+        return
+    with closing(client.subscribe()) as events:  # before the request: its event is not missed
+        result = client.request("live.record", seconds=args.seconds)
+        print(f"recording {result['seconds']:.2f} s into {result['path']} ...", flush=True)
+        _wait_written(events, result["path"], args.write_timeout)
+    print(f"written: {result['path']} (Acoular: {result['acoular_file']})")
+
+
+def _wait_written(events, path: str, timeout_s: float) -> None:
+    """Until the daemon's `live_recorded` event for `path`; UserError if it says the writing
+    failed, or if none comes within `timeout_s`."""
+    import time
+
+    from acquisition.contracts.protocol import LiveRecordedEvent
+
+    deadline = time.monotonic() + timeout_s
+    while (left := deadline - time.monotonic()) > 0:
+        event = events.next(left)
+        if isinstance(event, LiveRecordedEvent) and event.path == path:
+            if event.error:
+                raise UserError(f"the live recording {path} failed: {event.error}")
+            return
+    raise UserError(f"the daemon did not say within {timeout_s:g} s that {path} is written; "
+                    "`micam watch` shows its live_recorded event when it comes")
 
 
 def _video(args: argparse.Namespace) -> int:

@@ -3,7 +3,9 @@
 Routes: `/` the page, `/static/...` its script and style, `/ws` the live updates (a snapshot,
 then one update per daemon event), `POST /api/command` the controls, `/api/state` the
 snapshot (for scripts and tests), `/api/sessions/{id}/report` a session's report and
-`/api/sessions/{id}/files/{path}` its calibration files (result, figures). Every request
+`/api/sessions/{id}/files/{path}` its calibration files (result, figures). One command is the
+page's own, not the daemon's: `live.view` changes the live acoustic view (live_controls.py).
+Every request
 passes `AccessGuard` (guard.py: Host, Origin, token) and then `BodyLimit` (limits.py: the
 body's size and time) first; every refusal says why (refusals.py), none is a 500.
 """
@@ -31,6 +33,7 @@ from .guard import WEBSOCKET_PATH, AccessGuard
 from .hosts import ServedHosts
 from .json_body import JsonInputError, load_json
 from .limits import BodyLimit
+from .live_controls import ARGUMENTS as LIVE_VIEW_ARGUMENTS, LiveViewError
 from .refusals import refusal, shown
 from .view import ViewError, live_view, result_view
 
@@ -42,9 +45,10 @@ COMMANDS: dict[str, frozenset[str]] = {
     "capture": frozenset(), "redo": frozenset(), "session.pause": frozenset(),
     "session.resume": frozenset(), "session.stop": frozenset(), "session.abort": frozenset(),
     "live.start": frozenset({"seconds", "camera_fps", "cameras"}), "live.stop": frozenset(),
-    "live.record": frozenset({"seconds"}),
+    "live.record": frozenset({"seconds"}), "live.view": LIVE_VIEW_ARGUMENTS,
 }
-"""What the page may ask the daemon to do, with the arguments of each."""
+"""What the page may ask the daemon (or, `live.view`, itself) to do, with the arguments of
+each."""
 MEDIA_TYPES = {".png": "image/png", ".jpg": "image/jpeg", ".json": "application/json",
                ".jsonl": "text/plain; charset=utf-8", ".md": "text/plain; charset=utf-8",
                ".txt": "text/plain; charset=utf-8", ".xml": "text/plain; charset=utf-8"}
@@ -82,6 +86,8 @@ def create_app(bridge: Bridge, token: str | None, served: ServedHosts,
             name, args = parse_command(await request.body())
         except JsonInputError as exc:
             return refusal(400, "bad_request", str(exc))
+        if name == "live.view":
+            return _retune_live(bridge, args)
         try:
             result = await bridge.request(name, **args)
         except DaemonError as exc:
@@ -176,6 +182,17 @@ def parse_command(body: bytes) -> tuple[str, dict[str, Any]]:
     if name == "session.abort" and data.get("confirm") is not True:
         raise JsonInputError("aborting ends the session for good: send \"confirm\": true")
     return name, {k: v for k, v in args.items() if v is not None and v != ""}
+
+
+def _retune_live(bridge: Bridge, args: dict[str, Any]) -> Response:
+    """`live.view`: the live view's new controls, or why not."""
+    if bridge.live_stream is None:
+        return refusal(409, "no_live_view", "this page draws no live maps: start micam web "
+                                            "with --geometry result.json")
+    try:
+        return JSONResponse({"ok": True, "result": bridge.retune_live(args)})
+    except LiveViewError as exc:
+        return refusal(400, "bad_request", str(exc))
 
 
 async def _http_refusal(request: Request, exc: Exception) -> Response:

@@ -115,6 +115,7 @@ class Bridge:
                        "control": client.control},
             "describe": None, "status": None, "previews": {}, "sessions": None, "log": [],
             "target_m": target_m, "live_stream": None, "session_id": None, **SESSION_STATE,
+            "live_view": live_stream.controls() if live_stream is not None else None,
         }
         self._log: deque[dict[str, Any]] = deque(maxlen=LOG_LINES)
         self._describe: DescribeResult | None = None
@@ -165,6 +166,14 @@ class Bridge:
     async def request(self, command: str, **args: Any) -> dict[str, Any]:
         """One request to the daemon (DaemonError with its refusal, or if it is unreachable)."""
         return await asyncio.to_thread(self.client.request, command, **args)
+
+    def retune_live(self, args: dict[str, Any]) -> dict[str, Any]:
+        """Change the live view (band, fraction, range, depth) while it runs, and show every
+        page the new controls; live_controls.LiveViewError if a value is refused."""
+        assert self.live_stream is not None, "the page asks for a live view only with one"
+        controls = self.live_stream.retune(args)
+        self._send({"live_view": controls})
+        return controls
 
     # -- fan-out -----------------------------------------------------------------------------
 

@@ -61,6 +61,7 @@ const RENDER = {
   daemon: renderHeader, status: renderHeader, progress: renderHeader, describe: renderAll,
   cameras: renderCameras, previews: renderCameras, live: renderLive, live_history: renderLive,
   levels: renderLevels, sessions: renderSessions, log: renderLog, live_stream: renderLiveStream,
+  live_view: renderLiveView,
 };
 
 function render(keys) {
@@ -166,24 +167,125 @@ function setUpControls() {
 
 // -- the live acoustic view ------------------------------------------------------------------
 function renderLiveStream() {
-  // The newest map over camera 0 while the daemon is live (micam web --geometry draws them).
+  // The newest map over camera 0 while the daemon is live (micam web --geometry draws them),
+  // its colour scale in dB and the array's mean spectrum, both of the settings it was drawn with.
   const live = state.status && state.status.live;
   const frame = state.live_stream;
   const img = $("live-stream");
   const showing = Boolean(live && frame && frame.jpeg_b64);
   img.classList.toggle("hidden", !showing);
+  $("live-colourbar").classList.toggle("hidden", !showing);
+  $("live-spectrum").classList.toggle("hidden", !(showing && frame.spectrum));
   if (showing) {
     const src = "data:image/jpeg;base64," + frame.jpeg_b64;
     if (img.getAttribute("src") !== src) img.setAttribute("src", src);
     img.dataset.sample = String(frame.sample);
+    img.dataset.band = String(frame.settings.band_hz);
+    img.dataset.range = String(frame.settings.range_db);
+    drawColourBar(frame.settings.range_db);
+    if (frame.spectrum) drawSpectrum(frame.spectrum, frame.settings);
   } else {
     img.removeAttribute("src"); // no last map stays once live mode ends
-    delete img.dataset.sample;
+    for (const key of ["sample", "band", "range"]) delete img.dataset[key];
   }
   $("live-stream-info").textContent = live
     ? `${live.held_s.toFixed(1)} s kept, ${(1e3 * live.behind_s).toFixed(0)} ms behind` : "";
   $("live-stream-note").textContent = !live ? "not live" : frame && frame.error
-    ? frame.error : frame ? `latency ${frame.latency_ms} ms` : "no map (micam web --geometry)";
+    ? frame.error : frame ? `${bandName(frame.settings)}, plane at ${frame.settings.depth_m} m, ` +
+      `latency ${frame.latency_ms} ms` : "no map (micam web --geometry)";
+}
+
+const bandName = (v) => `${Math.round(v.band_hz)} Hz ${v.fraction === 1 ? "octave" : "1/3 octave"}`;
+const kHz = (f) => f >= 1000 ? `${+(f / 1000).toFixed(1)}k` : String(Math.round(f));
+// Matplotlib's inferno (what the map is drawn with, OpenCV's COLORMAP_INFERNO) at nine stops.
+const INFERNO = ["#000004", "#1f0c48", "#550f6d", "#88226a", "#ba3655", "#e35933", "#f98c0a", "#f9c932", "#fcffa4"];
+
+function drawColourBar(rangeDb) {
+  // The map's colours from its peak (0 dB, top) down to -range (bottom, drawn transparent).
+  const bar = $("live-colourbar");
+  if (bar.dataset.range === String(rangeDb)) return;
+  bar.dataset.range = String(rangeDb);
+  const ramp = el("div", { class: "ramp" });
+  ramp.style.background = `linear-gradient(to bottom, ${INFERNO.slice().reverse().join(", ")})`;
+  bar.replaceChildren(el("span", { class: "title" }, "dB re peak"), ramp);
+  const step = rangeDb <= 12 ? 2 : rangeDb <= 30 ? 5 : 10;
+  for (let db = 0; db >= -rangeDb - 1e-9; db -= step) {
+    const tick = el("span", { class: "tick" }, String(db));
+    tick.style.top = `calc(22px + (100% - 30px) * ${-db / rangeDb})`;
+    bar.append(tick);
+  }
+}
+
+function drawSpectrum(spectrum, view) {
+  // Third-octave band levels, the mean of the microphones' (dB re 1 V²); the bands the map
+  // shows in yellow; a click on a band maps it.
+  const chart = $("live-spectrum");
+  const W = 800, H = 170, left = 52, right = 8, top = 10, bottom = 40;
+  const levels = spectrum.levels_db, centres = spectrum.centres_hz;
+  const topDb = 10 * Math.ceil(Math.max(...levels) / 10), spanDb = 60;
+  const y = (db) => top + (H - top - bottom) * Math.min(1, Math.max(0, (topDb - db) / spanDb));
+  const w = (W - left - right) / centres.length;
+  const half = 2 ** (1 / (2 * view.fraction));
+  const nodes = [];
+  for (let db = topDb; db >= topDb - spanDb; db -= 10) {
+    nodes.push(svg("line", { x1: left, x2: W - right, y1: y(db), y2: y(db), class: "grid" }),
+      svg("text", { x: left - 4, y: y(db) + 4, "text-anchor": "end", class: "axis" }, String(db)));
+  }
+  centres.forEach((c, i) => {
+    const chosen = c >= view.band_hz / half * 0.999 && c <= view.band_hz * half * 1.001;
+    const bar = svg("rect", { x: left + i * w + 1, y: y(levels[i]), width: w - 2, height: H - bottom - y(levels[i]),
+      class: "bar" + (chosen ? " chosen" : ""), "data-centre": c });
+    bar.append(svg("title", {}, `${kHz(c)} Hz: ${levels[i].toFixed(1)} dB`));
+    bar.addEventListener("click", () => applyLiveView({ band_hz: c, fraction: 3 }));
+    nodes.push(bar);
+    if (Math.abs(Math.log2(c / 1000) % 1) < 1e-6) { // label the octave centres
+      nodes.push(svg("text", { x: left + (i + 0.5) * w, y: H - bottom + 14, "text-anchor": "middle", class: "axis" }, kHz(c)));
+    }
+  });
+  nodes.push(svg("rect", { x: left, y: top, width: W - left - right, height: H - top - bottom, class: "frame" }),
+    svg("text", { x: left + (W - left - right) / 2, y: H - 6, "text-anchor": "middle", class: "axis" },
+      "third-octave band centre (Hz); click a band to map it"),
+    svg("text", { x: 12, y: top + (H - top - bottom) / 2, transform: `rotate(-90 12 ${top + (H - top - bottom) / 2})`,
+      "text-anchor": "middle", class: "axis" }, "dB re 1 V²"));
+  chart.replaceChildren(...nodes);
+}
+
+function renderLiveView() {
+  // The controls of the live view, as the page's server holds them (an edit in progress stays).
+  const view = state.live_view;
+  $("live-view-form").classList.toggle("hidden", !view);
+  if (!view) return;
+  const set = (id, value) => { if (document.activeElement !== $(id)) $(id).value = String(value); };
+  const band = $("live-band");
+  const bands = view.bands[String(view.fraction)];
+  if (band.dataset.fraction !== String(view.fraction)) {
+    band.replaceChildren(...bands.map((c) => el("option", { value: String(c) }, String(Math.round(c)))));
+    band.dataset.fraction = String(view.fraction);
+  }
+  set("live-band", view.band_hz);
+  set("live-fraction", view.fraction);
+  set("live-range", view.range_db);
+  set("live-depth", view.depth_m);
+  for (const [id, [lo, hi]] of [["live-range", view.range_db_limits], ["live-depth", view.depth_m_limits]]) {
+    $(id).min = String(lo);
+    $(id).max = String(hi);
+  }
+}
+
+function applyLiveView(changes = {}) {
+  // Send the controls' values (and `changes` over them); the server checks them.
+  const view = { band_hz: Number($("live-band").value), fraction: Number($("live-fraction").value),
+    range_db: Number($("live-range").value), depth_m: Number($("live-depth").value), ...changes };
+  const bands = state.live_view && state.live_view.bands[String(view.fraction)];
+  if (bands && !changes.band_hz) { // another width: the band of it nearest the one shown
+    view.band_hz = bands.reduce((a, b) => Math.abs(Math.log(b / view.band_hz)) < Math.abs(Math.log(a / view.band_hz)) ? b : a);
+  }
+  command("live.view", view);
+}
+
+function setUpLiveView() {
+  $("live-view-form").addEventListener("submit", (e) => { e.preventDefault(); applyLiveView(); });
+  for (const id of ["live-band", "live-fraction"]) $(id).addEventListener("change", () => applyLiveView());
 }
 
 // -- cameras and the next pose ---------------------------------------------------------------
@@ -533,4 +635,5 @@ function renderLog() {
 }
 
 setUpControls();
+setUpLiveView();
 connect();

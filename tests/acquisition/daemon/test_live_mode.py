@@ -35,9 +35,9 @@ def test_live_mode_is_entered_recorded_and_left(daemon: ThreadDaemon) -> None:
         with closing(client.subscribe()) as events:
             wait_for_samples(client, 30_000)
             result = client.request("live.record", seconds=0.25)
+            assert client.request("live.stop")["stopped"] is True  # announced all the same
             recorded = next_event(events, "live_recorded")
         assert recorded.error == "" and recorded.path == result["path"]
-        assert client.request("live.stop")["stopped"] is True
         assert client.status().state == "idle" and client.status().live is None
     reader = SessionReader(result["path"])
     assert reader.status == "complete"

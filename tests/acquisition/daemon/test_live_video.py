@@ -5,7 +5,8 @@ as micam does."""
 from __future__ import annotations
 
 from collections.abc import Iterator
-from contextlib import closing
+import io
+from contextlib import redirect_stdout
 from pathlib import Path
 
 import cv2
@@ -26,7 +27,7 @@ from calibration.imaging.live_frames import MapFrames
 from calibration.imaging.steering import SteeringModel
 from calibration.imaging.view_plane import depth_plane_grid
 
-from .helpers import WAIT_S, ThreadDaemon, next_event, small_config
+from .helpers import WAIT_S, ThreadDaemon, small_config
 
 pytestmark = pytest.mark.slow  # every test here: a daemon and a live recording, made once
 
@@ -59,12 +60,18 @@ def geometry(result_json: Path) -> ArrayGeometry:
 
 @pytest.fixture(scope="module")
 def recording(live: ThreadDaemon) -> Path:
-    with live.client() as client, closing(client.subscribe()) as events:
+    """A second of live mode recorded by `micam live record`, which returns only once the
+    recording can be read (read here at once)."""
+    with live.client() as client:
         client.wait_until(lambda s: s.live is not None and s.live.held_s >= 1.0, WAIT_S,
                           interval_s=0.05)
-        path = Path(client.request("live.record", seconds=1.0)["path"])
-        written = next_event(events, "live_recorded", path=str(path))
-    assert written.error == ""
+    out = io.StringIO()
+    with redirect_stdout(out):
+        assert main(["live", "record", "--seconds", "1", "--control",
+                     live.config.sockets.control]) == 0
+    path = Path(out.getvalue().splitlines()[-1].split()[1])
+    codes, _, _, frames, _ = read_live_recording(path, "cam0")
+    assert codes.shape[0] == round(FS) and frames
     return path
 
 

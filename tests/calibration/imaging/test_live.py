@@ -3,6 +3,8 @@ pixel table, and a moving simulated source followed by the map's peak frame afte
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -12,6 +14,7 @@ from calibration.imaging.csm_calibration import ChannelResponses, correct_csm
 from calibration.imaging.geometry import geometry_from_dict
 from calibration.imaging.live import LiveImager, LiveSettings
 from calibration.imaging.live_draw import draw_live_frame
+from calibration.imaging.live_frames import MapFrames
 from calibration.imaging.overlay import ImageMapper, map_to_image
 from calibration.imaging.sliding_csm import SlidingCsm
 from calibration.imaging.view_plane import depth_plane_grid
@@ -162,3 +165,30 @@ def test_the_calibrated_microphone_responses_are_corrected(world) -> None:
         imager.push(delayed)
         errors.append(float(np.linalg.norm(imager.map().peak_px - truth_px)))
     assert errors[0] > 10.0 and errors[1] < 0.5, errors
+
+
+def test_a_running_view_is_retuned_without_a_gap(world) -> None:
+    """A range changed while running is drawn at the next frame, from the same window (the
+    imager shares its CSM); another band starts a new window at the stream's next sample."""
+    geometry = geometry_from_dict(world_truth(world))
+    scene = LiveScene(world, [LiveSource(Trajectory.still([0.1, 0.1, 1.0]), 0.05, 4000.0)])
+    settings = LiveSettings(window_s=0.05, grid_shape=(31, 31), image_scale=0.25)  # 2.4 hops
+    frames = MapFrames(LiveImager(geometry, settings, FS), 50.0)
+    hop = frames.hop
+    drawn = [f for start in range(0, 4 * hop, hop)
+             for f in frames.push(start, scene.mic_volts(start, hop))]
+    before, narrow = drawn[-1], frames.imager
+    wider = narrow.with_range(40.0)
+    assert wider.csm is narrow.csm and wider.settings.dynamic_range_db == 40.0
+    frames.retune(wider, "40 dB")
+    after = frames.push(4 * hop, scene.mic_volts(4 * hop, hop))
+    assert len(after) == 1 and after[0].settings.dynamic_range_db == 40.0
+    shown = [np.isfinite(narrow.level_image(before.live_map)).mean(),
+             np.isfinite(wider.level_image(after[0].live_map)).mean()]
+    assert shown[1] > 1.5 * shown[0], shown  # 40 dB of the map reach further than 15
+    frames.retune(LiveImager(geometry, replace(settings, band_hz=2000.0), FS), "2 kHz")
+    window = frames.imager.csm.window_samples
+    later = [f for start in range(5 * hop, 5 * hop + window, hop)
+             for f in frames.push(start, scene.mic_volts(start, hop))]
+    assert later and later[0].live_map.end_sample >= 5 * hop + window - hop
+    assert all(f.settings.band_hz == 2000.0 for f in later)

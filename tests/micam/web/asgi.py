@@ -12,7 +12,9 @@ from typing import Any
 from starlette.types import ASGIApp, Message
 
 from acquisition.daemon.client import DaemonError
+from calibration.imaging.live import LiveSettings
 from micam.web.bridge import Bridge, Browser
+from micam.web.live_stream import LiveStream
 
 PORT = 8765
 HOST = f"127.0.0.1:{PORT}"
@@ -42,6 +44,9 @@ class FakeBridge:
     target_m = 5e-4
 
     def __init__(self, files: dict[str, bytes] | None = None) -> None:
+        # a live view never started: `live.view` changes its settings (None: no --geometry)
+        self.live_stream: LiveStream | None = LiveStream(
+            lambda: None, None, LiveSettings())  # type: ignore[arg-type, return-value]
         self.files = files if files is not None else {}
         self.requests: list[tuple[str, dict[str, Any]]] = []
         self.browsers: set[Browser] = set()
@@ -54,6 +59,10 @@ class FakeBridge:
 
     def snapshot(self) -> dict[str, Any]:
         return {"daemon": {"connected": True}, "status": None}
+
+    def retune_live(self, args: dict[str, Any]) -> dict[str, Any]:
+        assert self.live_stream is not None
+        return self.live_stream.retune(args)
 
     connect = Bridge.connect  # the real fan-out: the browsers and their queues
     disconnect = Bridge.disconnect

@@ -1,5 +1,6 @@
 """The page's routes with a fake daemon: a report whose files cannot be shown says why (never
-500), and every refusal of a route names what is wrong."""
+500), every refusal of a route names what is wrong, and the live view's controls are checked
+before they change anything."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import json
 import pytest
 from starlette.testclient import TestClient
 
+from calibration.imaging.live import LiveSettings
 from micam.web.app import create_app
 from micam.web.hosts import ServedHosts
 
@@ -64,3 +66,42 @@ def test_every_refusal_of_a_route_says_why() -> None:
     ):
         reply = client.request(method, path)
         assert reply.status_code == status and why in reply.json()["error"], (path, reply.text)
+
+
+def _view(bridge: FakeBridge, args: dict) -> tuple[int, dict]:
+    app = create_app(bridge, None, ServedHosts(PORT, "127.0.0.1"), 5.0)
+    reply = TestClient(app, base_url=f"http://{HOST}").post(
+        "/api/command", json={"command": "live.view", "args": args})
+    return reply.status_code, reply.json()
+
+
+def test_the_live_view_is_changed_within_its_bounds_and_refused_beyond() -> None:
+    bridge = FakeBridge()
+    assert bridge.live_stream is not None
+    status, data = _view(bridge, {"band_hz": 2000, "fraction": 1, "range_db": 30})
+    assert status == 200 and data["result"]["band_hz"] == 2000.0, data
+    assert bridge.live_stream.settings == LiveSettings(band_hz=2000.0, fraction=1,
+                                                       dynamic_range_db=30.0)
+    status, data = _view(bridge, {"band_hz": 3150})  # an octave view has no such band
+    assert status == 400 and "not a octave centre" not in data["error"], data
+    assert "3150 is not an octave centre; the nearest is 4000 Hz" in data["error"], data
+    status, data = _view(bridge, {"band_hz": 3150, "fraction": 3})  # a rounded centre
+    assert status == 200 and data["result"]["band_hz"] == pytest.approx(3174.8, abs=0.1)
+    for args, why in (({"range_db": 500}, "range_db 500 is not a number from 3 to 60"),
+                      ({"range_db": "30"}, "range_db '30' is not a number"),
+                      ({"depth_m": True}, "depth_m True is not a number"),
+                      ({"band_hz": 3000, "fraction": 3}, "the nearest is 3175 Hz"),
+                      ({"fraction": 2}, "1 (octave) or 3 (third octave)"),
+                      ({"fraction": 2.9}, "fraction 2.9: 1 (octave) or 3"),
+                      ({"window_s": 1}, "live.view takes the arguments")):
+        before = bridge.live_stream.settings
+        status, data = _view(bridge, args)
+        assert status == 400 and why in data["error"], (args, data)
+        assert bridge.live_stream.settings == before  # nothing changed
+
+
+def test_a_page_without_live_maps_says_how_to_have_them() -> None:
+    bridge = FakeBridge()
+    bridge.live_stream = None  # micam web without --geometry
+    status, data = _view(bridge, {"band_hz": 2000})
+    assert status == 409 and "--geometry" in data["error"]
