@@ -150,8 +150,9 @@ def _tof_residuals(n_poses: int, boards: int) -> TofResiduals:
                         tuple(f"1600{k * boards // mics}" for k in range(mics)))
 
 
+@pytest.mark.slow  # about 1.3 s: the figure is laid out twice (the board legend's height)
 def test_tof_residuals_count_poses_in_whole_numbers_and_name_every_board() -> None:
-    data = _tof_residuals(n_poses=11, boards=9)  # 0-10: matplotlib ticked 2.5, 7.5
+    data = _tof_residuals(n_poses=16, boards=9)  # 0-15: matplotlib ticked 2.5, 7.5, ...
     fig = tof_residual_figure(data)
     assert_readable(fig)
     per_pose = next(ax for ax in fig.axes if ax.get_title() == "RMS per pose")
