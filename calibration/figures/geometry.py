@@ -31,7 +31,7 @@ from matplotlib.patches import Ellipse
 from matplotlib.ticker import MaxNLocator
 from matplotlib.transforms import Bbox
 
-from .style import MINUS, PAGE_IN, PALETTE, TIMES, new_figure, styled
+from .style import MINUS, PAGE_IN, PALETTE, TIMES, new_figure, nice_factor, styled
 
 CHI2_95_2D = 5.991
 """Squared radius of the 95 % ellipse of a 2-D normal distribution, in standard deviations."""
@@ -85,15 +85,6 @@ AXIS_NAMES = "xyz"
 def _extent(points: np.ndarray) -> float:
     """The largest side of the bounding box of points (N, k), NaN rows ignored."""
     return float(np.max(np.nanmax(points, axis=0) - np.nanmin(points, axis=0)))
-
-
-def nice_factor(value: float) -> float:
-    """The largest 1, 2 or 5 times a power of ten not above `value` (> 0)."""
-    exponent = np.floor(np.log10(value))
-    for mantissa in (5.0, 2.0, 1.0):
-        if mantissa * 10**exponent <= value:
-            return float(mantissa * 10**exponent)
-    return float(10 ** (exponent - 1) * 5)
 
 
 @dataclass(frozen=True)
@@ -262,7 +253,27 @@ def _draw_scene(ax: Axes, picture: ArrayPicture) -> None:
     ax.xaxis.set_major_locator(MaxNLocator(5))  # the stretched axis's labels stay inside
     ax.set_xlabel("x (m)")
     ax.set_ylabel("z (m, forward)")
-    ax.legend(loc="lower right", markerscale=2)
+
+
+def _scene_handles(picture: ArrayPicture) -> list[Artist]:
+    """The scene view's markers, for the figure's legend (a legend inside the view would
+    cover the array or the speakers, which fill it)."""
+    handles: list[Artist] = [Line2D([], [], marker="o", ls="none", color=PALETTE[0], ms=3,
+                                    label="microphone (scene view)")]
+    if picture.sources_m is not None and len(picture.sources_m):
+        handles.append(Line2D([], [], marker="o", ls="none", color=PALETTE[4], ms=3,
+                              label="speaker position (scene view)"))
+    return handles
+
+
+def _freeze_limits(ax: Axes) -> None:
+    """Keep the limits an equal-aspect "datalim" axes chose at the last draw and keep the
+    aspect by its box from now on: the layout then sees the tick labels of those limits (it
+    runs before "datalim" widens them, and a label at the new end would be cut off)."""
+    x, y = ax.get_xlim(), ax.get_ylim()
+    ax.set_aspect("equal", adjustable="box")
+    ax.set_xlim(x)
+    ax.set_ylim(y)
 
 
 @styled
@@ -284,6 +295,7 @@ def geometry_figure(picture: ArrayPicture) -> Figure:
         _label_cameras(ax, picture.cameras, i, j, 1e3 * 0.04 * extent)
     axes[1, 1].set_title("scene, top view")
     axes[1, 1].set_gid("view-scene")
+    _freeze_limits(axes[1, 1])
     handles: list[Artist] = [Line2D([], [], marker="o", ls="none", mfc="none", mec="0.35", ms=4,
                       label=picture.reference_label if picture.reference_m is not None
                       else "calibrated position")]
@@ -300,6 +312,7 @@ def geometry_figure(picture: ArrayPicture) -> Figure:
     if not all(c.calibrated for c in picture.cameras):
         handles.append(Line2D([], [], marker="s", ls="none", mfc="white", mec="k", ms=4,
                               label=f"camera not calibrated ({picture.reference_label})"))
+    handles += _scene_handles(picture)
     fig.legend(handles=handles, loc="outside lower center", ncol=2)
     title = f"{len(positions)} microphones in the camera-0 frame"
     if errors is not None:

@@ -5,7 +5,7 @@ The recording's band CSM (with the settings' simulated error and correction, see
 camera sees of it (`overlay.field_of_view_grid`) and deconvolved by CLEAN-SC; the
 delay-and-sum map and the CLEAN-SC point sources are drawn over the image
 (`figures.maps.acoustic_map_figure`), with the speakers where the geometry (the camera) places
-them.
+them and a scale bar of the image's scale at the playing speaker (`pixels_per_metre`).
 """
 
 from __future__ import annotations
@@ -22,10 +22,11 @@ from ..errors import CalibrationInputError
 from ..imaging.beamform import beamform_csm
 from ..imaging.cleansc import CleanScOptions, clean_sc
 from ..imaging.evaluate import ImagingSettings, bin_spectra, geometry_steering, mic_signals
-from ..imaging.geometry import ArrayGeometry
+from ..imaging.geometry import ArrayGeometry, CameraView
+from ..imaging.grid import PlaneGrid
 from ..imaging.overlay import clean_sources, field_of_view_grid, map_to_image
 from ..imaging.steering import Formulation
-from .maps import MapPanel, acoustic_map_figure
+from .maps import MapPanel, ScaleBar, acoustic_map_figure
 
 
 @dataclass(frozen=True)
@@ -52,6 +53,17 @@ class RecordingMap:
     spacing_m: float
     n_components: int
     speaker_in_view: bool
+
+
+def pixels_per_metre(view: CameraView, grid: PlaneGrid, at_m: np.ndarray,
+                     step_m: float = 0.01) -> float:
+    """The camera's image scale on the grid's plane at `at_m` (camera-0 frame): the square
+    root of the image area (pixels^2) of a small square of the plane over its area (m^2): the
+    geometric mean of the scales along the plane's two directions, which perspective makes
+    differ."""
+    px = view.project(np.array([at_m, at_m + step_m * grid.u_axis, at_m + step_m * grid.v_axis]))
+    a, b = px[1] - px[0], px[2] - px[0]
+    return float(np.sqrt(abs(a[0] * b[1] - a[1] * b[0])) / step_m)
 
 
 def recording_map(reader: SessionReader, geometry: ArrayGeometry, pose: int, speaker: int,
@@ -92,7 +104,9 @@ def recording_map(reader: SessionReader, geometry: ArrayGeometry, pose: int, spe
                 MapPanel(f"CLEAN-SC: {len(clean.components)} components at {len(points)} "
                          f"point{'s' if len(points) > 1 else ''}", None, sources_px, powers)],
         speakers_px, speaker, dynamic_range_db, "\n".join([title, "; ".join(notes)]
-                                                           if notes else [title]))
+                                                           if notes else [title]),
+        ScaleBar(pixels_per_metre(view, grid, board.speakers_m[speaker]),
+                 "at the playing speaker"))
     node = int(np.argmax(clean.clean_map))
     target = board.speakers_m[speaker]
     return RecordingMap(figure, speakers_px, sources_px,

@@ -14,7 +14,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from ..study import PAPER_TABLE_II_MM, PAPER_TABLE_II_SOURCES
-from .style import PAGE_IN, PALETTE, new_figure, styled
+from .style import PAGE_IN, PALETTE, new_figure, plain_log_ticks, styled
 
 
 def paper_range_for(band_m: tuple[float, float]) -> tuple[float, float] | None:
@@ -28,7 +28,8 @@ def paper_range_for(band_m: tuple[float, float]) -> tuple[float, float] | None:
 @styled
 def study_figure(results: list[dict]) -> Figure:
     """The figure from `micam study`'s results (study.json: per band "band_m" and "rows" of
-    `StudyRow.to_json()`); panels share their log axes, gid "band-<k>"."""
+    `StudyRow.to_json()`); panels share their log axes (ticks at 1, 2 and 5 times the powers
+    of ten, labelled as plain numbers), gid "band-<k>"."""
     n = max(len(results), 1)
     fig = new_figure(PAGE_IN, 3.1)
     axes = np.atleast_1d(fig.subplots(1, n, sharex=True, sharey=True))
@@ -57,6 +58,8 @@ def study_figure(results: list[dict]) -> Figure:
             title += f" (paper: {paper[0]:.1f}-{paper[1]:.1f} m)"
         ax.set_xscale("log")
         ax.set_yscale("log")
+        plain_log_ticks(ax.xaxis)  # source counts and millimetres, as numbers
+        plain_log_ticks(ax.yaxis)
         ax.grid(True, which="major")
         ax.set_title(title)
         ax.set_xlabel("sources")

@@ -19,13 +19,17 @@ from pathlib import Path
 from typing import Any
 
 import matplotlib
+import numpy as np
 from PIL import Image
 
 matplotlib.use("Agg")  # headless: figures are drawn on servers without a display
 import matplotlib.pyplot as plt
 import matplotlib.style
+from matplotlib.axis import Axis
+from matplotlib.colors import to_hex
 from matplotlib.figure import Figure
 from matplotlib.rcsetup import cycler
+from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
 from acquisition.contracts.session import write_atomic
 
@@ -43,6 +47,20 @@ PALETTE = ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#0
            "#999999")
 """Okabe-Ito colours (blue, vermillion, green, purple, orange, sky blue, black) and a grey;
 their yellow is left out, too pale on white."""
+
+WIDE_PALETTE = "tab20"
+"""Categories beyond `PALETTE`'s eight (a rig's nine boards): matplotlib's 20 distinct colours,
+so that no two share one."""
+
+
+def category_colours(n: int) -> list[str]:
+    """n distinct colours for n categories: `PALETTE` when it has enough, else
+    `WIDE_PALETTE` (repeating only beyond its 20)."""
+    if n <= len(PALETTE):
+        return list(PALETTE[:n])
+    wide = matplotlib.colormaps[WIDE_PALETTE]
+    return [to_hex(wide(k % wide.N)) for k in range(n)]
+
 
 TIMES = "\u00d7"
 """The multiplication sign, for magnifications in labels."""
@@ -81,6 +99,25 @@ def new_figure(width_in: float = PAGE_IN, height_in: float = 3.0, **kwargs) -> F
     with matplotlib.style.context(RC):
         fig = plt.figure(figsize=(width_in, height_in), layout="constrained", **kwargs)
     return fig
+
+
+def nice_factor(value: float) -> float:
+    """The largest 1, 2 or 5 times a power of ten not above `value` (> 0)."""
+    exponent = np.floor(np.log10(value))
+    for mantissa in (5.0, 2.0, 1.0):
+        if mantissa * 10**exponent <= value:
+            return float(mantissa * 10**exponent)
+    return float(10 ** (exponent - 1) * 5)
+
+
+def plain_log_ticks(axis: Axis) -> None:
+    """Label a log axis at 1, 2 and 5 times the powers of ten, as plain numbers ("0.5", "20"),
+    and its other minor ticks without labels: matplotlib's default labels minor ticks as
+    "3x10^0" when an axis spans less than a decade or two, and they overlap."""
+    axis.set_major_locator(LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))
+    axis.set_major_formatter(FuncFormatter(lambda value, _: f"{value:g}"))
+    axis.set_minor_locator(LogLocator(base=10.0, subs=tuple(range(2, 10))))
+    axis.set_minor_formatter(NullFormatter())
 
 
 def styled(function):

@@ -362,25 +362,51 @@ function renderHint() {
   const side = hint.azimuth_deg >= 0 ? "right" : "left", up = hint.elevation_deg >= 0 ? "up" : "down";
   box.append(el("p", { id: "hint-text" }, `Next pose: ${hint.distance_m.toFixed(2)} m, ${Math.abs(hint.azimuth_deg).toFixed(0)}° ${side}, ` +
     `${Math.abs(hint.elevation_deg).toFixed(0)}° ${up} (dashed outline on ${state.describe.cameras[0]}; predicted ${mm(hint.predicted_accuracy_m)})`));
-  // Coverage in angle and distance: the poses taken (dots) and the suggestion (ring).
-  const taken = live.poses_taken || [];
-  const chart = svg("svg", { viewBox: "0 0 300 120", class: "coverage-chart", "aria-label": "coverage" });
-  chart.append(svg("text", { x: 4, y: 12, class: "axis" }, "azimuth / elevation (deg)"), svg("text", { x: 164, y: 12, class: "axis" }, "distance (m)"));
-  const ax = (a) => 70 + a * 2, ay = (e) => 66 - e * 2;
-  chart.append(svg("rect", { x: 10, y: 20, width: 120, height: 92, class: "frame" }));
+  box.append(drawCoverage(hint, live.poses_taken || []));
+}
+
+function drawCoverage(hint, taken) {
+  // Coverage in angle and distance: the poses taken (dots) and the suggestion (ring), on
+  // axes with round, labelled ticks. Azimuth and elevation share one scale (a degree is as
+  // long either way), wide enough for every pose: at least +-30 deg by +-20 deg, the grid the
+  // suggestions come from.
+  const chart = svg("svg", { viewBox: "0 0 300 150", class: "coverage-chart", "aria-label": "coverage" });
+  const poses = taken.concat([hint]);
+  const reach = (key, least) => Math.max(least, ...poses.map((p) => Math.ceil(Math.abs(p[key]) / 10) * 10));
+  const azR = reach("azimuth_deg", 30), elR = reach("elevation_deg", 20);
+  const left = 36, right = 156, top = 24, bottom = 110, cx = (left + right) / 2, cy = (top + bottom) / 2;
+  const pad = 1.12;  // the frame a little beyond the outer ticks: the corner's labels apart
+  const s = Math.min((right - left) / (2 * pad * azR), (bottom - top) / (2 * pad * elR));
+  const ax = (a) => cx + a * s, ay = (e) => cy - e * s;
+  const x0 = ax(-pad * azR), y0 = ay(pad * elR), y1 = ay(-pad * elR);
+  chart.append(svg("rect", { x: x0, y: y0, width: 2 * pad * azR * s, height: y1 - y0, class: "frame", id: "coverage-angles" }));
+  for (const t of niceTicks(-azR, azR, 4, 1).values) {
+    chart.append(svg("line", { x1: ax(t), y1: y1, x2: ax(t), y2: y1 + 3, class: "frame tick" }));
+    chart.append(svg("text", { x: ax(t), y: y1 + 13, class: "axis tick-label azimuth", "text-anchor": "middle" }, t.toFixed(0)));
+  }
+  for (const t of niceTicks(-elR, elR, 4, 1).values) {
+    chart.append(svg("line", { x1: x0 - 3, y1: ay(t), x2: x0, y2: ay(t), class: "frame tick" }));
+    chart.append(svg("text", { x: x0 - 5, y: ay(t) + 3, class: "axis tick-label elevation", "text-anchor": "end" }, t.toFixed(0)));
+  }
+  chart.append(svg("text", { x: cx, y: y1 + 27, class: "axis", "text-anchor": "middle" }, "azimuth (deg, right +)"));
+  chart.append(svg("text", { x: 4, y: y0 - 8, class: "axis" }, "elevation (deg, up +)"));
+  // Distance: one axis from 0, its ticks round metres.
   const dmax = Math.max(hint.distance_m, ...taken.map((p) => p.distance_m)) * 1.15;
-  const dx = (d) => 160 + 130 * d / dmax;
-  chart.append(svg("line", { x1: 160, y1: 66, x2: 290, y2: 66, class: "frame" }));
+  const dx = (d) => 180 + 110 * d / dmax;
+  chart.append(svg("line", { x1: dx(0), y1: cy, x2: dx(dmax), y2: cy, class: "frame" }));
+  const dTicks = niceTicks(0, dmax, 4);
+  for (const t of dTicks.values) {
+    chart.append(svg("line", { x1: dx(t), y1: cy, x2: dx(t), y2: cy + 3, class: "frame tick" }));
+    chart.append(svg("text", { x: dx(t), y: cy + 14, class: "axis tick-label distance", "text-anchor": "middle" }, t.toFixed(dTicks.decimals)));
+  }
+  chart.append(svg("text", { x: dx(dmax / 2), y: cy + 28, class: "axis", "text-anchor": "middle" }, "distance (m)"));
   for (const p of taken) {
     chart.append(svg("circle", { cx: ax(p.azimuth_deg), cy: ay(p.elevation_deg), r: 3, class: "taken" }));
-    chart.append(svg("circle", { cx: dx(p.distance_m), cy: 66, r: 3, class: "taken" }));
+    chart.append(svg("circle", { cx: dx(p.distance_m), cy: cy, r: 3, class: "taken" }));
   }
   chart.append(svg("circle", { cx: ax(hint.azimuth_deg), cy: ay(hint.elevation_deg), r: 6, class: "suggested" }));
-  chart.append(svg("circle", { cx: dx(hint.distance_m), cy: 66, r: 6, class: "suggested" }));
-  for (const d of [0.5, 1, 1.5, 2, 3].filter((d) => d < dmax)) {
-    chart.append(svg("text", { x: dx(d) - 6, y: 86, class: "axis" }, String(d)));
-  }
-  box.append(chart);
+  chart.append(svg("circle", { cx: dx(hint.distance_m), cy: cy, r: 6, class: "suggested" }));
+  return chart;
 }
 
 // -- levels ----------------------------------------------------------------------------------

@@ -138,6 +138,7 @@ def test_a_whole_session_from_the_page(stack: Stack, chromium: type[Chromium],
         assert len(points) == 4
         assert all(0 <= x <= width and 0 <= y <= height for x, y in points), points
         assert "Next pose:" in b.driver.find_element(By.ID, "hint-text").text
+        _coverage_chart_is_labelled(b)
         b.driver.save_screenshot(str(screenshots / "session.png"))
 
         b.driver.find_element(By.ID, "stop").click()
@@ -174,6 +175,31 @@ def test_a_whole_session_from_the_page(stack: Stack, chromium: type[Chromium],
         _a_second_session_shows_nothing_of_the_first(b, stack, screenshots)
     finally:
         b.close()
+
+
+COVERAGE_TICKS = """return Object.fromEntries(['azimuth', 'elevation', 'distance'].map((axis) =>
+  [axis, [...document.querySelectorAll('.coverage-chart .tick-label.' + axis)].map((t) => {
+    const b = t.getBBox(); return [t.textContent, b.x, b.y, b.x + b.width, b.y + b.height]; })]))"""
+
+
+def _coverage_chart_is_labelled(b: Chromium) -> None:
+    """The hint's coverage chart: azimuth and elevation (and distance) ticks with labels,
+    round, distinct, 0 among them, none on another or outside the chart."""
+    ticks = b.js(COVERAGE_TICKS)
+    width, height = b.js("const v = document.querySelector('.coverage-chart').viewBox.baseVal;"
+                         " return [v.width, v.height]")
+    boxes = []
+    for axis in ("azimuth", "elevation", "distance"):
+        labels = [t[0] for t in ticks[axis]]
+        assert len(labels) >= 3 and len(set(labels)) == len(labels), (axis, labels)
+        values = [float(v) for v in labels]
+        assert values == sorted(values) and 0.0 in values, (axis, labels)
+        boxes += [t[1:] for t in ticks[axis]]
+    assert all(0 <= x0 and x1 <= width and 0 <= y0 and y1 <= height
+               for x0, y0, x1, y1 in boxes), boxes
+    crowded = [(p, q) for k, p in enumerate(boxes) for q in boxes[k + 1:]
+               if p[0] < q[2] and q[0] < p[2] and p[1] < q[3] and q[1] < p[3]]
+    assert not crowded, crowded
 
 
 NOTHING_OF_A_SESSION = """(() => {
