@@ -23,6 +23,7 @@ import sys
 import uuid
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
+from pathlib import PurePath
 from typing import TYPE_CHECKING, Any
 
 from acquisition.contracts.errors import UserError
@@ -148,7 +149,8 @@ class ClusterMap:
 
         if not jobs:
             return
-        futures = submit(self.client, _call, [(function, *job) for job in jobs],
+        calls = [(function, *job) for job in _shared(self.client, jobs)]
+        futures = submit(self.client, _call, calls,
                          [f"{self.name}-{i}" for i in range(len(jobs))], self.retries)
         try:
             for i, future in enumerate(futures):
@@ -164,6 +166,21 @@ class ClusterMap:
                 yield result
         finally:
             self.client.cancel(futures)
+
+
+def _shared(client: Client, jobs: Sequence[tuple[Any, ...]]) -> list[tuple[Any, ...]]:
+    """The jobs with each argument that all of them share (the same object, e.g. the
+    measurements of `cross_validate`'s calibrations) sent to the cluster once
+    (`Client.scatter`) and passed as its future, instead of pickled into every task."""
+    first = jobs[0]
+    common = [i for i, value in enumerate(first) if len(jobs) > 1
+              and not isinstance(value, (type(None), bool, int, float, str, PurePath))
+              and all(len(job) == len(first) and job[i] is value for job in jobs)]
+    if not common:
+        return list(jobs)
+    sent = dict(zip(common, client.scatter([first[i] for i in common], hash=False),
+                    strict=True))
+    return [tuple(sent.get(i, value) for i, value in enumerate(job)) for job in jobs]
 
 
 @contextlib.contextmanager
