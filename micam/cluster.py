@@ -173,9 +173,11 @@ def _shared(client: Client, jobs: Sequence[tuple[Any, ...]]) -> list[tuple[Any, 
     measurements of `cross_validate`'s calibrations) sent to the cluster once
     (`Client.scatter`) and passed as its future, instead of pickled into every task."""
     first = jobs[0]
-    common = [i for i, value in enumerate(first) if len(jobs) > 1
-              and not isinstance(value, (type(None), bool, int, float, str, PurePath))
-              and all(len(job) == len(first) and job[i] is value for job in jobs)]
+    if len(jobs) < 2 or any(len(job) != len(first) for job in jobs):
+        return list(jobs)
+    common = [i for i, value in enumerate(first)
+              if not isinstance(value, (type(None), bool, int, float, str, PurePath))
+              and all(job[i] is value for job in jobs)]
     if not common:
         return list(jobs)
     sent = dict(zip(common, client.scatter([first[i] for i in common], hash=False),

@@ -104,6 +104,7 @@ def cross_validate(session: Path, folds: int, settings: ImagingSettings | None =
     """
     settings = settings or ImagingSettings()
     options = options or CalibrationOptions()
+    session = Path(session).absolute()  # a mapper's workers may run in another directory
     reader = SessionReader(session)
     m = measure(session, options)
     numbers = [pose_index(p.step) for p in m.speakers.poses]
