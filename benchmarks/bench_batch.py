@@ -25,7 +25,7 @@ from pathlib import Path
 
 from micam.batch import run_batch
 from micam.batch.cells import plan_cells, portable_options, run_cell
-from micam.batch.runner import local_cluster_config
+from micam.cluster import local_cluster_config
 from micam.commands.calibrate import calibration_options
 from micam.simulated import record_simulated_session
 from sim.capture import SimulationOptions

@@ -24,6 +24,12 @@ the metric scale and c are confounded, which the "all, no air sensor" row shows)
     .venv/bin/python benchmarks/bench_real_lab.py [--poses 20] [--seeds 1] [--keep DIR]
     .venv/bin/python benchmarks/bench_real_lab.py --rows all --poses 30 --seeds 1 2 3 4 5
     .venv/bin/python benchmarks/bench_real_lab.py --rows all --poses 140 --seeds 1
+    .venv/bin/python benchmarks/bench_real_lab.py --rows all ideal --seeds 1 2 --workers 2
+
+Each cell (a row and a seed) is a task on a Dask cluster with --workers N (a local one) or
+--scheduler ADDRESS (whose workers must see --keep at the same path), as `micam study` runs
+its bands (micam.cluster); the same numbers as one after another in one process with one
+BLAS thread, but for the run times.
 
 Printed as a markdown table, written as JSON to benchmarks/results/real_lab.json (or --out).
 """
@@ -41,6 +47,7 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import chi2
 
+from micam.cluster import cluster_map
 from micam.simulated import record_simulated_session
 from calibration.coverage import coverage
 from calibration.crlb import expected_error_norm
@@ -117,6 +124,15 @@ def figures(path: Path, truth: dict, options: CalibrationOptions) -> dict:
     return out
 
 
+def budget_row(directory: Path, row: str, poses: int, seed: int) -> dict:
+    """One cell of the budget: the row's session (simulated, or kept from an earlier run)
+    calibrated with the model off and on."""
+    path, truth = session(directory, row, poses, seed)
+    return {"row": row, "magnitude": MAGNITUDES[row], "poses": poses, "seed": seed,
+            "off": figures(path, truth, MODEL_OFF),
+            "on": figures(path, truth, CalibrationOptions())}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rows", nargs="+", default=ROWS, choices=ROWS, metavar="ROW",
@@ -125,30 +141,33 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, nargs="+", default=[1])
     parser.add_argument("--keep", type=Path, default=None,
                         help="keep the simulated sessions here (and reuse them)")
+    parser.add_argument("--workers", type=int, default=None,
+                        help="run the cells (row x seed) on a local Dask cluster of N processes "
+                             "(default: one after another here)")
+    parser.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                        help="run the cells on this Dask scheduler (its workers must see --keep)")
     parser.add_argument("--out", type=Path,
                         default=Path(__file__).parent / "results" / "real_lab.json")
     args = parser.parse_args()
     results = []
-    with tempfile.TemporaryDirectory() as tmp:
-        directory = args.keep or Path(tmp)
+    with tempfile.TemporaryDirectory() as tmp, \
+            cluster_map("real-lab", args.scheduler, args.workers) as mapper:
+        directory = (args.keep or Path(tmp)).absolute()
         directory.mkdir(parents=True, exist_ok=True)
-        for row in args.rows:
-            for seed in args.seeds:
-                path, truth = session(directory, row, args.poses, seed)
-                entry = {"row": row, "magnitude": MAGNITUDES[row], "poses": args.poses,
-                         "seed": seed, "off": figures(path, truth, MODEL_OFF),
-                         "on": figures(path, truth, CalibrationOptions())}
-                results.append(entry)
-                on, off = entry["on"], entry["off"]
-                print(f"| {row} | {MAGNITUDES[row]} | {seed} | {off['mean_mic_error_mm']:.3f} "
-                      f"| {on['mean_mic_error_mm']:.3f} ({on['max_mic_error_mm']:.3f}) "
-                      f"| {off['speed_of_sound_error_m_s']:+.3f} "
-                      f"| {on['speed_of_sound_error_m_s']:+.3f} | {on['within_2_sigma']:.2f} "
-                      f"| {on.get('relative_within_2_sigma', np.nan):.2f} "
-                      f"| {on.get('common_motion_chi2', np.nan):.1f} "
-                      f"| {on['bound_mean_error_mm']:.3f} | {on['calibration_s']:.1f} "
-                      f"| {on['weighting']} ({on['echo_ratio']:.3f}) |",
-                      flush=True)
+        jobs = [(directory, row, args.poses, seed) for row in args.rows for seed in args.seeds]
+        for entry in (mapper(budget_row, jobs) if mapper else (budget_row(*j) for j in jobs)):
+            results.append(entry)
+            on, off = entry["on"], entry["off"]
+            print(f"| {entry['row']} | {entry['magnitude']} | {entry['seed']} "
+                  f"| {off['mean_mic_error_mm']:.3f} "
+                  f"| {on['mean_mic_error_mm']:.3f} ({on['max_mic_error_mm']:.3f}) "
+                  f"| {off['speed_of_sound_error_m_s']:+.3f} "
+                  f"| {on['speed_of_sound_error_m_s']:+.3f} | {on['within_2_sigma']:.2f} "
+                  f"| {on.get('relative_within_2_sigma', np.nan):.2f} "
+                  f"| {on.get('common_motion_chi2', np.nan):.1f} "
+                  f"| {on['bound_mean_error_mm']:.3f} | {on['calibration_s']:.1f} "
+                  f"| {on['weighting']} ({on['echo_ratio']:.3f}) |",
+                  flush=True)
     report = {"results": results, "machine": {"cpus": os.cpu_count(),
                                               "python": platform.python_version()}}
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -20,6 +20,7 @@ beamforming (`ImagingSettings.correction`, see `csm_calibration`).
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
 from itertools import pairwise
@@ -37,7 +38,7 @@ from .csm import CrossSpectra, WelchOptions, band_bins, cross_spectra, octave_ba
 from .csm_calibration import ChannelResponses, apply_responses, correct_csm, eigen_calibration
 from .geometry import ArrayGeometry, BoardPose
 from .grid import PlaneGrid
-from .parallel import run_in_processes
+from .parallel import Mapper, run_in_processes
 from .steering import Formulation, SteeringModel
 
 DISTANCE_BINS_M = (0.0, 0.6, 1.0, 1.5, 2.0, 3.0, np.inf)
@@ -396,7 +397,8 @@ def evaluate_session(reader: SessionReader, geometry: ArrayGeometry,
                      progress: Callable[[int, int], None] | None = None,
                      workers: int | None = 1, poses: Iterable[int] | None = None,
                      skip: Iterable[tuple[int, int]] = (),
-                     truth: ArrayGeometry | None = None) -> Evaluation:
+                     truth: ArrayGeometry | None = None,
+                     mapper: Mapper | None = None) -> Evaluation:
     """Localize every speaker recording of every completed pose step (paper VI-A).
 
     Args:
@@ -409,6 +411,8 @@ def evaluate_session(reader: SessionReader, geometry: ArrayGeometry,
             from, which would score itself).
         truth: a simulated session's truth: each error is also measured against the true
             speaker positions (`Localization.error_truth_m`).
+        mapper: runs the poses elsewhere instead, e.g. on a Dask cluster (`workers` is
+            then unused): the same localizations, bit for bit, as here.
     """
     settings = settings or ImagingSettings()
     left_out = set(skip)
@@ -422,10 +426,12 @@ def evaluate_session(reader: SessionReader, geometry: ArrayGeometry,
                      for pose in by_pose}
     total = sum(len(r) for r in by_pose.values())
     n_processes = min(resolve_workers(workers), len(by_pose))
-    if n_processes > 1:
+    if mapper is None and n_processes > 1:
+        mapper = functools.partial(run_in_processes, workers=n_processes)
+    if mapper is not None:
         jobs = [(Path(reader.path), geometry, settings, pose, recordings, true_speakers[pose])
                 for pose, recordings in by_pose.items()]
-        results = run_in_processes(_evaluate_pose_in_worker, jobs, n_processes)
+        results: Iterable[list[Localization]] = mapper(_evaluate_pose_in_worker, jobs)
     else:
         results = (_evaluate_pose(reader, geometry, settings, pose, recordings,
                                   true_speakers[pose])

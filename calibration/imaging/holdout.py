@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -24,7 +24,13 @@ from acquisition.contracts.session import SessionReader
 from acquisition.contracts.step_ids import pose_index
 
 from ..errors import CalibrationInputError
-from ..pipeline import CalibrationOptions, CalibrationRun, calibrate_measured, measure
+from ..pipeline import (
+    CalibrationOptions,
+    CalibrationRun,
+    Measurements,
+    calibrate_measured,
+    measure,
+)
 from .evaluate import (
     Evaluation,
     ImagingSettings,
@@ -33,9 +39,14 @@ from .evaluate import (
     session_recordings,
 )
 from .geometry import ArrayGeometry, geometry_from_dict
+from .parallel import Mapper
 
 MIN_TRAINING_POSES = 2
 """Poses each fold's calibration needs at least (12 sources: the joint fit's minimum)."""
+
+FoldJob = tuple[Path, Measurements, CalibrationOptions, np.ndarray | None, list[int],
+                ImagingSettings, ArrayGeometry | None]
+"""The arguments of one `calibrate_and_image`: a cell of `cross_validate`."""
 
 
 @dataclass(frozen=True)
@@ -79,7 +90,7 @@ def geometry_of(run: CalibrationRun) -> ArrayGeometry:
 def cross_validate(session: Path, folds: int, settings: ImagingSettings | None = None,
                    options: CalibrationOptions | None = None, truth: ArrayGeometry | None = None,
                    progress: Callable[[int, int], None] | None = None,
-                   workers: int | None = 1) -> CrossValidation:
+                   workers: int | None = 1, mapper: Mapper | None = None) -> CrossValidation:
     """In-sample and k-fold held-out CLEAN-SC localization of a session (module docstring).
 
     Args:
@@ -87,9 +98,13 @@ def cross_validate(session: Path, folds: int, settings: ImagingSettings | None =
         truth: a simulated session's truth, to measure errors against it too.
         progress: called with (done, total) recordings over both evaluations.
         workers: processes for the imaging (see `evaluate_session`).
+        mapper: runs the k + 1 calibrations, each with the imaging of its poses, elsewhere
+            (e.g. as tasks on a Dask cluster; `workers` is then unused): the same numbers,
+            bit for bit, as here. The measurements are still made here, once.
     """
     settings = settings or ImagingSettings()
     options = options or CalibrationOptions()
+    session = Path(session).absolute()  # a mapper's workers may run in another directory
     reader = SessionReader(session)
     m = measure(session, options)
     numbers = [pose_index(p.step) for p in m.speakers.poses]
@@ -97,26 +112,36 @@ def cross_validate(session: Path, folds: int, settings: ImagingSettings | None =
     split = fold_poses(located, folds)
     recorded = {pose: len(r) for pose, r in session_recordings(reader).items()}
     total = 2 * sum(recorded.get(pose, 0) for pose in located)
+    fold_options = replace(options, responses=False)  # not imaged with: not estimated
+    jobs: list[FoldJob] = [(session, m, options, None, located, settings, truth)] + [
+        (session, m, fold_options, np.array([i for i, n in enumerate(numbers) if n not in test]),
+         test, settings, truth) for test in split]
     done = 0
 
-    def evaluate(geometry: ArrayGeometry, poses: list[int]) -> list[Localization]:
-        nonlocal done
-        offset = done
+    def step(count: int, _total: int) -> None:
+        if progress is not None:
+            progress(done + count, total)
 
-        def step(count: int, _total: int) -> None:
-            if progress is not None:
-                progress(offset + count, total)
-
-        rows = evaluate_session(reader, geometry, settings, step, workers, poses=poses,
-                                truth=truth).rows
-        done = offset + sum(recorded.get(pose, 0) for pose in poses)
-        return rows
-
-    in_sample = evaluate(geometry_of(calibrate_measured(m, options)), located)
-    held_out: list[Localization] = []
-    fold_options = replace(options, responses=False)  # not imaged with: not estimated
-    for test in split:
-        train = np.array([i for i, n in enumerate(numbers) if n not in test])
-        held_out += evaluate(geometry_of(calibrate_measured(m, fold_options, train)), test)
-    return CrossValidation(Evaluation(in_sample, settings), Evaluation(held_out, settings),
+    results: Iterable[list[Localization]] = (
+        mapper(calibrate_and_image, jobs) if mapper is not None else
+        (calibrate_and_image(*job, workers=workers, progress=step) for job in jobs))
+    evaluated: list[list[Localization]] = []
+    for job, rows in zip(jobs, results, strict=True):
+        evaluated.append(rows)
+        done += sum(recorded.get(pose, 0) for pose in job[4])
+        step(0, total)
+    return CrossValidation(Evaluation(evaluated[0], settings),
+                           Evaluation([r for rows in evaluated[1:] for r in rows], settings),
                            split)
+
+
+def calibrate_and_image(session: Path, m: Measurements, options: CalibrationOptions,
+                        train: np.ndarray | None, poses: list[int], settings: ImagingSettings,
+                        truth: ArrayGeometry | None, workers: int | None = 1,
+                        progress: Callable[[int, int], None] | None = None
+                        ) -> list[Localization]:
+    """One cell of `cross_validate`: the localizations of `poses`' recordings imaged with the
+    calibration from the located poses `train` (indices into `m.speakers.poses`; None: all)."""
+    geometry = geometry_of(calibrate_measured(m, options, train))
+    return evaluate_session(SessionReader(session), geometry, settings, progress, workers,
+                            poses=poses, truth=truth).rows

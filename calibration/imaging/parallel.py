@@ -20,13 +20,18 @@ from __future__ import annotations
 
 import functools
 import multiprocessing
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any
 
 from .._blas import single_threaded_blas
 from .._cores import resolve_workers
+
+Mapper = Callable[[Callable[..., Any], list[tuple[Any, ...]]], Iterable[Any]]
+"""Runs function(*job) for every job somewhere else, results in the jobs' order: a pool of
+this machine's processes (`run_in_processes` with its `workers` bound), or tasks on a Dask
+cluster (`micam.batch.cluster.ClusterMap`). The function and the jobs must pickle."""
 
 BLOCK_POINTS = 1024
 """Scan points per block (see the module docstring)."""

@@ -8,7 +8,6 @@ module importing micam.batch would make a cycle of the two packages).
 from __future__ import annotations
 
 import argparse
-import logging
 from pathlib import Path
 
 from acquisition.contracts.errors import UserError
@@ -57,14 +56,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import distributed  # noqa: F401  (sets up its loggers, which the next lines quieten)
-
     from .runner import run_calibrations
-
-    # Dask's own records (workers started and stopped) only at --log-level debug.
-    logging.getLogger("distributed").setLevel(max(args.log_level, logging.WARNING)
-                                              if args.log_level > logging.DEBUG else
-                                              logging.DEBUG)
 
     if args.scheduler is not None and args.workers is not None:
         raise UserError("--workers is for the local cluster; an existing cluster (--scheduler) "

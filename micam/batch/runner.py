@@ -5,7 +5,8 @@ Dask does the placement, the retries and the data movement: each session is one 
 thread each: a calibration is single-threaded where it matters, and processes keep their
 BLAS and OpenCV pools apart) or on an existing cluster (`scheduler`). A worker that dies (out
 of memory, killed, its machine gone) loses its task to another worker, up to the scheduler's
-`distributed.scheduler.allowed-failures` times (set to `retries` on the local cluster).
+`distributed.scheduler.allowed-failures` times (set to `retries` on the local cluster). The
+cluster and the tasks are `cluster`'s, which the studies' cells run through too.
 
 The sessions are read where they are: every worker must see the same paths (a shared file
 system), as it must see `out`. The batch is resumable: a cell an earlier run finished with
@@ -15,11 +16,9 @@ lost scheduler) is run again with the same command.
 
 from __future__ import annotations
 
-import contextlib
 import sys
 import traceback
-import uuid
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -37,6 +36,8 @@ from .cells import (
     run_cell,
     write_record,
 )
+from ..cluster import cluster, submit
+from ..cluster import dashboard as cluster_dashboard
 from .table import write_table
 
 if TYPE_CHECKING:
@@ -44,8 +45,6 @@ if TYPE_CHECKING:
 
 MAX_SESSIONS = 100_000
 """The most sessions one batch takes."""
-CONNECT_TIMEOUT_S = 10.0
-"""How long to wait for an existing scheduler to answer, s."""
 
 
 @dataclass(frozen=True)
@@ -130,8 +129,8 @@ def run_calibrations(sessions: Sequence[Path], out: Path, options: Mapping[str, 
                           file=sys.stderr)
 
         if todo:
-            with _client(scheduler, workers, retries) as client:
-                dashboard = _dashboard(client)
+            with cluster(scheduler, workers, retries) as client:
+                dashboard = cluster_dashboard(client)
                 if dashboard and progress:
                     bar.write(f"micam: batch: Dask dashboard at {dashboard}", file=sys.stderr)
                 _submit(client, todo, portable, reports, retries, done)
@@ -156,59 +155,15 @@ def _check_apart(cells: Sequence[Cell]) -> None:
                                 "outside the sessions' directories")
 
 
-@contextlib.contextmanager
-def _client(scheduler: str | None, workers: int, retries: int) -> Iterator[Client]:
-    """A client of the scheduler at `scheduler`, or of a new `LocalCluster` of `workers`
-    processes (one thread each), closed on exit."""
-    import dask
-    from distributed import Client, LocalCluster
-
-    if scheduler is not None:
-        try:
-            client = Client(scheduler, timeout=CONNECT_TIMEOUT_S)
-        except (OSError, TimeoutError, ValueError) as exc:
-            raise UserError(f"--scheduler {scheduler}: cannot reach a Dask scheduler there "
-                            f"({exc}); start one with `dask scheduler` and its workers with "
-                            "`dask worker ADDRESS`, or leave out --scheduler to use this "
-                            "machine") from None
-        with client:
-            yield client
-        return
-    with dask.config.set(local_cluster_config(retries)):
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True)
-    with cluster, Client(cluster) as client:
-        yield client
-
-
-def local_cluster_config(retries: int) -> dict[str, object]:
-    """Dask's configuration for micam's local cluster: `retries` deaths of a task's workers
-    allowed, and the nanny's environment for its workers (one-thread BLAS and OpenMP pools)
-    without its MALLOC_TRIM_THRESHOLD_, which makes glibc return freed memory at once: a
-    calibration allocates and frees large arrays all the time and took 1.7x longer with it
-    (0.92 s against 0.55 s, a 3-pose scatter48 session)."""
-    import dask
-
-    environ = dict(dask.config.get("distributed.nanny.pre-spawn-environ"))
-    environ.pop("MALLOC_TRIM_THRESHOLD_", None)
-    return {"distributed.scheduler.allowed-failures": retries,
-            "distributed.nanny.pre-spawn-environ": environ}
-
-
-def _dashboard(client: Client) -> str | None:
-    """The dashboard's address when the scheduler serves one (its plots need bokeh)."""
-    services = client.scheduler_info().get("services", {})
-    return str(client.dashboard_link) if "dashboard" in services else None
-
-
 def _submit(client: Client, cells: Sequence[Cell], options: Mapping[str, object],
             reports: bool, retries: int, done: Callable[[Cell, BatchRow], None]) -> None:
     """Run `cells` as tasks (one each, `retries` retries) and hand each row to `done` as
     its task ends."""
     from distributed import as_completed
 
-    token = uuid.uuid4().hex[:8]
-    futures = client.map(run_cell, cells, options=options, reports=reports, retries=retries,
-                         pure=False, key=[f"calibrate-{c.name}-{token}" for c in cells])
+    futures = submit(client, run_cell, [(c,) for c in cells],
+                     [f"calibrate-{c.name}" for c in cells], retries, options=options,
+                     reports=reports)
     by_key = {f.key: c for f, c in zip(futures, cells, strict=True)}
     for future in as_completed(futures):
         cell = by_key[future.key]

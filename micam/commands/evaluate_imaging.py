@@ -15,6 +15,7 @@ from tqdm import tqdm
 
 from acquisition.contracts.errors import UserError
 
+from ..cluster import cluster_map
 from ..outputs import check_outputs
 from . import imaging_options
 from .bounded import BAND_HZ, FRACTION, integer, number
@@ -60,6 +61,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="also draw the errors by band and their distribution as a PNG")
     p.add_argument("--workers", type=integer(1, 256), default=None, metavar="N",
                    help="processes the poses are shared over (default: all cores)")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="run the work as tasks on this Dask scheduler, e.g. tcp://HOST:8786, "
+                        "whose workers see SESSION at the same path: with --folds a task per "
+                        "calibration (and the imaging of its poses), else a task per pose "
+                        "(see docs/batch.md)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(run=run)
 
@@ -133,12 +139,18 @@ def run(args: argparse.Namespace) -> int:
              else None)
     geometry = (imaging_options.geometry_file("--geometry", args.geometry)
                 if args.geometry is not None else None)
+    if args.scheduler is not None and args.workers is not None:
+        raise UserError("--workers is the processes of this machine; with --scheduler the "
+                        "cluster's workers do the work")
+    if args.scheduler is not None:  # the workers may run in another directory
+        args.session = args.session.absolute()
     reader = SessionReader(args.session)
     settings = ImagingSettings(fraction=args.fraction, band_lo_hz=args.band_lo,
                                band_hi_hz=args.band_hi, spacing_m=args.spacing,
                                offset_seed=None if args.aligned_grid else 0)
     settings.band_centres()
-    with tqdm(unit="rec", disable=args.quiet, desc="imaging") as bar:
+    with (cluster_map("imaging", args.scheduler, None) as mapper,
+          tqdm(unit="rec", disable=args.quiet, desc="imaging") as bar):
         def progress(done: int, total: int) -> None:
             bar.total = total
             bar.update(done - bar.n)
@@ -147,7 +159,7 @@ def run(args: argparse.Namespace) -> int:
             n_mics = sum(c["role"] == "mic" for c in reader.capture["columns"])
             settings = imaging_options.with_simulated_error(args, settings, n_mics)
             cv = cross_validate(args.session, args.folds, settings, truth=truth,
-                                progress=progress, workers=args.workers)
+                                progress=progress, workers=args.workers, mapper=mapper)
             columns = {"in-sample": cv.in_sample, f"held-out ({args.folds} folds)":
                        cv.held_out}
             document = cv.to_json()
@@ -155,7 +167,7 @@ def run(args: argparse.Namespace) -> int:
             settings, skip, geometry = imaging_options.corrected_settings(
                 args, reader, geometry, settings)
             result = evaluate_session(reader, geometry, settings, progress, args.workers,
-                                      skip=skip, truth=truth)
+                                      skip=skip, truth=truth, mapper=mapper)
             columns = {"given calibration": result}
             document = result.to_json()
     for line in table(columns, args.spacing):

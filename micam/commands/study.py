@@ -2,7 +2,9 @@
 
 For every distance band, one session is simulated and measured once; the microphones are then
 solved from random subsets of N sources, and the mean error against the truth is tabulated
-beside the bound, as a table (Markdown), JSON and the paper's Fig. 14 (study.png).
+beside the bound, as a table (Markdown), JSON and the paper's Fig. 14 (study.png). A band is
+a cell (`study_band`): with --workers or --scheduler the bands run as tasks on a Dask cluster
+(micam.cluster), with the same numbers.
 """
 
 from __future__ import annotations
@@ -10,11 +12,16 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from acquisition.contracts.errors import UserError
 from .bounded import SEED, integer
 
+from ..cluster import cluster_map
 from ..outputs import check_output_dirs
+
+if TYPE_CHECKING:
+    from sim.capture import SimulationOptions
 
 DEFAULT_BANDS = ("0.4-0.6", "0.6-1.0", "1.0-1.5", "1.5-2.0")
 DEFAULT_SOURCES = (3, 6, 12, 18, 36, 48, 96, 180)
@@ -36,6 +43,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="order of the MLS bursts, a period of 2**order - 1 samples (default 14)")
     p.add_argument("--seed", type=SEED, default=0,
                    help="seed of the simulated world and of the subsets drawn (default 0)")
+    p.add_argument("--workers", type=integer(1, 256), default=None, metavar="N",
+                   help="run the bands as tasks on a local Dask cluster of N processes "
+                        "(default: one after another in this process); the same numbers")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="run the bands as tasks on this Dask scheduler, e.g. tcp://HOST:8786, "
+                        "whose workers see --out at the same path (see docs/batch.md)")
     p.set_defaults(run=run)
 
 
@@ -50,11 +63,9 @@ def _band(text: str) -> tuple[float, float]:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from micam.simulated import record_simulated_session
     from calibration.figures.study import study_figure
     from calibration.figures.style import save
-    from calibration.pipeline import measure
-    from calibration.study import PAPER_TABLE_II_MM, source_count_study, sources_needed
+    from calibration.study import PAPER_TABLE_II_MM
     from pydantic import ValidationError
 
     from sim.capture import SimulationOptions
@@ -64,27 +75,49 @@ def run(args: argparse.Namespace) -> int:
     if too_many:
         raise UserError(f"--sources {too_many} need more than the {args.poses} poses simulated")
     check_output_dirs(("--out", args.out))
-    args.out.mkdir(parents=True, exist_ok=True)
-    results = []
-    for i, band in enumerate(tqdm(bands, desc="bands", unit="band")):
-        session = args.out / f"band-{band[0]:.1f}-{band[1]:.1f}"
+    out = args.out.absolute()  # the workers of a cluster may run in another directory
+    jobs = []
+    for i, band in enumerate(bands):
         try:
             options = SimulationOptions(array=args.array, poses=args.poses, distance_m=band,
                                         seed=args.seed + i, mls_order=args.mls_order)
         except ValidationError as exc:
             raise UserError(f"band {band}: {exc}") from None
-        truth = record_simulated_session(session, options)
-        rows = source_count_study(measure(session), truth, args.sources, args.trials,
-                                  seed=args.seed)
-        results.append({"band_m": band, "rows": [r.to_json() for r in rows],
-                         "sources_needed": {str(k): v for k, v in sources_needed(rows).items()}})
-    (args.out / "study.json").write_text(json.dumps(results, indent=1))
+        jobs.append((out / f"band-{band[0]:.1f}-{band[1]:.1f}", options, args.sources,
+                     args.trials, args.seed))
+    out.mkdir(parents=True, exist_ok=True)
+    with cluster_map("study-band", args.scheduler, args.workers) as mapper:
+        cells = mapper(study_band, jobs) if mapper else (study_band(*job) for job in jobs)
+        results = list(tqdm(cells, total=len(jobs), desc="bands", unit="band"))
+    (out / "study.json").write_text(json.dumps(results, indent=1))
     table = _markdown(results, PAPER_TABLE_II_MM)
-    (args.out / "study.md").write_text(table)
-    save(study_figure(results), args.out / "study.png")
+    (out / "study.md").write_text(table)
+    save(study_figure(results), out / "study.png")
     print(table)
     print(f"written: {args.out / 'study.md'}, study.json, study.png")
     return 0
+
+
+def study_band(session: Path, options: SimulationOptions, sources: list[int], trials: int,
+               seed: int) -> dict:
+    """One cell of the study: a band's session simulated (at `session`), and its
+    `band_rows`."""
+    from micam.simulated import record_simulated_session
+
+    truth = record_simulated_session(session, options)
+    return band_rows(session, truth, sources, trials, seed) | {"band_m": options.distance_m}
+
+
+def band_rows(session: Path, truth: dict, sources: list[int], trials: int, seed: int
+              ) -> dict:
+    """A simulated session measured, and its rows for every number of sources, as
+    study.json holds them (but for the band)."""
+    from calibration.pipeline import measure
+    from calibration.study import source_count_study, sources_needed
+
+    rows = source_count_study(measure(session), truth, sources, trials, seed=seed)
+    return {"rows": [r.to_json() for r in rows],
+            "sources_needed": {str(k): v for k, v in sources_needed(rows).items()}}
 
 
 def _markdown(results: list[dict], thresholds: tuple[float, ...]) -> str:

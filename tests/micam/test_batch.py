@@ -5,7 +5,9 @@ directory that is no session. Each session's result.json must be bit for bit wha
 it alone gives (`micam calibrate`'s code in a process of its own, with the one-thread BLAS and
 OpenMP pools that Dask's nanny gives its workers; only the timings differ); a worker killed in
 the middle of a task must be survived; a resumed batch must recompute only what is missing;
-the bad session must fail its cell alone, with its message.
+the bad session must fail its cell alone, with its message. The studies' cells (the bands of
+`micam study`, the calibrations of `evaluate-imaging --folds`) run on the same cluster and
+must give the numbers of the serial path.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ import pytest
 
 from acquisition.contracts.errors import UserError
 from micam.batch import BatchOutcome, run_batch
-from micam.cli import EXIT_FAILED, main
+from micam.cli import EXIT_FAILED, EXIT_USAGE, main
 
 SEEDS = (3, 4, 5)
 ALONE = """import json, sys
@@ -195,9 +197,9 @@ def test_an_out_among_the_sessions_is_refused_before_any_work(sessions: list[Pat
 
 def test_a_scheduler_that_does_not_answer_is_named(sessions: list[Path], tmp_path: Path,
                                                    monkeypatch: pytest.MonkeyPatch) -> None:
-    from micam.batch import runner
+    from micam import cluster
 
-    monkeypatch.setattr(runner, "CONNECT_TIMEOUT_S", 1.0)
+    monkeypatch.setattr(cluster, "CONNECT_TIMEOUT_S", 1.0)
     with pytest.raises(UserError, match="--scheduler tcp://127.0.0.1:9: cannot reach"):
         run_batch(sessions[:1], tmp_path / "out", scheduler="tcp://127.0.0.1:9",
                   progress=False)
@@ -207,3 +209,73 @@ def test_calibrate_options_are_checked_before_any_work(sessions: list[Path],
                                                        tmp_path: Path) -> None:
     with pytest.raises(UserError, match="calibrate options: .*--latency"):
         run_batch(sessions[:1], tmp_path / "out", ["--latency", "sometimes"], progress=False)
+
+
+STUDY = ["--bands", "0.4-0.6", "0.6-1.0", "--poses", "3", "--sources", "3", "6",
+         "--trials", "1", "--array", "scatter48", "--mls-order", "8", "--seed", "7"]
+"""A tiny `micam study`: two bands (two cells), a 3-pose session each (the fewest whose
+cameras calibrate), a subset of 3 sources and one of 6 (the paper's model, then latencies)."""
+
+
+@pytest.mark.slow
+def test_the_study_runs_its_bands_on_the_cluster_with_the_serial_numbers(
+        cluster: str, tmp_path: Path) -> None:
+    """Each band's rows bit for bit those of its session studied here (what `micam study`
+    does after simulating it), with the workers' one BLAS thread (with more, the bound's sums
+    are taken in another order: ~1e-13 apart), in the order of the bands."""
+    from calibration._blas import single_threaded_blas
+    from micam.commands.study import band_rows
+
+    out = tmp_path / "study"
+    assert main(["study", "--out", str(out), *STUDY, "--scheduler", cluster]) == 0
+    study = json.loads((out / "study.json").read_text())
+    assert [band["band_m"] for band in study] == [[0.4, 0.6], [0.6, 1.0]]
+    for band in study:
+        session = out / "band-{:.1f}-{:.1f}".format(*band["band_m"])  # made on a worker
+        truth = json.loads((session / "truth.json").read_text())
+        with single_threaded_blas():
+            serial = band_rows(session, truth, [3, 6], trials=1, seed=7)
+        assert band == serial | {"band_m": band["band_m"]}
+    assert [row["latency"] for row in study[0]["rows"]] == ["none", "per_board"]
+    assert study[0]["rows"] != study[1]["rows"]
+
+
+@pytest.mark.slow
+def test_the_folds_run_their_calibrations_on_the_cluster_with_the_serial_numbers(
+        sessions: list[Path], cluster: str) -> None:
+    """`cross_validate` with the cluster's `ClusterMap` (as `evaluate-imaging --folds 3
+    --scheduler` runs it): the in-sample and the three held-out calibrations, each with its
+    imaging, as four tasks; bit for bit those made here. (Blocks of 1024 samples: the
+    sessions' MLS bursts are shorter than the command's 4096.)"""
+    from distributed import Client
+
+    from calibration._blas import single_threaded_blas
+    from calibration.imaging import load_geometry
+    from calibration.imaging.csm import WelchOptions
+    from calibration.imaging.evaluate import ImagingSettings
+    from calibration.imaging.holdout import cross_validate
+    from micam.cluster import ClusterMap
+
+    session = sessions[0]
+    settings = ImagingSettings(WelchOptions(block_size=1024), band_lo_hz=9000.0,
+                               band_hi_hz=10000.0, spacing_m=0.02)  # one band: 9514 Hz
+    truth = load_geometry(session / "truth.json")
+    with Client(cluster) as client:
+        dask = cross_validate(session, 3, settings, truth=truth,
+                              mapper=ClusterMap(client, "folds")).to_json()
+    with single_threaded_blas():
+        serial = cross_validate(session, 3, settings, truth=truth).to_json()
+    assert dask == serial
+    assert dask["folds"] == [[0], [1], [2]]
+    assert dask["held_out"]["overall"]["count"] == 18  # 3 poses x 6 speakers, one band
+    assert dask["held_out"] != dask["in_sample"]
+
+
+@pytest.mark.parametrize("command", [
+    ["study", "--out", "OUT", "--workers", "2"],
+    ["evaluate-imaging", "SESSION", "--folds", "3", "--workers", "2"]])
+def test_workers_beside_a_scheduler_are_refused(
+        command: list[str], tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    argv = [str(tmp_path / "s") if a in ("OUT", "SESSION") else a for a in command]
+    assert main([*argv, "--scheduler", "tcp://127.0.0.1:9"]) == EXIT_USAGE
+    assert "--workers" in capsys.readouterr().err
