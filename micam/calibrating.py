@@ -149,7 +149,13 @@ def calibrate_session(args: argparse.Namespace, on_stage: Callable[[str], None] 
     """
     from calibration.pipeline import CalibrationOptions, calibrate
     from calibration.report import write_report
-    from calibration.result import write_acoular_calib_xml, write_acoular_xml
+    import numpy as np
+
+    from calibration.result import (
+        load_prior_positions,
+        write_acoular_calib_xml,
+        write_acoular_xml,
+    )
     from calibration.session_data import load_session
 
     out: Path = args.out
@@ -174,8 +180,11 @@ def calibrate_session(args: argparse.Namespace, on_stage: Callable[[str], None] 
     run = calibrate(args.session, options, on_stage)  # input errors are UserErrors
     run.result.write(out)
     if report_dir is not None:
-        report_dir = write_report(run, report_dir, truth,
-                                  None if prior is None else prior.positions_m)
+        # the prior in the result's microphone order (the calibration may have relabelled
+        # columns or left microphones out)
+        ids = np.array([m.id for m in run.result.microphones])
+        prior_m = None if prior is None else load_prior_positions(args.prior, ids)
+        report_dir = write_report(run, report_dir, truth, prior_m)
     if args.acoular_xml is not None:
         write_acoular_xml(run.result, args.acoular_xml)
     if args.acoular_calib is not None:

@@ -1,0 +1,118 @@
+"""Swapped microphone cables and a column map off by a board, found against the array's
+nominal layout (calibration.layout_check).
+
+The detector is tried on the small simulated session's wiring with measured positions made
+from its truth (a calibration's 0.1 mm of noise, cables permuted as a lab does), against a
+nominal layout in a frame of its own with a build tolerance of its own; the whole
+calibration once, on a realistic capture with both mistakes, given the layout as `--prior`.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from acquisition.contracts.rigid import RigidTransform
+from calibration.layout_check import LayoutMismatchError, NominalLayout, check_layout
+from calibration.result import compare_with_truth
+from calibration.session_data import SessionData, load_session
+from tests.calibration.test_capture_mistakes import SMALL_LAB
+from tests.conftest import simulated_session
+
+
+def nominal_layout(truth: dict, build_mm: float = 0.5, seed: int = 0) -> NominalLayout:
+    """The array's design as its maker would give it: the simulated positions (the simulated
+    array is built exactly to them) off by `build_mm` per axis, in a frame of its own."""
+    ids = np.array([m["id"] for m in truth["microphones"]])
+    positions = np.array([m["position_m"] for m in truth["microphones"]])
+    rng = np.random.default_rng(seed)
+    own_frame = RigidTransform.from_rotvec(rng.normal(0, 0.5, 3), rng.normal(0, 0.3, 3))
+    return NominalLayout(ids, own_frame.apply(positions + rng.normal(0, build_mm / 1e3,
+                                                                     positions.shape)))
+
+
+def write_acoular(layout: NominalLayout, path: Path) -> None:
+    """`layout` as Acoular's MicGeom XML, microphone k named "Point k"."""
+    rows = [f'  <pos Name="Point {i}" x="{x:.6f}" y="{y:.6f}" z="{z:.6f}"/>'
+            for i, (x, y, z) in zip(layout.ids, layout.positions_m, strict=True)]
+    path.write_text('<?xml version="1.0" encoding="utf-8"?>\n<MicArray name="design">\n'
+                    + "\n".join(rows) + "\n</MicArray>\n")
+
+
+@pytest.fixture(scope="module")
+def wiring(small_session: Path) -> tuple[SessionData, np.ndarray, NominalLayout]:
+    """The session, its true positions in column order (measured to 0.1 mm) and its layout."""
+    data = load_session(small_session)
+    truth = json.loads((small_session / "truth.json").read_text())
+    layout = nominal_layout(truth)
+    by_id = {m["id"]: m["position_m"] for m in truth["microphones"]}
+    rng = np.random.default_rng(1)
+    measured = np.array([by_id[int(i)] for i in data.mic_ids])
+    return data, measured + rng.normal(0, 1e-4, measured.shape), layout
+
+
+def test_a_capture_wired_as_described_has_no_finding(wiring) -> None:
+    data, measured, layout = wiring
+    verdict = check_layout(data, measured, layout)
+    assert verdict.findings == []
+    np.testing.assert_array_equal(verdict.ids, data.mic_ids)
+    assert np.nanmax(verdict.distance_m) < layout.tolerance_m
+
+
+def test_two_swapped_cables_are_named_and_relabelled(wiring) -> None:
+    data, measured, layout = wiring
+    recorded = measured.copy()
+    recorded[[12, 13]] = measured[[13, 12]]  # column 12 records microphone 13's capsule
+    verdict = check_layout(data, recorded, layout)
+    [finding] = verdict.findings
+    assert finding.kind == "swapped-microphones" and finding.action == "corrected"
+    assert finding.microphones == [12, 13] and "look swapped" in finding.evidence
+    assert verdict.ids[12] == 13 and verdict.ids[13] == 12
+    assert np.delete(verdict.ids, [12, 13]).tolist() == np.delete(data.mic_ids, [12, 13]).tolist()
+    # the cables to check: the inputs that recorded them
+    assert len(finding.channels) == 2 and finding.channels[0] in finding.advice
+
+
+def test_a_column_map_off_by_one_board_is_named_and_relabelled(wiring) -> None:
+    data, measured, layout = wiring
+    board = len(data.description.channels[0].columns)
+    recorded = np.roll(measured, board, axis=0)  # each input holds the cable one board before
+    # and, on top, two cables swapped after the shift
+    recorded[[3, 4]] = recorded[[4, 3]]
+    verdict = check_layout(data, recorded, layout)
+    assert [f.kind for f in verdict.findings] == ["shifted-boards", "swapped-microphones"]
+    assert f"shifted by +{board} columns" in verdict.findings[0].evidence
+    np.testing.assert_array_equal(verdict.ids, _recorded_ids(data.mic_ids, board, (3, 4)))
+    assert np.nanmax(verdict.distance_m) < layout.tolerance_m
+
+
+def _recorded_ids(ids: np.ndarray, shift: int, swapped: tuple[int, int]) -> np.ndarray:
+    """The ids the columns record after a shift of the column map and a swap."""
+    out = np.roll(ids, shift)
+    out[list(swapped)] = out[list(swapped[::-1])]
+    return out
+
+
+def test_a_microphone_off_its_place_that_no_swap_explains_is_noted(wiring) -> None:
+    data, measured, layout = wiring
+    moved = measured.copy()
+    moved[7] += [0.03, 0.0, 0.0]  # a capsule mounted 30 mm off, or a layout that is wrong
+    verdict = check_layout(data, moved, layout)
+    [finding] = verdict.findings
+    assert finding.kind == "misplaced-microphones" and finding.action == "noted"
+    assert finding.microphones == [7] and "no exchange of cables" in finding.evidence
+    np.testing.assert_array_equal(verdict.ids, data.mic_ids)
+
+
+def test_a_layout_of_another_array_is_refused(wiring) -> None:
+    data, measured, layout = wiring
+    rng = np.random.default_rng(2)
+    other = NominalLayout(layout.ids, rng.permutation(layout.positions_m))
+    with pytest.raises(LayoutMismatchError, match=r"at most \d+ of 48 microphones lie within"):
+        check_layout(data, measured, other)
+    in_mm = NominalLayout(layout.ids, 1e3 * layout.positions_m)
+    with pytest.raises(LayoutMismatchError, match="in metres"):
+        check_layout(data, measured, in_mm)
