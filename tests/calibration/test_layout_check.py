@@ -17,7 +17,6 @@ import pytest
 
 from acquisition.contracts.rigid import RigidTransform
 from calibration.layout_check import LayoutMismatchError, NominalLayout, check_layout
-from calibration.result import compare_with_truth
 from calibration.session_data import SessionData, load_session
 from tests.calibration.test_capture_mistakes import SMALL_LAB
 from tests.conftest import simulated_session
@@ -116,3 +115,33 @@ def test_a_layout_of_another_array_is_refused(wiring) -> None:
     in_mm = NominalLayout(layout.ids, 1e3 * layout.positions_m)
     with pytest.raises(LayoutMismatchError, match="in metres"):
         check_layout(data, measured, in_mm)
+
+
+@pytest.mark.slow
+def test_a_capture_with_both_mistakes_is_calibrated_under_the_right_ids(
+        tmp_path_factory: pytest.TempPathFactory, tmp_path: Path,
+        capsys: pytest.CaptureFixture) -> None:
+    """`micam calibrate --prior` with the maker's layout on a realistic capture whose column
+    map is off by one board and two of whose cables are swapped as well (the mistakes
+    compose); the camera-frozen solution of 3 poses is enough to tell them apart."""
+    from micam.cli import main
+
+    path = simulated_session(tmp_path_factory, "layout", *SMALL_LAB[:4], "--poses", "3",
+                             *SMALL_LAB[6:], "--mistake", "swap-mics", "--mistake", "board-shift")
+    truth = json.loads((path / "truth.json").read_text())
+    write_acoular(nominal_layout(truth), tmp_path / "design.xml")
+    out = tmp_path / "result.json"
+    assert main(["calibrate", str(path), "--out", str(out), "--prior",
+                 str(tmp_path / "design.xml"), "--prior-std-mm", "1", "--no-joint"]) == 0
+    assert "micam: finding: the column map looks shifted by" in capsys.readouterr().err
+    result = json.loads(out.read_text())
+    swapped = next(m["microphones"] for m in truth["mistakes"] if m["kind"] == "swap-mics")
+    named = {f["kind"]: f for f in result["findings"] if f["action"] == "corrected"}
+    assert set(named) == {"shifted-boards", "swapped-microphones"}
+    assert named["swapped-microphones"]["microphones"] == sorted(swapped)
+    # every position under its right id: the camera-frozen 3-pose solution's millimetres, where
+    # the mistakes left them hundreds of millimetres off
+    true = {m["id"]: m["position_m"] for m in truth["microphones"]}
+    errors = [np.linalg.norm(np.subtract(m["position_m"], true[m["id"]]))
+              for m in result["microphones"]]
+    assert len(errors) == 48 and np.mean(errors) < 0.004 and np.max(errors) < 0.01
