@@ -196,9 +196,8 @@ def _shift_finding(data: SessionData, shift: int, own: _Placement,
                    shifted: _Placement) -> Finding:
     n = len(data.description.microphones())
     signed = shift if shift <= n // 2 else shift - n
-    widths = {len(g.columns): g.group for g in data.description.channels}
-    board = (f" (the channels of one board, as {widths[abs(signed)]} has)"
-             if abs(signed) in widths else "")
+    widths = {len(g.columns) for g in data.description.channels}
+    board = f" (one board's {abs(signed)} channels)" if abs(signed) in widths else ""
     return Finding(
         kind="shifted-boards", action="corrected",
         microphones=sorted(int(i) for i in shifted.ids[shifted.ids != own.ids]),

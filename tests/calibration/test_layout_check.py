@@ -118,6 +118,23 @@ def test_a_layout_of_another_array_is_refused(wiring) -> None:
 
 
 @pytest.mark.slow
+def test_layout_options_are_checked_before_any_work(small_session: Path, tmp_path: Path,
+                                                    capsys: pytest.CaptureFixture) -> None:
+    from micam.cli import main
+
+    out = str(tmp_path / "r.json")
+    assert main(["calibrate", str(small_session), "--out", out,
+                 "--layout-tolerance-mm", "3"]) == 2
+    assert "--layout-tolerance-mm needs --layout or --prior" in capsys.readouterr().err
+    (tmp_path / "design.xml").write_text('<MicArray><pos Name="Point 0" x="0" y="0" z="0"/>'
+                                         "</MicArray>")
+    assert main(["calibrate", str(small_session), "--out", out,
+                 "--layout", str(tmp_path / "design.xml")]) == 2
+    assert "--layout: the prior geometry" in capsys.readouterr().err
+    assert not (tmp_path / "r.json").exists()
+
+
+@pytest.mark.slow
 def test_a_capture_with_both_mistakes_is_calibrated_under_the_right_ids(
         tmp_path_factory: pytest.TempPathFactory, tmp_path: Path,
         capsys: pytest.CaptureFixture) -> None:
