@@ -15,22 +15,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from acquisition.contracts.rigid import RigidTransform
 from calibration.layout_check import LayoutMismatchError, NominalLayout, check_layout
 from calibration.session_data import SessionData, load_session
+from calibration.truth import nominal_layout_of
 from tests.calibration.test_capture_mistakes import SMALL_LAB
 from tests.conftest import simulated_session
-
-
-def nominal_layout(truth: dict, build_mm: float = 0.5, seed: int = 0) -> NominalLayout:
-    """The array's design as its maker would give it: the simulated positions (the simulated
-    array is built exactly to them) off by `build_mm` per axis, in a frame of its own."""
-    ids = np.array([m["id"] for m in truth["microphones"]])
-    positions = np.array([m["position_m"] for m in truth["microphones"]])
-    rng = np.random.default_rng(seed)
-    own_frame = RigidTransform.from_rotvec(rng.normal(0, 0.5, 3), rng.normal(0, 0.3, 3))
-    return NominalLayout(ids, own_frame.apply(positions + rng.normal(0, build_mm / 1e3,
-                                                                     positions.shape)))
 
 
 def write_acoular(layout: NominalLayout, path: Path) -> None:
@@ -46,7 +35,7 @@ def wiring(small_session: Path) -> tuple[SessionData, np.ndarray, NominalLayout]
     """The session, its true positions in column order (measured to 0.1 mm) and its layout."""
     data = load_session(small_session)
     truth = json.loads((small_session / "truth.json").read_text())
-    layout = nominal_layout(truth)
+    layout = nominal_layout_of(truth)
     by_id = {m["id"]: m["position_m"] for m in truth["microphones"]}
     rng = np.random.default_rng(1)
     measured = np.array([by_id[int(i)] for i in data.mic_ids])
@@ -146,7 +135,7 @@ def test_a_capture_with_both_mistakes_is_calibrated_under_the_right_ids(
     path = simulated_session(tmp_path_factory, "layout", *SMALL_LAB[:4], "--poses", "3",
                              *SMALL_LAB[6:], "--mistake", "swap-mics", "--mistake", "board-shift")
     truth = json.loads((path / "truth.json").read_text())
-    write_acoular(nominal_layout(truth), tmp_path / "design.xml")
+    write_acoular(nominal_layout_of(truth), tmp_path / "design.xml")
     out = tmp_path / "result.json"
     assert main(["calibrate", str(path), "--out", str(out), "--prior",
                  str(tmp_path / "design.xml"), "--prior-std-mm", "1", "--no-joint"]) == 0
