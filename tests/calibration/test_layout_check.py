@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from acquisition.daemon.result_check import ResultRejected, SessionFacts, check_result
 from calibration.layout_check import LayoutMismatchError, NominalLayout, check_layout
 from calibration.session_data import SessionData, load_session
 from calibration.truth import nominal_layout_of
@@ -151,3 +152,9 @@ def test_a_capture_with_both_mistakes_is_calibrated_under_the_right_ids(
     errors = [np.linalg.norm(np.subtract(m["position_m"], true[m["id"]]))
               for m in result["microphones"]]
     assert len(errors) == 48 and np.mean(errors) < 0.004 and np.max(errors) < 0.01
+    # the daemon takes it, though the shift puts microphones on other boards than the map
+    # says; only because the findings say they were relabelled
+    facts = SessionFacts.read(path)
+    check_result(result, facts)
+    with pytest.raises(ResultRejected, match="is on board"):
+        check_result({**result, "findings": []}, facts)
