@@ -78,11 +78,15 @@ class LayoutVerdict:
         findings: what was found (none: every microphone lies at its nominal place).
         distance_m: (M,) each microphone's distance from its nominal place after the
             relabelling (NaN where it has no position).
+        renamed: the channel map's id -> the id recorded there, for every column of the
+            session whose id changed (those left out before the check too, which follow a
+            shifted map).
     """
 
     ids: np.ndarray
     findings: list[Finding]
     distance_m: np.ndarray
+    renamed: dict[int, int]
 
 
 @dataclass(frozen=True)
@@ -129,7 +133,24 @@ def check_layout(data: SessionData, measured_m: np.ndarray,
     unexplained = np.flatnonzero(final.distance_m > tol)
     if unexplained.size:
         findings.append(_misplaced_finding(wiring, unexplained, final, tol))
-    return LayoutVerdict(final.ids, findings, final.distance_m)
+    session = np.array([i for i, _, _ in data.description.microphones()])
+    recorded = dict(zip(session.tolist(), np.roll(session, shift).tolist(), strict=True))
+    recorded.update(zip(data.mic_ids.tolist(), final.ids.tolist(), strict=True))
+    renamed = {int(a): int(b) for a, b in recorded.items() if a != b}
+    return LayoutVerdict(final.ids, findings, final.distance_m, renamed)
+
+
+def relabelled(finding: Finding, renamed: dict[int, int]) -> Finding:
+    """An earlier finding (named by the channel map's ids) under the ids `renamed` gives,
+    its evidence saying which microphone each renamed column really records."""
+    moved = [i for i in finding.microphones if i in renamed]
+    if not moved:
+        return finding
+    said = ", ".join(f"{i} records microphone {renamed[i]}" for i in moved)
+    return finding.model_copy(update={
+        "microphones": [renamed.get(i, i) for i in finding.microphones],
+        "evidence": f"{finding.evidence} (named by the channel map; relabelled against the "
+                    f"layout, the column of {said})"})
 
 
 def _placed(ids: np.ndarray, measured_m: np.ndarray, solved: np.ndarray,

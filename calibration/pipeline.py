@@ -66,7 +66,7 @@ from .capture_checks import CaptureVerdict, apply_verdict, check_capture, invert
 from .delay_estimation import Weighting
 from .errors import CalibrationInputError
 from .fit_checks import SourceResiduals, moved_poses, speaker_findings
-from .layout_check import NominalLayout, check_layout
+from .layout_check import NominalLayout, check_layout, relabelled
 from .multilateration import multilaterate
 from .paper_method import solve_paper_method
 from .plausibility import (
@@ -490,15 +490,17 @@ def _solve_checked(m: Measurements, options: CalibrationOptions, poses: np.ndarr
     checked against `layout` when there is one: the check looks at a solution free of the
     prior (which would hold swapped microphones to the wrong places), then the columns are
     relabelled as the check says and the prior (`session_prior`, in the session's order)
-    follows the new ids. The measurements carry the check's findings."""
+    follows the new ids. The measurements carry the check's findings, and the earlier
+    findings name the microphones by their new ids."""
     free = replace(options, prior=None)
     solution = solve(m, free, poses)
     m, solution = _without_misfits(m, free, poses, solution)
     if layout is None:
         return m, options, solution
     verdict = check_layout(m.data, solution.positions_m, layout)
+    earlier = [relabelled(f, verdict.renamed) for f in m.findings]
     m = replace(m, data=replace(m.data, mic_ids=verdict.ids),
-                findings=[*m.findings, *verdict.findings])
+                findings=[*earlier, *verdict.findings])
     if session_prior is None:
         return m, options, solution
     index = {int(i): k for k, i in enumerate(_session_ids(m.data))}

@@ -16,7 +16,13 @@ import numpy as np
 import pytest
 
 from acquisition.daemon.result_check import ResultRejected, SessionFacts, check_result
-from calibration.layout_check import LayoutMismatchError, NominalLayout, check_layout
+from calibration.layout_check import (
+    LayoutMismatchError,
+    NominalLayout,
+    check_layout,
+    relabelled,
+)
+from calibration.result import Finding
 from calibration.session_data import SessionData, load_session
 from calibration.truth import nominal_layout_of
 from tests.calibration.test_capture_mistakes import SMALL_LAB
@@ -76,6 +82,23 @@ def test_a_column_map_off_by_one_board_is_named_and_relabelled(wiring) -> None:
     assert f"shifted by +{board} columns" in verdict.findings[0].evidence
     np.testing.assert_array_equal(verdict.ids, _recorded_ids(data.mic_ids, board, (3, 4)))
     assert np.nanmax(verdict.distance_m) < layout.tolerance_m
+
+
+def test_findings_made_before_the_check_follow_the_relabelling(wiring) -> None:
+    data, measured, layout = wiring
+    board = len(data.description.channels[0].columns)
+    kept = np.arange(1, data.mic_ids.size)  # column 0 left out (say, dead) before the check
+    verdict = check_layout(data.with_microphones(kept), np.roll(measured, board, axis=0)[kept],
+                           layout)
+    expected = np.roll(data.mic_ids, board)
+    assert verdict.renamed == {int(a): int(b) for a, b in zip(data.mic_ids, expected,
+                                                              strict=True)}
+    dead = Finding(kind="dead-microphone", action="left out", microphones=[0],
+                   evidence="microphone 0 is silent", advice="left out")
+    renamed = relabelled(dead, verdict.renamed)
+    assert renamed.microphones == [int(expected[0])]
+    assert f"the column of 0 records microphone {expected[0]}" in renamed.evidence
+    assert relabelled(dead, {}) is dead
 
 
 def _recorded_ids(ids: np.ndarray, shift: int, swapped: tuple[int, int]) -> np.ndarray:
