@@ -181,3 +181,10 @@ def test_a_capture_with_both_mistakes_is_calibrated_under_the_right_ids(
     check_result(result, facts)
     with pytest.raises(ResultRejected, match="is on board"):
         check_result({**result, "findings": []}, facts)
+
+
+def test_a_batch_hands_its_workers_the_layout_by_its_absolute_path() -> None:
+    from micam.batch.cells import portable_options
+
+    options = portable_options({"layout": Path("design.xml"), "prior": None})
+    assert options == {"layout": str(Path("design.xml").absolute()), "prior": None}
