@@ -6,7 +6,10 @@ without it.
 Every session is `micam simulate --lab realistic` (48-microphone scatter array by default)
 with `--mistake NAME` at the mistake's drawn defaults; the clean session of each seed is the
 same world without mistakes. Found means a finding of the expected kind (`EXPECTED`); a
-mistake without one (the calibration does not look for it yet) says "not looked for".
+mistake without one (the calibration does not look for it yet) says "not looked for". Every
+calibration is given the array's nominal layout (`calibration.truth.nominal_layout_of`: the
+simulated positions off by 0.5 mm per axis, in a frame of their own), against which swapped
+microphone cables and a shifted column map are found; `--no-layout` leaves it out.
 
     .venv/bin/python benchmarks/bench_mistakes.py [--poses 8] [--seeds 1] [--keep DIR]
     .venv/bin/python benchmarks/bench_mistakes.py --poses 20 --seeds 1 2 3 4 5 --pairs
@@ -27,6 +30,7 @@ from pathlib import Path
 from calibration.errors import CalibrationInputError
 from calibration.pipeline import CalibrationOptions, calibrate
 from calibration.result import compare_with_truth
+from calibration.truth import nominal_layout_of
 
 EXPECTED = {
     "dead-mic": "dead-microphone",
@@ -36,8 +40,8 @@ EXPECTED = {
     "silent-speaker": "silent-speaker",
     "swap-speakers": "swapped-speakers",
     "moved-pose": "moved-pose",
-    "swap-mics": None,  # needs the array's nominal layout: not looked for yet
-    "board-shift": None,
+    "swap-mics": "swapped-microphones",  # against the nominal layout
+    "board-shift": "shifted-boards",
     "hidden-board": None,
     "motion-blur": None,
     "glare": None,
@@ -63,12 +67,14 @@ def _session(root: Path, name: str, seed: int, poses: int, array: str,
     return path
 
 
-def _calibrated(path: Path) -> dict:
-    """Findings, error and run time of one calibration (or its refusal)."""
+def _calibrated(path: Path, layout: bool) -> dict:
+    """Findings, error and run time of one calibration (or its refusal), given the array's
+    nominal layout or not."""
     truth = json.loads((path / "truth.json").read_text())
     start = time.perf_counter()
     try:
-        run = calibrate(path, CalibrationOptions())
+        run = calibrate(path, CalibrationOptions(
+            layout=nominal_layout_of(truth) if layout else None))
     except CalibrationInputError as exc:
         return {"refused": str(exc), "findings": [], "error_mm": None,
                 "seconds": round(time.perf_counter() - start, 2)}
@@ -85,6 +91,8 @@ def main() -> None:
     parser.add_argument("--mistakes", nargs="+", default=list(EXPECTED))
     parser.add_argument("--pairs", action="store_true",
                         help="also each mistake with the next one of the list")
+    parser.add_argument("--no-layout", action="store_true",
+                        help="calibrate without the array's nominal layout")
     parser.add_argument("--keep", type=Path, default=None, help="keep the sessions here")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/mistakes.json"))
     args = parser.parse_args()
@@ -99,7 +107,8 @@ def main() -> None:
         print("| mistakes | seed | found | false findings | error mm | clean mm | ratio | s |")
         print("|---|---|---|---|---|---|---|---|")
         for seed in args.seeds:
-            clean = _calibrated(_session(root, "clean", seed, args.poses, args.array, ()))
+            clean = _calibrated(_session(root, "clean", seed, args.poses, args.array, ()),
+                                not args.no_layout)
             rows.append({"mistakes": [], "seed": seed, **clean,
                          "false_findings": clean["findings"]})
             print(f"| (none) | {seed} | - | {', '.join(clean['findings']) or '-'} | "
@@ -107,7 +116,7 @@ def main() -> None:
                   f"{clean['seconds']:.1f} |")
             for combo in combos:
                 got = _calibrated(_session(root, "+".join(combo), seed, args.poses, args.array,
-                                           combo))
+                                           combo), not args.no_layout)
                 wanted = {EXPECTED[m] for m in combo} - {None}
                 found = wanted <= set(got["findings"]) if wanted else None
                 false = sorted(set(got["findings"]) - wanted)
@@ -121,8 +130,8 @@ def main() -> None:
                 print(f"| {' + '.join(combo)} | {seed} | {said} | {', '.join(false) or '-'} | "
                       f"{error} | {clean['error_mm']:.3f} | {ratio} | {got['seconds']:.1f} |")
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"poses": args.poses, "array": args.array, "rows": rows},
-                                   indent=1))
+    args.out.write_text(json.dumps({"poses": args.poses, "array": args.array,
+                                    "layout": not args.no_layout, "rows": rows}, indent=1))
     print(f"written: {args.out}")
 
 

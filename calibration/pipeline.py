@@ -66,6 +66,7 @@ from .capture_checks import CaptureVerdict, apply_verdict, check_capture, invert
 from .delay_estimation import Weighting
 from .errors import CalibrationInputError
 from .fit_checks import SourceResiduals, moved_poses, speaker_findings
+from .layout_check import NominalLayout, check_layout, relabelled
 from .multilateration import multilaterate
 from .paper_method import solve_paper_method
 from .plausibility import (
@@ -194,7 +195,12 @@ class CalibrationOptions:
         prior: a known geometry of the array in its own frame (CAD or an earlier
             calibration), in the session's microphone order: the solver then fits its rigid
             transform R_m, T_m into the camera-0 frame (paper IV-H), and each microphone's
-            deviation from it if the prior has a deviation std. Method "micam" only.
+            deviation from it if the prior has a deviation std. Method "micam" only. It is
+            also the layout the geometry is checked against, unless `layout` is given.
+        layout: the array's nominal layout, by microphone id: the geometry, solved free of
+            any prior, is compared with it, and swapped microphone cables or a column map
+            off by whole boards are relabelled (calibration.layout_check); None (and no
+            prior): no such check.
         speaker_offsets: the joint fit estimates where each speaker's sound comes from on the
             rig (its offset from the stated position, held to the rig's stated tolerance in
             the board plane and to its acoustic-centre prior along the normal, and how far
@@ -232,6 +238,7 @@ class CalibrationOptions:
     allow_interrupted: bool = False
     joint: bool = True
     prior: PriorGeometry | None = None
+    layout: NominalLayout | None = None
     speaker_offsets: bool = True
     print_scale: bool = True
     mic_delay_std_s: float | None = 1e-6
@@ -422,11 +429,11 @@ def calibrate_measured(m: Measurements, options: CalibrationOptions,
     located poses or from a subset (`poses`, indices into `m.speakers.poses`: the acoustic
     sources; every board view still constrains the cameras, and every pose gets a board pose,
     so the others can be imaged with the result as held-out data)."""
+    layout, session_prior = _nominal_layout(m, options), options.prior
     options = _for_kept_microphones(options, m.kept_microphones)
     timings = dict(m.timings_s)
     with _timed(timings, "solver", on_stage):
-        solution = solve(m, options, poses)
-        m, solution = _without_misfits(m, options, poses, solution)
+        m, options, solution = _solve_checked(m, options, poses, layout, session_prior)
     _check_plausible(m, options, _solution_figures(m, solution, options), frozen=True)
     if not (options.joint and options.method == "micam"):
         return CalibrationRun(_assemble(m, solution, options, timings), m, solution)
@@ -461,6 +468,46 @@ def calibrate_measured(m: Measurements, options: CalibrationOptions,
         "notes": [*result.notes, JOINT_NOTE],
     })
     return CalibrationRun(result, joint_m, joint_solution, solution, bundle)
+
+
+def _session_ids(data: SessionData) -> np.ndarray:
+    """Every microphone id of the session (those left out too), in its column order."""
+    return np.array([i for i, _, _ in data.description.microphones()])
+
+
+def _nominal_layout(m: Measurements, options: CalibrationOptions) -> NominalLayout | None:
+    """The layout the geometry is checked against: the options', else the prior's (which is
+    given in the session's microphone order); None without either."""
+    if options.layout is not None or options.prior is None:
+        return options.layout
+    return NominalLayout(_session_ids(m.data), options.prior.positions_m)
+
+
+def _solve_checked(m: Measurements, options: CalibrationOptions, poses: np.ndarray | None,
+                   layout: NominalLayout | None, session_prior: PriorGeometry | None
+                   ) -> tuple[Measurements, CalibrationOptions, MicrophoneSolution]:
+    """The camera-frozen solution without misfits (`_without_misfits`), its microphones
+    checked against `layout` when there is one: the check looks at a solution free of the
+    prior (which would hold swapped microphones to the wrong places), then the columns are
+    relabelled as the check says and the prior (`session_prior`, in the session's order)
+    follows the new ids. The measurements carry the check's findings, and the earlier
+    findings name the microphones by their new ids."""
+    free = replace(options, prior=None)
+    solution = solve(m, free, poses)
+    m, solution = _without_misfits(m, free, poses, solution)
+    if layout is None:
+        return m, options, solution
+    verdict = check_layout(m.data, solution.positions_m, layout)
+    earlier = [relabelled(f, verdict.renamed) for f in m.findings]
+    m = replace(m, data=replace(m.data, mic_ids=verdict.ids),
+                findings=[*earlier, *verdict.findings])
+    if session_prior is None:
+        return m, options, solution
+    index = {int(i): k for k, i in enumerate(_session_ids(m.data))}
+    rows = [index[int(i)] for i in verdict.ids]
+    options = replace(options, prior=replace(session_prior,
+                                             positions_m=session_prior.positions_m[rows]))
+    return m, options, solve(m, options, poses)
 
 
 def _without_misfits(m: Measurements, options: CalibrationOptions, poses: np.ndarray | None,

@@ -188,6 +188,7 @@ class MicrophoneResponsesResult(_Model):
 
 
 FindingKind = Literal["dead-microphone", "intermittent-microphone", "inverted-microphone",
+                      "swapped-microphones", "shifted-boards", "misplaced-microphones",
                       "clipped-bursts", "silent-speaker", "swapped-speakers",
                       "misplaced-speaker", "moved-pose"]
 FindingAction = Literal["corrected", "left out", "noted"]
@@ -199,8 +200,8 @@ class Finding(_Model):
 
     kind: FindingKind
     action: FindingAction = Field(
-        description="corrected: the calibration undid it (a polarity); left out: the "
-        "measurements concerned were not used; noted: used, but worth a look")
+        description="corrected: the calibration undid it (a polarity, columns relabelled); "
+        "left out: the measurements concerned were not used; noted: used, but worth a look")
     microphones: list[int] = Field(default_factory=list, description="microphone ids")
     channels: list[str] = Field(default_factory=list,
                                 description="where those microphones are wired")

@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from acquisition.contracts.bounded_files import (
@@ -21,8 +22,10 @@ from acquisition.contracts.bounded_files import (
     read_bounded_text,
 )
 from acquisition.contracts.config_model import dotted
+from acquisition.contracts.rigid import RigidTransform
 
 from .errors import CalibrationInputError
+from .layout_check import NominalLayout
 
 SHAPE = ("a micam truth file has microphones = [{id, position_m}], speed_of_sound_m_s, "
          "cameras = [{name, K}] and optionally board_latencies_s, as `micam simulate` writes "
@@ -87,3 +90,17 @@ def load_truth(path: Path, mic_ids: list[int], camera_names: list[str]) -> dict:
         raise TruthError(f"truth file {path} has no camera {', '.join(absent)} (it has "
                          f"{', '.join(sorted(cameras))}); name the cameras as the session does")
     return document
+
+
+def nominal_layout_of(truth: dict, build_error_m: float = 0.0005, seed: int = 0
+                      ) -> NominalLayout:
+    """The nominal layout of a simulated array, as its maker would give it: the truth's
+    microphone positions (the simulated array is built exactly to them) off by
+    `build_error_m` per axis (normal), in a frame of its own (a random rigid motion, so that
+    nothing relies on the layout sharing the camera's frame); both drawn from `seed`."""
+    ids = np.array([m["id"] for m in truth["microphones"]])
+    positions = np.array([m["position_m"] for m in truth["microphones"]], dtype=np.float64)
+    rng = np.random.default_rng(seed)
+    own_frame = RigidTransform.from_rotvec(rng.normal(0, 0.5, 3), rng.normal(0, 0.3, 3))
+    return NominalLayout(ids, own_frame.apply(positions + rng.normal(0, build_error_m,
+                                                                     positions.shape)))

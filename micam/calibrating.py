@@ -51,6 +51,26 @@ def _prior(args: argparse.Namespace):
     return PriorGeometry(positions, std)
 
 
+def _layout(args: argparse.Namespace, data):
+    """The nominal layout the wiring is checked against: --layout, else --prior (None: no
+    check), with --layout-tolerance-mm; by the session's microphone ids."""
+    from calibration.layout_check import LAYOUT_TOLERANCE_M, NominalLayout
+    from calibration.result import PriorFileError, load_prior_positions
+
+    flag, path = ("--layout", args.layout) if args.layout is not None else ("--prior", args.prior)
+    if path is None:
+        if args.layout_tolerance_mm is not None:
+            raise UserError("--layout-tolerance-mm needs --layout or --prior")
+        return None
+    try:
+        positions = load_prior_positions(path, data.mic_ids)
+    except PriorFileError as exc:
+        raise UserError(f"{flag}: {exc}") from None
+    tolerance = (LAYOUT_TOLERANCE_M if args.layout_tolerance_mm is None
+                 else args.layout_tolerance_mm / 1000.0)
+    return NominalLayout(data.mic_ids, positions, tolerance)
+
+
 _AIR_FLAGS = {"temperature_c": "--temperature", "temperature_std_c": "--temperature-std",
               "relative_humidity": "--humidity", "relative_humidity_std": "--humidity-std",
               "speed_of_sound_m_s": "--known-speed-of-sound",
@@ -149,7 +169,13 @@ def calibrate_session(args: argparse.Namespace, on_stage: Callable[[str], None] 
     """
     from calibration.pipeline import CalibrationOptions, calibrate
     from calibration.report import write_report
-    from calibration.result import write_acoular_calib_xml, write_acoular_xml
+    import numpy as np
+
+    from calibration.result import (
+        load_prior_positions,
+        write_acoular_calib_xml,
+        write_acoular_xml,
+    )
     from calibration.session_data import load_session
 
     out: Path = args.out
@@ -169,13 +195,16 @@ def calibrate_session(args: argparse.Namespace, on_stage: Callable[[str], None] 
         method=args.method, latency=args.latency, speed_of_sound=args.speed_of_sound,
         refine_poses=args.refine_poses, weighting=args.weighting,
         allow_interrupted=args.allow_interrupted, joint=not args.no_joint,
-        prior=prior, speed_of_sound_prior=_known_air(args),
+        prior=prior, layout=_layout(args, data), speed_of_sound_prior=_known_air(args),
         intrinsics=_known_intrinsics(args, data) or None)
     run = calibrate(args.session, options, on_stage)  # input errors are UserErrors
     run.result.write(out)
     if report_dir is not None:
-        report_dir = write_report(run, report_dir, truth,
-                                  None if prior is None else prior.positions_m)
+        # the prior in the result's microphone order (the calibration may have relabelled
+        # columns or left microphones out)
+        ids = np.array([m.id for m in run.result.microphones])
+        prior_m = None if prior is None else load_prior_positions(args.prior, ids)
+        report_dir = write_report(run, report_dir, truth, prior_m)
     if args.acoular_xml is not None:
         write_acoular_xml(run.result, args.acoular_xml)
     if args.acoular_calib is not None:

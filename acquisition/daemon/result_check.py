@@ -81,9 +81,11 @@ def check_result(result: dict[str, Any], facts: SessionFacts) -> None:
         if result.get("session_id") != facts.session_id:
             raise ResultRejected(f"it is about session {result.get('session_id')!r}, not "
                                  f"{facts.session_id}")
+        findings = result.get("findings", [])
         _check_microphones(((m["id"], m["position_m"], m["std_m"], m["board"])
                             for m in result["microphones"]), facts,
-                           left_out=_left_out(result.get("findings", [])))
+                           left_out=_named(findings, "left out"),
+                           relabelled=_named(findings, "corrected", RELABELLING))
         _check_speed(result["speed_of_sound_m_s"])
         unknown = {c["name"] for c in result["cameras"]} - facts.cameras
         if unknown:
@@ -118,27 +120,37 @@ def check_live(update: LiveUpdate, facts: SessionFacts) -> None:
                              f"beyond {MAX_PIXEL:g}")
 
 
-def _left_out(findings: Any) -> set[int]:
-    """The microphones that a result's findings say were left out (a dead microphone has
-    no position); ResultRejected for findings that are not a list of findings."""
+RELABELLING = ("swapped-microphones", "shifted-boards")
+"""Findings whose microphones the calibration relabelled (calibration.layout_check): each is
+recorded on the board its cable is really plugged into, which may be another board than the
+session's channel map gives its id."""
+
+
+def _named(findings: Any, action: str, kinds: tuple[str, ...] | None = None) -> set[int]:
+    """The microphones that a result's findings of `kinds` (None: any) name with `action`
+    ("left out": a dead microphone has no position); ResultRejected for findings that are not
+    a list of findings."""
     if not isinstance(findings, list) or not all(isinstance(f, dict) for f in findings):
         raise ResultRejected("its findings are not a list of findings")
-    named = [f.get("microphones", []) for f in findings if f.get("action") == "left out"]
+    named = [f.get("microphones", []) for f in findings if f.get("action") == action
+             and (kinds is None or f.get("kind") in kinds)]
     if not all(isinstance(ids, list) and all(type(i) is int for i in ids) for ids in named):
         raise ResultRejected("its findings name microphones that are not ids")
     return {i for ids in named for i in ids}
 
 
 def _check_microphones(mics: Iterable[tuple[Any, Any, Any, Any]], facts: SessionFacts,
-                       every: bool = True, left_out: frozenset[int] | set[int] = frozenset()
-                       ) -> None:
+                       every: bool = True, left_out: frozenset[int] | set[int] = frozenset(),
+                       relabelled: frozenset[int] | set[int] = frozenset()) -> None:
     seen: set[int] = set()
+    boards = set(facts.mic_boards.values())
     for mic_id, position, std, board in mics:
         if mic_id not in facts.mic_boards or mic_id in seen:
             raise ResultRejected(f"microphone {mic_id!r} is not one of the session's, or appears "
                                  "twice")
         seen.add(mic_id)
-        if board is not None and board != facts.mic_boards[mic_id]:
+        moved = mic_id in relabelled and board in boards  # recorded on another board
+        if board is not None and board != facts.mic_boards[mic_id] and not moved:
             raise ResultRejected(f"microphone {mic_id} is on board {facts.mic_boards[mic_id]}, "
                                  f"not {board!r}")
         if not (_finite_vector(position) and math.hypot(*position) <= MAX_DISTANCE_M):

@@ -117,12 +117,12 @@ def plan_cells(sessions: Sequence[Path], out: Path) -> list[Cell]:
 
 
 def portable_options(options: Mapping[str, object]) -> dict[str, object]:
-    """The calibration options as JSON values, with their files (`prior`, `intrinsics`)
+    """The calibration options as JSON values, with their files (`prior`, `layout`, `intrinsics`)
     made absolute, so that a worker in another directory reads the same files and cell.json
     compares them exactly."""
     out: dict[str, object] = {}
     for key, value in options.items():
-        if key == "prior" and value is not None:
+        if key in ("prior", "layout") and value is not None:
             value = os.path.abspath(str(value))
         elif key == "intrinsics":
             items = []
