@@ -27,6 +27,8 @@ from calibration.pipeline import CalibrationOptions, CalibrationRun, calibrate, 
 from calibration.result import compare_with_truth
 from tests.conftest import simulated_session
 
+pytestmark = pytest.mark.slow  # every test reads a calibrated simulated session (seconds each)
+
 SMALL_LAB = ("--lab", "realistic", "--array", "scatter48", "--poses", "5", "--mls-order", "12",
              "--seed", "4")
 

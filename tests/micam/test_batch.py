@@ -29,6 +29,8 @@ from acquisition.contracts.errors import UserError
 from micam.batch import BatchOutcome, run_batch
 from micam.cli import EXIT_FAILED, EXIT_USAGE, main
 
+pytestmark = pytest.mark.slow  # a Dask cluster and calibrated simulated sessions (seconds each)
+
 SEEDS = (3, 4, 5)
 ALONE = """import json, sys
 from micam.calibrating import calibrate_session
