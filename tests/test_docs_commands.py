@@ -45,12 +45,14 @@ RUN: dict[tuple[str, ...], Callable[[list[str]], bool]] = {
     ("install", "systemd"): _run_if("--dry-run"),
     ("daq", "list"): _run_if("--emulate"),
 }
+# run on the small simulated session in place of their DIR / SESSION
+RUN_ON_A_SESSION = {("inspect",)}
+SESSION_PLACEHOLDERS = {"DIR", "SESSION"}
 NOT_RUN = {
     ("simulate",): "20-30 poses as written: minutes (parsed only)",
     ("import",): "run as written, in order, by tests/micam/test_docs_import.py",
     ("example", "import"): "run as written, in order, by tests/micam/test_docs_import.py",
     ("calibrate",): "a session calibrated: seconds to minutes (test_docs_import.py runs one)",
-    ("inspect",): "needs a session (DIR)",
     ("batch",): "many sessions, a Dask cluster: minutes",
     ("study",): "simulations and calibrations on a cluster: minutes",
     ("image",): "needs a calibrated session",
@@ -132,8 +134,8 @@ def test_every_micam_command_of_the_docs_parses(command: DocCommand) -> None:
         error = _parse_error(variant, elided)
         assert error is None, f"{command.where}: micam {' '.join(variant)}: {error}"
         path = _subcommand(parser, variant)
-        assert path in RUN or path in NOT_RUN, \
-            f"{command.where}: micam {' '.join(path)}: add it to RUN or NOT_RUN"
+        assert path in RUN or path in RUN_ON_A_SESSION or path in NOT_RUN, \
+            f"{command.where}: micam {' '.join(path)}: add it to RUN, RUN_ON_A_SESSION or NOT_RUN"
 
 
 def test_a_removed_option_fails_the_check() -> None:
@@ -198,3 +200,21 @@ def test_the_cheap_commands_run_as_written(doc: Path, tmp_path: Path,
             assert status == EXIT_OK or status == EXIT_USAGE and refused_template, \
                 f"{command.where}: micam {' '.join(variant)} -> {status}:\n{out}\n{err}"
             assert out or err, f"{command.where}: micam {' '.join(variant)} said nothing"
+
+
+@pytest.mark.slow  # the small simulated session (shared, once per run): 4 s alone
+def test_the_session_commands_run_as_written_on_a_session(small_session: Path,
+                                                          capsys: pytest.CaptureFixture[str]
+                                                          ) -> None:
+    ran = 0
+    for command in _micam_commands():
+        for variant in synopsis_variants(command.words[1:]):
+            if _subcommand(_parser(), variant) not in RUN_ON_A_SESSION:
+                continue
+            words = [str(small_session) if w in SESSION_PLACEHOLDERS else w for w in variant]
+            status = main(words)
+            out, err = capsys.readouterr()
+            assert status == EXIT_OK and str(small_session) in out, \
+                f"{command.where}: micam {' '.join(words)} -> {status}:\n{out}\n{err}"
+            ran += 1
+    assert ran, "no doc gives these commands: drop RUN_ON_A_SESSION"
