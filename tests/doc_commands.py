@@ -98,6 +98,14 @@ def doc_commands(doc: Path) -> list[DocCommand]:
     return found
 
 
+def inline_micam_spans(doc: Path) -> list[tuple[int, list[str]]]:
+    """Each `micam ...` code span of `doc`'s prose (an option named in a sentence, often without
+    its value): (its line, its words after `micam`)."""
+    text = doc.read_text()
+    return [(text.count("\n", 0, m.start()) + 1, m.group(1).split())
+            for m in re.finditer(r"`micam\s([^`]+)`", text)]
+
+
 def _split(words: list[str]) -> list[list[str]]:
     """`words` cut at the shell's command separators; the synopsis' `|` inside brackets and
     parentheses is an alternative, not a pipe."""

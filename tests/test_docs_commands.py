@@ -1,8 +1,9 @@
 """Every command the README and docs/*.md give in their shell blocks is one the tree has: each
 `micam ...` parses with micam's own parser (every variant of a synopsis, see
 tests/doc_commands.py), each benchmark and module exists and takes the options given, each make
-target exists; and the cheap, self-contained ones run, in order, in a fresh directory. A doc
-that drifts from the command line fails here with its file and line."""
+target exists; and the cheap, self-contained ones run, in order, in a fresh directory. Every
+option the prose names (`micam daemon --make-keys`) exists too. A doc that drifts from the
+command line fails here with its file and line."""
 
 from __future__ import annotations
 
@@ -18,7 +19,8 @@ from pathlib import Path
 import pytest
 
 from micam.cli import EXIT_OK, EXIT_USAGE, build_parser, main
-from tests.doc_commands import REPO, DocCommand, doc_commands, synopsis_variants
+from tests.doc_commands import (REPO, DocCommand, doc_commands, inline_micam_spans,
+                                synopsis_variants)
 
 DOCS = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]
 COMMANDS = [c for doc in DOCS for c in doc_commands(doc)]
@@ -101,6 +103,15 @@ def _subcommand(parser: argparse.ArgumentParser, words: list[str]) -> tuple[str,
     return tuple(path)
 
 
+def _command_parser(words: list[str]) -> tuple[argparse.ArgumentParser, tuple[str, ...]]:
+    """The parser of the (nested) subcommand `words` names, and its path."""
+    parser, path = _parser(), _subcommand(_parser(), words)
+    for name in path:
+        parser = next(a.choices for a in parser._actions
+                      if isinstance(a, argparse._SubParsersAction))[name]
+    return parser, path
+
+
 def _parse_error(words: list[str], elided: bool) -> str | None:
     """argparse's complaint about `micam words`, or None; an elided synopsis (`...`) may leave
     required arguments out."""
@@ -113,6 +124,14 @@ def _parse_error(words: list[str], elided: bool) -> str | None:
         if exit.code != 0 and not (elided and "arguments are required" in message[0]):
             return message[0]
     return None
+
+
+def _abbreviated(words: list[str]) -> list[str]:
+    """The options of `micam words` not written out (argparse takes `--camera-f` for
+    `--camera-fps` until another option begins so)."""
+    parser, _ = _command_parser(words)
+    return [w.split("=")[0] for w in words if w.startswith("--")
+            and w.split("=")[0] not in parser._option_string_actions]
 
 
 def _micam_commands() -> list[DocCommand]:
@@ -128,12 +147,13 @@ def test_the_docs_give_commands() -> None:
 
 @pytest.mark.parametrize("command", _micam_commands(), ids=lambda c: c.where)
 def test_every_micam_command_of_the_docs_parses(command: DocCommand) -> None:
-    parser = _parser()
     elided = "..." in command.words
     for variant in synopsis_variants(command.words[1:]):
         error = _parse_error(variant, elided)
         assert error is None, f"{command.where}: micam {' '.join(variant)}: {error}"
-        path = _subcommand(parser, variant)
+        abbreviated = _abbreviated(variant)
+        assert not abbreviated, f"{command.where}: write out {abbreviated} (argparse guesses)"
+        path = _subcommand(_parser(), variant)
         assert path in RUN or path in RUN_ON_A_SESSION or path in NOT_RUN, \
             f"{command.where}: micam {' '.join(path)}: add it to RUN, RUN_ON_A_SESSION or NOT_RUN"
 
@@ -142,9 +162,25 @@ def test_a_removed_option_fails_the_check() -> None:
     """The check can fail: an option micam does not have is named, with the doc's line."""
     assert "--no-such" in (_parse_error(["simulate", "--out", "s", "--no-such"], False) or "")
     assert _parse_error(["session", "begin"], False)
+    assert _abbreviated(["live", "start", "--camera-f", "10"]) == ["--camera-f"]
     assert synopsis_variants(("calibrate", "DIR", "[--method", "micam|paper]")) == [
         ["calibrate", "DIR", "--method", "micam"], ["calibrate", "DIR", "--method", "paper"],
         ["calibrate", "DIR"]]
+
+
+@pytest.mark.parametrize("doc", DOCS, ids=lambda d: str(d.relative_to(REPO)))
+def test_every_micam_option_the_prose_names_exists(doc: Path) -> None:
+    """`micam daemon --make-keys` in a sentence: the subcommand has that option (the value, often
+    left out in prose, is not checked)."""
+    unknown = []
+    for line, words in inline_micam_spans(doc):
+        parser, path = _command_parser(words)
+        if words and not words[0].startswith("-") and not path:
+            unknown.append(f"{doc.name}:{line}: micam {words[0]}")
+        options = [re.sub(r"[=\]),.;:].*$", "", w.lstrip("[(")) for w in words]
+        unknown += [f"{doc.name}:{line}: micam {' '.join(path)} {o}" for o in options
+                    if o.startswith("--") and o not in parser._option_string_actions]
+    assert not unknown, unknown
 
 
 @pytest.mark.parametrize("command", [c for c in COMMANDS if c.program != "micam"],
