@@ -42,7 +42,9 @@ def _run_if(*required: str) -> Callable[[list[str]], bool]:
 RUN: dict[tuple[str, ...], Callable[[list[str]], bool]] = {
     (): _run_if("--version"),
     ("config", "template"): _run_if(),
-    ("config", "check"): lambda words: Path(words[-1]).exists(),  # the one written above it
+    # the one written above it (not this machine's /etc/micam/daemon.toml)
+    ("config", "check"): lambda words: not Path(words[-1]).is_absolute()
+    and Path(words[-1]).exists(),
     ("install", "udev"): _run_if("--dry-run"),
     ("install", "systemd"): _run_if("--dry-run"),
     ("daq", "list"): _run_if("--emulate"),
