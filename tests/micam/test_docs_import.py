@@ -15,16 +15,10 @@ from pathlib import Path
 import pytest
 
 from calibration.result import CalibrationResult, compare_with_truth
+from tests.doc_commands import doc_commands
 
 REPO = Path(__file__).resolve().parents[2]
 DOC = REPO / "docs/import.md"
-
-
-def shell_commands(markdown: str) -> list[list[str]]:
-    """Every command of the ```sh blocks, split as a shell would (comments dropped)."""
-    blocks = re.findall(r"^```sh\n(.*?)^```", markdown, flags=re.M | re.S)
-    return [words for block in blocks for line in block.splitlines()
-            if (words := shlex.split(line, comments=True))]
 
 
 def _micam() -> list[str]:
@@ -35,7 +29,7 @@ def _micam() -> list[str]:
 
 @pytest.mark.slow  # a 48-microphone lab written, imported and calibrated: about 15 s
 def test_the_shell_blocks_of_docs_import_run_as_written(tmp_path: Path) -> None:
-    commands = shell_commands(DOC.read_text())
+    commands = [list(c.words) for c in doc_commands(DOC)]
     assert [c[:2] for c in commands] == [["micam", "example"], ["micam", "import"],
                                          ["micam", "import"], ["micam", "calibrate"],
                                          ["micam", "config"]], commands

@@ -172,9 +172,21 @@ def test_a_whole_session_from_the_page(stack: Stack, chromium: type[Chromium],
         assert kind == [200, "image/png"], kind
         b.js("document.getElementById('report').scrollIntoView()")
         b.driver.save_screenshot(str(screenshots / "report.png"))
+        _shoot_whole(b, "sessions-section", screenshots / "report-section.png")
         _a_second_session_shows_nothing_of_the_first(b, stack, screenshots)
     finally:
         b.close()
+
+
+def _shoot_whole(b: Chromium, element: str, path: Path) -> None:
+    """A screenshot of the whole `element` (docs/operator.md's report), in a window made tall
+    enough for it and then given back its size."""
+    size = b.driver.get_window_size()
+    b.driver.set_window_size(size["width"], 6000)
+    try:
+        b.driver.find_element(By.ID, element).screenshot(str(path))
+    finally:
+        b.driver.set_window_size(size["width"], size["height"])
 
 
 COVERAGE_TICKS = """return Object.fromEntries(['azimuth', 'elevation', 'distance'].map((axis) =>
