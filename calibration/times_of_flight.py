@@ -159,6 +159,8 @@ def measure_session_tofs(
         # one period recorded with silence before and after: zero-padding to a fast FFT
         # length changes nothing but the speed (19 k samples is 19 x 997: a slow length)
         first, stop = 0, data.n_samples
+        burst = data.description.burst
+        burst_samples: int | None = burst.periods * burst.sequence_samples
         n_fft = sfft.next_fast_len(data.n_samples, real=True)
     else:
         # periodic bursts: the last period holds every arrival in its periodic steady state,
@@ -166,6 +168,7 @@ def measure_session_tofs(
         # whose reflections are clean pulses apart from the direct sound's
         first, stop = steady
         n_fft = stop - first
+        burst_samples = None
     settings = (band_hz, weighting, window, first, n_fft, tuple(columns.tolist()),
                 tuple(signs.tolist()), _recording_hashes(data, reference_step))
     keys = [(_recording_hashes(data, _every_speaker_in(step)), settings)
@@ -181,7 +184,7 @@ def measure_session_tofs(
 
     def correlate(i: int) -> PoseTofs:
         recordings = data.pose_recordings(data.pose_steps[i], columns, samples)
-        levels = channel_levels(recordings, full_scale)
+        levels = channel_levels(recordings, full_scale, burst_samples)
         recordings *= column_signs[None, :, None]
         assert references is not None  # read whenever something is to do
         pose = _frozen((estimate_delays(recordings, references, data.fs, band=band_hz,

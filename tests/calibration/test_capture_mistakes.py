@@ -223,3 +223,22 @@ def test_levels_count_samples_at_the_rail_and_blocks_that_dropped_out() -> None:
     padded += rng.standard_normal(padded.shape)  # idle noise of a few codes
     np.testing.assert_allclose(channel_levels(padded.astype(np.float32), 32768.0).dropout_share[0],
                                [0.0, 0.0, 2 / 16])
+
+
+def test_a_late_reflection_after_a_short_burst_is_no_dropout() -> None:
+    """A 4-block burst, two quiet blocks, then a reflection off a far wall as loud as the
+    burst (a short MLS in a room): judged over the whole recording the gap looked like a
+    dropout; over the blocks the burst fills it is none, and a real dropout inside it is."""
+    rng = np.random.default_rng(1)
+    silence = np.zeros((1, 2, 2 * DROPOUT_BLOCK))
+    burst = rng.standard_normal((1, 2, 4 * DROPOUT_BLOCK)) * 8000
+    burst[0, 1, DROPOUT_BLOCK:2 * DROPOUT_BLOCK] *= 1e-3  # channel 1 drops out for a block
+    echo = rng.standard_normal((1, 2, DROPOUT_BLOCK)) * 6000
+    recording = np.concatenate([silence, burst, silence, echo, silence], axis=-1)
+    recording += rng.standard_normal(recording.shape)  # idle noise of a few codes
+    recording = recording.astype(np.float32)
+    whole = channel_levels(recording, 32768.0).dropout_share[0]
+    assert whole[0] > 0  # the gap before the echo, taken for a dropout
+    np.testing.assert_allclose(
+        channel_levels(recording, 32768.0, burst_samples=4 * DROPOUT_BLOCK).dropout_share[0],
+        [0.0, 1 / 4])
