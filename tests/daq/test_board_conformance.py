@@ -30,7 +30,7 @@ from sim.world import World
 from tests.daq.usb_helpers import RATE, loop_bench
 
 N = 256
-"""Samples per scan: the smallest that every board streams at once."""
+"""Samples per scan: a short one, read whole."""
 
 
 def scan(rate_hz: float) -> ScanConfig:
@@ -52,17 +52,15 @@ def emulated_usb() -> tuple[Board, ScanConfig]:
 @pytest.fixture(params=["simulated", "emulated USB",
                         pytest.param("audio", marks=pytest.mark.slow)])  # a JACK server, 3 s
 def board(request: pytest.FixtureRequest) -> Iterator[tuple[Board, ScanConfig]]:
-    make: Callable[[], tuple[Board, ScanConfig]]
+    """A fresh board of each implementation and a scan it can do; closed at the end."""
     if request.param == "audio":
         request.getfixturevalue("jack_server")
         from daq.audio import AudioBoard, find_device
         from sim.jack_server import RATE_HZ
 
-        def make() -> tuple[Board, ScanConfig]:
-            return AudioBoard(find_device("system"), "A"), scan(RATE_HZ)
+        made, config = AudioBoard(find_device("system"), "A"), scan(RATE_HZ)
     else:
-        make = simulated if request.param == "simulated" else emulated_usb
-    made, config = make()
+        made, config = simulated() if request.param == "simulated" else emulated_usb()
     with made:
         yield made, config
 
