@@ -23,12 +23,12 @@ Two bounds:
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
 from scipy import sparse
 
 from acquisition.contracts.rigid import rotated_point_jacobian
+from calibration.choices import DEFAULT_LATENCY, LatencyModel
 from calibration.solver import RigSources, SolverOptions, latency_columns
 
 
@@ -83,7 +83,7 @@ def joint_crlb(
     timing_std_s: float | np.ndarray,
     valid: np.ndarray | None = None,
     fit_speed_of_sound: bool = True,
-    latency: Literal["none", "common", "per_board"] = "common",
+    latency: LatencyModel = DEFAULT_LATENCY,
     board_of_mic: np.ndarray | None = None,
     reference_board: int | None = 0,
     source_std_m: float = 0.0,

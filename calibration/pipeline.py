@@ -63,6 +63,7 @@ from .camera_calibration import (
     calibrate_session,
 )
 from .capture_checks import CaptureVerdict, apply_verdict, check_capture, inverted_microphones
+from .choices import DEFAULT_LATENCY, LatencyModel, Stage
 from .delay_estimation import Weighting
 from .errors import CalibrationInputError
 from .fit_checks import SourceResiduals, moved_poses, speaker_findings
@@ -177,7 +178,8 @@ class CalibrationOptions:
     Attributes:
         method: "micam" (the sparse robust solver) or "paper" (section IV-I's coordinate search
             from zeros, c fixed, no latency; the baseline).
-        latency: "per_board", "common" or "none".
+        latency: "per_board" (the default, `calibration.choices.DEFAULT_LATENCY`), "common" or
+            "none".
         speed_of_sound: "reference" (fixed at the reference-microphone fit; falls back to
             "solve" without a refmic image) or "solve" (an unknown of the solver).
         refine_poses: fit a rigid correction per rig pose, weighted by the camera's pose
@@ -230,7 +232,7 @@ class CalibrationOptions:
     """
 
     method: Literal["micam", "paper"] = "micam"
-    latency: Literal["per_board", "common", "none"] = "per_board"
+    latency: LatencyModel = DEFAULT_LATENCY
     speed_of_sound: Literal["reference", "solve"] = "reference"
     refine_poses: bool = False
     band_hz: tuple[float, float] = (300.0, 20_000.0)
@@ -307,7 +309,7 @@ class CalibrationRun:
         return self.measurements.tofs
 
 
-def _timed(timings: dict[str, float], name: str, on_stage: Callable[[str], None] | None):
+def _timed(timings: dict[str, float], name: Stage, on_stage: Callable[[str], None] | None):
     """Context manager that tells `on_stage` and records the stage's duration in seconds."""
 
     class _Stage:

@@ -28,7 +28,6 @@ acquisition.contracts.rigid's, the robust scale and normal-matrix inverse calibr
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
 from scipy import sparse
@@ -38,6 +37,7 @@ from scipy.spatial.transform import Rotation
 from acquisition.contracts.air import NOMINAL_SPEED_OF_SOUND_M_S
 from acquisition.contracts.rigid import RigidTransform, kabsch, rotated_point_jacobian
 
+from .choices import DEFAULT_LATENCY, LatencyModel
 from .errors import CalibrationInputError
 from .multilateration import multilaterate
 from .robust import inverse_normal, robust_sigma
@@ -100,7 +100,8 @@ class SolverOptions:
         speed_of_sound_m_s: the start value of c, or its value when not fitted (e.g. from
             `calibration.speed_of_sound.fit_speed_of_sound`).
         fit_speed_of_sound: make c an unknown (shared by all microphones, it costs little).
-        latency: "none", "common" (one delta for all channels) or "per_board".
+        latency: "per_board" (the default, `calibration.choices.DEFAULT_LATENCY`), "common" (one delta for all
+            channels) or "none".
         reference_board: with "per_board", the board whose latency is fixed at 0 (the one
             recording the reference microphone: delays are measured against it). None fits
             every board's latency.
@@ -129,7 +130,7 @@ class SolverOptions:
 
     speed_of_sound_m_s: float = NOMINAL_SPEED_OF_SOUND_M_S
     fit_speed_of_sound: bool = True
-    latency: Literal["none", "common", "per_board"] = "common"
+    latency: LatencyModel = DEFAULT_LATENCY
     reference_board: int | None = 0
     refine_poses: bool = False
     source_std_m: float | np.ndarray | None = None

@@ -4,6 +4,7 @@ The USB driver for real Data Translation boards lives in `daq.usb`, the audio-in
 (any device PortAudio reaches) in `daq.audio`; the simulated boards in `sim.boards`. Everything above this layer talks to the `Board` protocol only.
 """
 
+from ._call_order import BoardCall, BoardState, CallOrder
 from ._config import ClockSource, InputChannel, OutputChannel, ScanConfig, TriggerSource
 from ._errors import (
     BoardStateError,
@@ -35,10 +36,13 @@ __all__ = [
     "CODE_FULL_SCALE",
     "Block",
     "Board",
+    "BoardCall",
     "BoardIdentity",
     "ClosesOnExit",
     "BoardModel",
+    "BoardState",
     "BoardStateError",
+    "CallOrder",
     "ChannelLevel",
     "ClockSource",
     "ConfigurationError",

@@ -75,7 +75,9 @@ class Board(Protocol):
     Call order: configure -> (write) -> arm -> start -> read... -> stop; close at the end (or
     `with board:`). A board configured for an external trigger starts on the shared trigger
     edge after `arm`; `start` is only meaningful for a board on a software trigger (it
-    releases the scan).
+    releases the scan). Every implementation keeps this order with `daq.CallOrder`: a call out
+    of order raises BoardStateError, any call after `close` DeviceDisconnectedError
+    (tests/daq/test_board_conformance.py checks each board).
     """
 
     @property

@@ -23,10 +23,6 @@ if TYPE_CHECKING:
     from acquisition.contracts.air import SpeedOfSoundPrior
     from calibration.pipeline import CalibrationRun
 
-STAGES = ("load", "cameras", "speakers", "times of flight", "solver", "dispersion", "joint fit",
-          "responses")
-"""The stages of a calibration, in order, as `calibrate`'s `on_stage` names them."""
-
 
 def _prior(args: argparse.Namespace):
     """The --prior geometry in the session's microphone order (checked before any work)."""

@@ -9,14 +9,15 @@ the way hardware fails (unplugged, FIFO overrun, no trigger) so that those outco
 from __future__ import annotations
 
 from dataclasses import dataclass
-from enum import Enum
 
 import numpy as np
 
 from daq import (
     Block,
+    BoardCall,
     BoardIdentity,
     BoardStateError,
+    CallOrder,
     ClosesOnExit,
     ConfigurationError,
     DeviceDisconnectedError,
@@ -29,14 +30,6 @@ from daq import (
 
 from .arrays import BoardSpec
 from .analog_bench import AcousticBench
-
-
-class _State(Enum):
-    NEW = "new"
-    CONFIGURED = "configured"
-    ARMED = "armed"
-    RUNNING = "running"
-    CLOSED = "closed"
 
 
 @dataclass
@@ -62,7 +55,7 @@ class SimulatedBoard(ClosesOnExit):
         self._bench = bench
         bench.board_index(spec.serial)  # fails early for a board that is not wired
         self.faults = BoardFaults()
-        self._state = _State.NEW
+        self._order = CallOrder(str(self._identity))
         self._config: ScanConfig | None = None
         self._pending_output: np.ndarray | None = None
         self._armed_after = 0
@@ -74,13 +67,13 @@ class SimulatedBoard(ClosesOnExit):
         return self._identity
 
     def configure(self, config: ScanConfig) -> None:
-        self._require(_State.NEW, _State.CONFIGURED)
+        self._order.check("configure")
         config.check_against(self._identity.model, self._identity.serial)
         self._config = config
-        self._state = _State.CONFIGURED
+        self._order.done("configure")
 
     def write(self, codes: np.ndarray) -> None:
-        config = self._require(_State.CONFIGURED)
+        config = self._require("write")
         codes = np.asarray(codes)
         n_out = len(config.outputs)
         if codes.dtype != np.int16 or codes.ndim != 2 or codes.shape[1] != n_out:
@@ -91,7 +84,7 @@ class SimulatedBoard(ClosesOnExit):
         self._pending_output = codes
 
     def arm(self) -> None:
-        config = self._require(_State.CONFIGURED)
+        config = self._require("arm")
         if self._pending_output is not None:
             self._bench.load_output(self._identity.serial, [c.channel for c in config.outputs],
                                     self._pending_output, config.outputs[0].range_v)
@@ -99,23 +92,22 @@ class SimulatedBoard(ClosesOnExit):
         self._armed_after = self._bench.current_scan
         self._scan = None
         self._index = 0
-        self._state = _State.ARMED
+        self._order.done("arm")
 
     def start(self) -> None:
-        config = self._require(_State.ARMED)
+        config = self._require("start")
         if config.trigger is not TriggerSource.SOFTWARE:
             raise BoardStateError(
                 f"{self._identity}: start() releases a software trigger, but this board waits "
                 "for the external trigger; start the master board instead"
             )
         self._scan = self._bench.fire_trigger()
-        self._state = _State.RUNNING
+        self._order.done("start")
 
     def read(self, n_samples: int, timeout_s: float) -> Block:
-        config = self._require(_State.ARMED, _State.RUNNING)
+        config = self._require("read")
         if self._scan is None:
             self._scan = self._wait_for_trigger(timeout_s)
-            self._state = _State.RUNNING
         limit = config.samples_per_channel
         if limit is not None and self._index + n_samples > limit:
             raise BoardStateError(
@@ -130,11 +122,10 @@ class SimulatedBoard(ClosesOnExit):
         return block
 
     def stop(self) -> None:
-        if self._state in (_State.ARMED, _State.RUNNING):
-            self._state = _State.CONFIGURED
+        self._order.stop()
 
     def close(self) -> None:
-        self._state = _State.CLOSED
+        self._order.close()
 
     def _wait_for_trigger(self, timeout_s: float) -> int:
         if self.faults.miss_trigger:
@@ -154,7 +145,7 @@ class SimulatedBoard(ClosesOnExit):
         f = self.faults
         if f.unplug_at_sample is not None and f.unplug_at_sample < end:
             at, f.unplug_at_sample = f.unplug_at_sample, None
-            self._state = _State.CLOSED
+            self._order.close()
             raise DeviceDisconnectedError(
                 f"{self._identity}: the board disappeared from the bus at sample {at}; check its "
                 "USB cable and power, then reconnect"
@@ -165,12 +156,9 @@ class SimulatedBoard(ClosesOnExit):
                 f"{self._identity}: input FIFO overrun at sample {at}; the data after it is lost"
             )
 
-    def _require(self, *states: _State) -> ScanConfig:
-        if self._state is _State.CLOSED:
-            raise DeviceDisconnectedError(f"{self._identity}: the board is closed or unplugged")
-        if self._state not in states:
-            wanted = " or ".join(s.value for s in states)
-            raise BoardStateError(
-                f"{self._identity}: call not allowed while {self._state.value} (needs {wanted})"
-            )
-        return self._config  # type: ignore[return-value]
+    def _require(self, call: BoardCall) -> ScanConfig:
+        """Check the call order (`daq.CallOrder`); the configuration every call but
+        `configure` works on."""
+        self._order.check(call)
+        assert self._config is not None
+        return self._config

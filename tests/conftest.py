@@ -8,8 +8,9 @@ import pytest
 
 from sim.capture import SimulationOptions
 
-AUDIO_TESTS = "tests/daq/audio/"
-"""The audio backend's tests, each module with a JACK server of its own in real time."""
+AUDIO_TESTS = ("tests/daq/audio/", "tests/daq/test_board_conformance.py")
+"""The tests that run a JACK server in real time: the audio backend's, and the board
+conformance test's audio case."""
 
 
 def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object:
@@ -21,7 +22,9 @@ def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object:
 
     class ModulesAndAudioTogether(LoadScopeScheduling):
         def _split_scope(self, nodeid: str) -> str:
-            return AUDIO_TESTS if nodeid.startswith(AUDIO_TESTS) else super()._split_scope(nodeid)
+            if nodeid.startswith(AUDIO_TESTS):
+                return AUDIO_TESTS[0]
+            return super()._split_scope(nodeid)
 
     return ModulesAndAudioTogether(config, log)
 

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import threading
 from dataclasses import dataclass
-from enum import Enum
 
 import numpy as np
 
@@ -29,6 +28,7 @@ from daq import (
     BoardIdentity,
     BoardModel,
     BoardStateError,
+    CallOrder,
     ClockSource,
     ClosesOnExit,
     ConfigurationError,
@@ -65,13 +65,6 @@ def device_model(device: AudioDeviceInfo) -> BoardModel:
                       input_fifo_samples=0)
 
 
-class _State(Enum):
-    IDLE = "idle"
-    CONFIGURED = "configured"
-    ARMED = "armed"
-    CLOSED = "closed"
-
-
 class AudioBoard(ClosesOnExit):
     """One audio interface (module docstring).
 
@@ -92,7 +85,7 @@ class AudioBoard(ClosesOnExit):
         self._clock = clock
         if clock is not None:
             clock.join(self)
-        self._state = _State.IDLE
+        self._order = CallOrder(str(self._identity))
         self._config: ScanConfig | None = None
         self._stream: DuplexStream | None = None
         self._waveform: np.ndarray | None = None  # int16 codes of the configured outputs
@@ -111,12 +104,13 @@ class AudioBoard(ClosesOnExit):
 
     @property
     def armed(self) -> bool:
-        return self._state is _State.ARMED
+        """Between `arm` and `stop`."""
+        return self._order.scanning
 
     # -- the daq.Board protocol ---------------------------------------------------------------
 
     def configure(self, config: ScanConfig) -> None:
-        self._require(_State.IDLE, _State.CONFIGURED, doing="configure")
+        self._order.check("configure")
         where, dev = str(self._identity), self.device
         for kind, channels, have in (("input", config.inputs, dev.inputs),
                                      ("output", config.outputs, dev.outputs)):
@@ -140,7 +134,7 @@ class AudioBoard(ClosesOnExit):
             self._stream = None
         self._config = config
         self._waveform = None
-        self._state = _State.CONFIGURED
+        self._order.done("configure")
 
     def _check_settings(self, rate_hz: float, n_in: int, n_out: int) -> None:
         sd = portaudio()
@@ -154,7 +148,7 @@ class AudioBoard(ClosesOnExit):
             raise refused(self.device, rate_hz, n_in, n_out, exc) from None
 
     def write(self, codes: np.ndarray) -> None:
-        self._require(_State.CONFIGURED, doing="write an output waveform")
+        self._order.check("write")
         config = self._config
         assert config is not None
         codes = np.asarray(codes)
@@ -167,7 +161,7 @@ class AudioBoard(ClosesOnExit):
         self._waveform = codes
 
     def arm(self) -> None:
-        self._require(_State.CONFIGURED, doing="arm")
+        self._order.check("arm")
         config = self._config
         assert config is not None
         stream = self._stream
@@ -184,10 +178,10 @@ class AudioBoard(ClosesOnExit):
         self._window = None
         self._placed.clear()
         self._next = 0
-        self._state = _State.ARMED
+        self._order.done("arm")
 
     def start(self) -> None:
-        self._require(_State.ARMED, doing="start")
+        self._order.check("start")
         assert self._config is not None
         if self._config.trigger is not TriggerSource.SOFTWARE:
             raise BoardStateError(
@@ -202,6 +196,7 @@ class AudioBoard(ClosesOnExit):
         # return at sample 0, as a board's scan starts on its start: a caller pacing its
         # reads by the clock from here (live mode) is then not behind by the lead
         stream.wait_frames(window, timeout_s=1.0 + (window - stream.frames) / stream.rate_hz)
+        self._order.done("start")
 
     def place_window(self, window_frame: int) -> None:
         """Put sample 0 of the recording (and of the output burst) at `window_frame`."""
@@ -219,7 +214,7 @@ class AudioBoard(ClosesOnExit):
         self._placed.set()
 
     def read(self, n_samples: int, timeout_s: float) -> Block:
-        self._require(_State.ARMED, doing="read")
+        self._order.check("read")
         config = self._config
         assert config is not None
         if not self._placed.wait(timeout_s):
@@ -260,25 +255,18 @@ class AudioBoard(ClosesOnExit):
         raise UnderrunError(why)
 
     def stop(self) -> None:
-        if self._state is not _State.ARMED:
+        if not self._order.stop():
             return
         if self._stream is not None:
             self._stream.play(0, None)
         self._window = None
         self._placed.clear()
-        self._state = _State.CONFIGURED
 
     def close(self) -> None:
-        if self._state is _State.CLOSED:
+        if self._order.closed:
             return
         self.stop()
         if self._stream is not None:
             self._stream.close()
             self._stream = None
-        self._state = _State.CLOSED
-
-    def _require(self, *states: _State, doing: str) -> None:
-        if self._state is _State.CLOSED:
-            raise DeviceDisconnectedError(f"{self._identity} is closed")
-        if self._state not in states:
-            raise BoardStateError(f"{self._identity}: cannot {doing} while {self._state.value}")
+        self._order.close()

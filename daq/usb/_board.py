@@ -11,7 +11,6 @@ the trigger, arm, release, stream and stop. The family (DT9836 or DT9816) is dat
 from __future__ import annotations
 
 import dataclasses
-from enum import Enum
 
 import numpy as np
 
@@ -19,6 +18,7 @@ from daq import (
     Block,
     BoardIdentity,
     BoardStateError,
+    CallOrder,
     ClockSource,
     ClosesOnExit,
     ConfigurationError,
@@ -53,13 +53,6 @@ DRAIN_TIMEOUT_S = 0.01
 """An idle endpoint answers a drain read with this timeout."""
 
 
-class _State(Enum):
-    IDLE = "idle"
-    CONFIGURED = "configured"
-    ARMED = "armed"
-    CLOSED = "closed"
-
-
 class UsbBoard(ClosesOnExit):
     """One Data Translation board driven over USB; satisfies the `daq.Board` protocol."""
 
@@ -70,7 +63,7 @@ class UsbBoard(ClosesOnExit):
         self.channel = CommandChannel(transport)
         self._identity = identify(self.channel, family)
         self.channel.write_registers(INIT_SEQUENCE)
-        self._state = _State.IDLE
+        self._order = CallOrder(transport.name)
         self._config: ScanConfig | None = None
         self._settings: ScanSettings | None = None
         self._armed: ScanSettings | None = None
@@ -89,7 +82,7 @@ class UsbBoard(ClosesOnExit):
     # -- the daq.Board protocol -------------------------------------------------------------
 
     def configure(self, config: ScanConfig) -> None:
-        self._require(_State.IDLE, _State.CONFIGURED, doing="configure")
+        self._order.check("configure")
         model, where = self._identity.model, self._transport.name
         config.check_against(model, self._identity.serial)
         ranges = {c.range_v for c in config.inputs}
@@ -127,10 +120,10 @@ class UsbBoard(ClosesOnExit):
         self._output_order = [config.outputs.index(c) for c in
                               sorted(config.outputs, key=lambda o: o.channel)]
         self._waveform = None
-        self._state = _State.CONFIGURED
+        self._order.done("configure")
 
     def write(self, codes: np.ndarray) -> None:
-        self._require(_State.CONFIGURED, doing="write an output waveform")
+        self._order.check("write")
         config = self._config
         assert config is not None
         codes = np.asarray(codes)
@@ -145,7 +138,7 @@ class UsbBoard(ClosesOnExit):
         self._waveform = codes[:, self._output_order]
 
     def arm(self) -> None:
-        self._require(_State.CONFIGURED, doing="arm")
+        self._order.check("arm")
         config, settings = self._config, self._settings
         assert config is not None and settings is not None
         self._transport.clear_halt(EP_STREAM_IN)
@@ -164,7 +157,7 @@ class UsbBoard(ClosesOnExit):
         self._watcher.attach(self._stream)
         self._next_index = 0
         self._stream.start()
-        self._state = _State.ARMED
+        self._order.done("arm")
 
     def _drain_stale_input(self) -> None:
         """Discard what an earlier scan left in the input endpoint: a stale byte would shift
@@ -180,14 +173,15 @@ class UsbBoard(ClosesOnExit):
         )
 
     def start(self) -> None:
-        self._require(_State.ARMED, doing="start")
+        self._order.check("start")
         assert self._config is not None and self._armed is not None
         if self._config.trigger is TriggerSource.SOFTWARE:
             for command in software_trigger_commands(self._armed):
                 self.channel.send(command)
+        self._order.done("start")
 
     def read(self, n_samples: int, timeout_s: float) -> Block:
-        self._require(_State.ARMED, doing="read")
+        self._order.check("read")
         assert self._stream is not None and self._config is not None
         total = self._config.samples_per_channel
         if total is not None and self._next_index + n_samples > total:
@@ -204,12 +198,11 @@ class UsbBoard(ClosesOnExit):
     def stop(self) -> None:
         """End the scan. Errors of the stop commands are raised only if the scan itself had
         not already failed (its error is the one that matters, and `read` has raised it)."""
-        if self._state is not _State.ARMED:
-            return
         stream, armed = self._stream, self._armed
+        if not self._order.stop():
+            return
         assert stream is not None and armed is not None
         failure = stream.failure
-        self._state = _State.CONFIGURED
         stream.request_stop()
         try:
             self._send_stop(armed, failure)
@@ -230,7 +223,7 @@ class UsbBoard(ClosesOnExit):
             self.channel.send(command)
 
     def close(self) -> None:
-        if self._state is _State.CLOSED:
+        if self._order.closed:
             return
         try:
             self.stop()
@@ -239,13 +232,7 @@ class UsbBoard(ClosesOnExit):
         finally:
             self._watcher.close()
             self._transport.close()
-            self._state = _State.CLOSED
-
-    def _require(self, *states: _State, doing: str) -> None:
-        if self._state not in states:
-            raise BoardStateError(
-                f"{self._transport.name}: cannot {doing} while {self._state.value}"
-            )
+            self._order.close()
 
 
 def identify(channel: CommandChannel, family: Family) -> BoardIdentity:

@@ -8,8 +8,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from acquisition.contracts.errors import UserError
+from calibration.choices import DEFAULT_LATENCY, LATENCY_MODELS, STAGES
 
-from ..calibrating import STAGES, calibrate_session
+from ..calibrating import calibrate_session
 from .bounded import number, positive
 
 
@@ -42,7 +43,7 @@ def add_calibration_options(p: argparse.ArgumentParser) -> None:
     """The options of the calibration itself (not of its outputs), with their bounds."""
     p.add_argument("--method", choices=("micam", "paper"), default="micam",
                    help="micam (default) or the paper's coordinate search (baseline)")
-    p.add_argument("--latency", choices=("per_board", "common", "none"), default="per_board",
+    p.add_argument("--latency", choices=LATENCY_MODELS, default=DEFAULT_LATENCY,
                    help="fit one latency per board (default), one for all, or none")
     p.add_argument("--speed-of-sound", choices=("reference", "solve"), default="reference",
                    help="fix c at the reference-microphone fit (default) or solve for it")

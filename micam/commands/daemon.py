@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 
@@ -42,12 +41,11 @@ def run(args: argparse.Namespace) -> int:
     from acquisition.contracts.protocol import json_schemas
     from micam.daemon import check_config, run_daemon
     from micam.hardware import load_daemon_config
+    from micam.schemas import write_schemas
     from acquisition.contracts.keys import make_keys
 
     if args.schemas is not None:
-        args.schemas.mkdir(parents=True, exist_ok=True)
-        for name, schema in json_schemas().items():
-            (args.schemas / f"{name}.schema.json").write_text(json.dumps(schema, indent=2) + "\n")
+        write_schemas(args.schemas, json_schemas())
         print(f"JSON Schemas written to {args.schemas}")
         return 0
     if args.make_keys is not None:

@@ -11,6 +11,7 @@ model changed; tests/micam/test_schemas.py fails while the shipped files differ 
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from pathlib import Path
 
 from pydantic import TypeAdapter
@@ -49,11 +50,17 @@ def shipped() -> dict[str, str]:
 
 def write(directory: Path = HERE) -> list[Path]:
     """Write every schema into `directory` (default: the package's own), dropping stale ones."""
-    directory.mkdir(parents=True, exist_ok=True)
     schemas = generate()
     for old in directory.glob("*.schema.json"):
         if old.name.removesuffix(".schema.json") not in schemas:
             old.unlink()
+    return write_schemas(directory, schemas)
+
+
+def write_schemas(directory: Path, schemas: Mapping[str, dict]) -> list[Path]:
+    """Write `schemas` (by file stem) into `directory` as NAME.schema.json (`render`), creating
+    it; other files there are left alone. The files written, in order."""
+    directory.mkdir(parents=True, exist_ok=True)
     paths = []
     for name, schema in schemas.items():
         path = directory / f"{name}.schema.json"

@@ -30,8 +30,8 @@ def test_joint_bound_reduces_to_per_mic_bound_with_everything_known():
     joint = joint_crlb(scene.mics, sources, C_TRUE, 1e-6, fit_speed_of_sound=False, latency="none")
     np.testing.assert_allclose(joint.mic_covariance_m2, per_mic, rtol=1e-8)
     # unknowns can only raise the bound; source noise raises it more when a latency is fitted
-    free = joint_crlb(scene.mics, sources, C_TRUE, 1e-6)
-    noisy = joint_crlb(scene.mics, sources, C_TRUE, 1e-6, source_std_m=5e-4)
+    free = joint_crlb(scene.mics, sources, C_TRUE, 1e-6, latency="common")
+    noisy = joint_crlb(scene.mics, sources, C_TRUE, 1e-6, latency="common", source_std_m=5e-4)
     m = [
         expected_error_norm(b).mean()
         for b in (per_mic, free.mic_covariance_m2, noisy.mic_covariance_m2)

@@ -13,6 +13,8 @@ error spreads by ~50 %: 12 trials give a standard error of 0.10-0.15 on the rati
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -30,6 +32,9 @@ from calibration.multilateration import multilaterate
 from calibration.paper_method import solve_paper_method
 from tests.calibration.synthetic import C_TRUE, make_scene, mean_error
 
+COMMON = SolverOptions(latency="common")
+"""These scenes' times of flight are absolute (no reference board): one common latency."""
+
 
 def efficiency(n_pose: int, trials: int, sigma_p: float) -> tuple[float, float]:
     """(mean error, mean error / mean joint bound) with c and a common latency fitted."""
@@ -37,6 +42,7 @@ def efficiency(n_pose: int, trials: int, sigma_p: float) -> tuple[float, float]:
     for seed in range(trials):
         scene = make_scene(n_pose, 100 + seed, sigma_t=1e-6, sigma_p=sigma_p)
         options = SolverOptions(
+            latency="common",
             source_std_m=sigma_p if sigma_p else None,
             speed_of_sound_prior_std_m_s=None,
             latency_prior_std_s=None,
@@ -44,7 +50,7 @@ def efficiency(n_pose: int, trials: int, sigma_p: float) -> tuple[float, float]:
         sol = solve_microphones(scene.measured_positions, scene.tof, 1e-6, options=options)
         errors.append(mean_error(sol.positions_m, scene.mics))
         bound = joint_crlb(scene.mics, scene.true_sources.positions(), C_TRUE, 1e-6,
-                           source_std_m=sigma_p)  # fmt: skip
+                           latency="common", source_std_m=sigma_p)  # fmt: skip
         bounds.append(expected_error_norm(bound.mic_covariance_m2).mean())
     return float(np.mean(errors)), float(np.mean(errors) / np.mean(bounds))
 
@@ -71,7 +77,7 @@ def test_near_bound_with_noisy_sources(n_pose, target_m):
 
 def test_covariance_is_honest():
     scene = make_scene(8, 7, sigma_t=1e-6)
-    sol = solve_microphones(scene.measured_positions, scene.tof, 1e-6)
+    sol = solve_microphones(scene.measured_positions, scene.tof, 1e-6, options=COMMON)
     predicted = expected_error_norm(sol.covariance_m2).mean()
     assert mean_error(sol.positions_m, scene.mics) == pytest.approx(predicted, rel=0.2)
     assert sol.chi2_per_dof == pytest.approx(1.0, abs=0.1)
@@ -90,7 +96,7 @@ def test_single_pose_has_no_mirror_or_divergence(seed):
     fixed = solve_microphones(scene.measured_positions, scene.tof, 1e-6, options=paper_c)
     errors = np.linalg.norm(fixed.positions_m - scene.mics, axis=1)
     assert errors.max() < 15e-3 and errors.mean() < 5e-3
-    free = solve_microphones(scene.measured_positions, scene.tof, 1e-6)
+    free = solve_microphones(scene.measured_positions, scene.tof, 1e-6, options=COMMON)
     for positions in (fixed.positions_m, free.positions_m,
                       multilaterate(scene.measured_positions, C_TRUE * scene.tof)):  # fmt: skip
         assert np.all(side(positions) == side(np.zeros(3)))
@@ -103,8 +109,8 @@ def test_reflection_outliers_do_not_change_accuracy():
     clean = make_scene(16, 1, sigma_t=1e-6)
     dirty = make_scene(16, 1, sigma_t=1e-6, outlier_fraction=0.05)
     injected = dirty.tof - clean.tof > 1e-4
-    ref = solve_microphones(clean.measured_positions, clean.tof, 1e-6)
-    sol = solve_microphones(dirty.measured_positions, dirty.tof, 1e-6)
+    ref = solve_microphones(clean.measured_positions, clean.tof, 1e-6, options=COMMON)
+    sol = solve_microphones(dirty.measured_positions, dirty.tof, 1e-6, options=COMMON)
     assert np.array_equal(sol.outliers, injected)
     assert mean_error(sol.positions_m, dirty.mics) < 1.1 * mean_error(ref.positions_m, clean.mics)
     paper = solve_paper_method(
@@ -129,9 +135,9 @@ def test_per_board_latency_and_speed_of_sound_recovered():
 def test_pose_refinement_removes_rigid_camera_errors():
     """Per-pose rigid errors of 2 mrad / 0.3 mm per axis (pessimistic fronto-parallel camera)."""
     scene = make_scene(16, 3, sigma_t=1e-6, pose_std=(2e-3, 3e-4))
-    fixed = solve_microphones(scene.measured_positions, scene.tof, 1e-6)
+    fixed = solve_microphones(scene.measured_positions, scene.tof, 1e-6, options=COMMON)
     refined = solve_microphones(scene.measured_sources, scene.tof, 1e-6,
-                                options=SolverOptions(refine_poses=True))  # fmt: skip
+                                options=replace(COMMON, refine_poses=True))  # fmt: skip
     assert mean_error(refined.positions_m, scene.mics) < 0.3 * mean_error(
         fixed.positions_m, scene.mics
     )

@@ -5,7 +5,6 @@ SIGTERM, refusing bad configurations. Readiness and crash points are notify-sock
 from __future__ import annotations
 
 import hashlib
-import json
 import signal
 import sys
 from pathlib import Path
@@ -14,6 +13,7 @@ import pytest
 
 from acquisition.contracts.capture_config import CaptureConfig
 from micam.cli import main
+from micam.schemas import shipped
 from acquisition.daemon.translog import read_transitions
 from acquisition.sequencer import plan_steps
 from acquisition.contracts.session import SessionReader, journal_records
@@ -208,7 +208,9 @@ def test_check_schemas_and_keys_commands(tmp_path: Path, capsys: pytest.CaptureF
     assert main(["daemon", "--check", "--config", str(config)]) == 0
     assert "configuration OK: simulated world" in capsys.readouterr().out
     assert main(["daemon", "--schemas", str(tmp_path / "schemas")]) == 0
-    written = {p.name: json.loads(p.read_text()) for p in (tmp_path / "schemas").iterdir()}
-    assert {"request.schema.json", "event.schema.json", "reply.schema.json"} <= set(written)
+    written = {p.name.removesuffix(".schema.json"): p.read_text()
+               for p in (tmp_path / "schemas").iterdir()}
+    assert {"request", "event", "reply"} <= set(written)
+    assert all(text == shipped()[name] for name, text in written.items())  # one writer
     assert main(["daemon", "--make-keys", str(tmp_path / "keys")]) == 0
     assert (tmp_path / "keys" / "authorized" / "client.key").is_file()

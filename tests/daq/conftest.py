@@ -1,8 +1,9 @@
-"""Fixtures of the audio backend's tests: one JACK server for the package, the world client.
+"""Fixtures of the driver layer's tests: one JACK server for the audio backend's tests and the
+board conformance test (tests/daq/test_board_conformance.py).
 
-The server is started once for every module here (its name is private to this run); the
-process's PortAudio is initialised against it and terminated before it stops, so that
-nothing in this process holds a stream of a server that is gone.
+The server is started once for every module that asks for it (its name is private to this
+run); the process's PortAudio is initialised against it and terminated before it stops, so
+that nothing in this process holds a stream of a server that is gone.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from .jack_helpers import JackServer, require_audio_stack
+from .audio.jack_helpers import JackServer, require_audio_stack
 
 
 @pytest.fixture(scope="package")
