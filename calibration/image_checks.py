@@ -35,7 +35,7 @@ from .result import Finding
 
 BLUR_RATIO = 0.6
 """A view whose edge sharpness (`edge_sharpness`) is below this share of its camera's median
-view is blurred by motion. Clean realistic views lie at 0.84-1.2 of their camera's median;
+view is blurred by motion. Clean realistic views lie at 0.81-1.17 of their camera's median;
 a motion over 8 px (the simulated world's shortest default) takes about 1/8 px^-1 against
 0.3-0.45, below 0.5; over 22 px, 0.2."""
 
@@ -46,7 +46,7 @@ of the simulated world's smallest default disc saturates several per cent."""
 
 MJPEG_BLOCKINESS = 1.2
 """A camera whose median view's `blockiness` exceeds this delivers JPEG-compressed frames:
-raw frames lie at 0.99-1.01, MJPEG at quality 90 at 1.4-1.55, at 70-75 at 1.7-2.3 (at 95,
+raw frames lie at 0.945-1.05, MJPEG at quality 90 at 1.4-1.55, at 70-75 at 1.7-2.3 (at 95,
 1.12-1.14, whose corners move less than the noise)."""
 
 X_CORNER_LEVEL = 0.3
