@@ -4,9 +4,9 @@ Steps: find the checkerboard's inner corners in every image, put them in the rig
 order, fit each camera's intrinsics and distortion (OpenCV's 5 coefficients, the paper's
 equation 4) with one board pose per image, give every pose a covariance, and find each
 camera's transform from the camera-0 frame from the views it shares with other cameras.
-The images' mistakes (a board hidden, blurred, in glare; MJPEG) are looked for in the
-calibrated cameras' images (calibration.image_checks); views whose corners cannot be trusted
-are left out and the cameras calibrated again without them.
+The images' mistakes (a board hidden, blurred, in glare; MJPEG) are looked for in every
+image (calibration.image_checks); views whose corners cannot be trusted are left out and the
+cameras calibrated again without them.
 
 The board and its corner detection (frames, orders, the detectors) are calibration.corners;
 a board pose maps rig coordinates into the camera's: x_cam = R(rvec) x_rig + t.
@@ -256,8 +256,8 @@ def calibrate_session(
     found = _detect_all(list(files), read, {key: file.sha256 for key, file in files.items()},
                         detections, cameras, board, known, min_views, min_shared_views)
     first = calibrate_detections(found, cameras, board, min_views, min_shared_views, known)
-    verdict = check_images([ViewImage(c, s, corners) for (c, s), (corners, _) in found.items()
-                            if c in first.intrinsics], read, board)
+    verdict = check_images([ViewImage(c, s, corners) for (c, s), (corners, _) in found.items()],
+                           read, board)
     if not verdict.left_out:
         return replace(first, findings=verdict.findings)
     kept = {key: d for key, d in found.items() if key not in verdict.left_out}

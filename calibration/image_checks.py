@@ -65,6 +65,10 @@ the image: a framing, not a hidden board, and not named."""
 MIN_VISIBLE = 3
 """Fewest visible X-corners that show a board at all."""
 
+MIN_VIEWS_FOR_BLUR = 3
+"""Fewest found views of a camera for judging their sharpness against its median (of three
+views, one blurred leaves the median a sharp one's)."""
+
 
 @dataclass(frozen=True)
 class ViewImage:
@@ -100,8 +104,9 @@ class _Measured:
 
 def check_images(views: list[ViewImage], read: Callable[[tuple[str, str]], np.ndarray],
                  board: Checkerboard) -> ImageVerdict:
-    """The image mistakes of `views` (every image of the calibrated cameras), each image read
-    by `read` (camera, step). Images of a camera without a found view are not judged."""
+    """The image mistakes of `views` (every image of the cameras), each image read by `read`
+    (camera, step). Images of a camera without a found view are not judged (nothing tells
+    how its board's corners look)."""
     found = [v for v in views if v.corners_px is not None]
     with ThreadPoolExecutor(default_workers()) as pool:
         measured = list(pool.map(lambda v: _measure(v, read((v.camera, v.step)), board), found))
@@ -118,7 +123,7 @@ def check_images(views: list[ViewImage], read: Callable[[tuple[str, str]], np.nd
             if m.saturated > GLARE_SHARE:
                 left_out[key] = "in glare"
                 findings.append(_glare(m.view, m.saturated))
-            elif m.sharpness < BLUR_RATIO * typical:
+            elif len(ms) >= MIN_VIEWS_FOR_BLUR and m.sharpness < BLUR_RATIO * typical:
                 left_out[key] = "blurred by motion"
                 findings.append(Finding(
                     kind="motion-blur", action="left out", cameras=[camera],
