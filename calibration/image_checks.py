@@ -165,8 +165,12 @@ def _measure(view: ViewImage, image: np.ndarray, board: Checkerboard) -> _Measur
     assert corners is not None
     grid = corners.reshape(board.corners_y, board.corners_x, 2)
     spacing = float(np.median(np.linalg.norm(np.diff(grid, axis=1), axis=-1)))
-    response = x_corner_response(image)
-    at = np.round(corners).astype(int)
+    # the response on the board and a square around it only: on the whole 1280 x 960 image
+    # it took 15 ms, more than reading the image (10 ms)
+    low = np.maximum(np.floor(corners.min(axis=0) - spacing), 0).astype(int)
+    high = np.ceil(corners.max(axis=0) + spacing).astype(int)
+    response = x_corner_response(image[low[1]:high[1] + 1, low[0]:high[0] + 1])
+    at = np.round(corners).astype(int) - low
     return _Measured(view, edge_sharpness(image, corners, board),
                      saturated_share(image, corners), blockiness(image),
                      float(np.median(response[at[:, 1], at[:, 0]])), spacing)

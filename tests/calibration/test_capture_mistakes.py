@@ -1,5 +1,6 @@
-"""The capture's mistakes of wiring and playback, found in the recordings, named, and
-corrected or left out (calibration.capture_checks, calibration.levels).
+"""The capture's mistakes of wiring and playback, found in the recordings, and of the images,
+found in the images, named, and corrected or left out (calibration.capture_checks,
+calibration.levels, calibration.image_checks).
 
 Each session is a small realistic-lab capture (48 microphones, 5 poses, short bursts) with two
 or three mistakes made by the simulated world where a lab makes them (`micam simulate --mistake`), so
