@@ -4,6 +4,9 @@ Steps: find the checkerboard's inner corners in every image, put them in the rig
 order, fit each camera's intrinsics and distortion (OpenCV's 5 coefficients, the paper's
 equation 4) with one board pose per image, give every pose a covariance, and find each
 camera's transform from the camera-0 frame from the views it shares with other cameras.
+The images' mistakes (a board hidden, blurred, in glare; MJPEG) are looked for in every
+image (calibration.image_checks); views whose corners cannot be trusted are left out and the
+cameras calibrated again without them.
 
 The board and its corner detection (frames, orders, the detectors) are calibration.corners;
 a board pose maps rig coordinates into the camera's: x_cam = R(rvec) x_rig + t.
@@ -16,7 +19,7 @@ import threading
 from collections import deque
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -34,7 +37,9 @@ from .corners import (
     detect_corners_robustly,
 )
 from .errors import CalibrationInputError
+from .image_checks import ViewImage, check_images
 from .memo import LruMemo
+from .result import Finding
 
 _CALIB_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 200, 1e-12)
 _OPENCV_THREADS_LOCK = threading.Lock()
@@ -179,6 +184,7 @@ class CameraCalibration:
     views: dict[tuple[str, str], BoardView]
     missed: list[MissedImage]
     uncalibrated: dict[str, str]
+    findings: list[Finding] = field(default_factory=list)
 
     @property
     def reference_camera(self) -> str:
@@ -243,10 +249,26 @@ def calibrate_session(
     files = {(camera, step): record.files[f"{camera}.png"]
              for step, record in sorted(reader.steps().items())
              for camera in cameras if f"{camera}.png" in record.files}
-    found = _detect_all(list(files), lambda key: reader.read_image(key[1], f"{key[0]}.png"),
-                        {key: file.sha256 for key, file in files.items()}, detections,
-                        cameras, board, known, min_views, min_shared_views)
-    return calibrate_detections(found, cameras, board, min_views, min_shared_views, known)
+
+    def read(key: tuple[str, str]) -> np.ndarray:
+        return reader.read_image(key[1], f"{key[0]}.png")
+
+    found = _detect_all(list(files), read, {key: file.sha256 for key, file in files.items()},
+                        detections, cameras, board, known, min_views, min_shared_views)
+    first = calibrate_detections(found, cameras, board, min_views, min_shared_views, known)
+    verdict = check_images([ViewImage(c, s, corners) for (c, s), (corners, _) in found.items()],
+                           read, board)
+    if not verdict.left_out:
+        return replace(first, findings=verdict.findings)
+    kept = {key: d for key, d in found.items() if key not in verdict.left_out}
+    try:
+        again = calibrate_detections(kept, cameras, board, min_views, min_shared_views, known)
+    except CameraCalibrationError as exc:
+        mistakes = "; ".join(f.evidence for f in verdict.findings if f.action == "left out")
+        raise CameraCalibrationError(f"{exc} (views left out: {mistakes})") from exc
+    left_out = [MissedImage(c, s, f"left out: {reason}")
+                for (c, s), reason in verdict.left_out.items()]
+    return replace(again, missed=[*again.missed, *left_out], findings=verdict.findings)
 
 
 ROUGH_STEPS = 24

@@ -348,7 +348,8 @@ def measure(path: Path, options: CalibrationOptions | None = None,
     reference_fit, notes = _reference_fit(speakers, reference, tofs.reference_tof_s[located])
     kept = None if verdict.kept.size == session_mics else verdict.kept
     return Measurements(data, cams, speakers, located, tofs, reference, reference_fit, timings,
-                        _air(data), notes, weighting, verdict.findings, kept)
+                        _air(data), notes, weighting, [*cams.findings, *verdict.findings],
+                        kept)
 
 
 def _times_of_flight(data: SessionData, options: CalibrationOptions

@@ -190,7 +190,8 @@ class MicrophoneResponsesResult(_Model):
 FindingKind = Literal["dead-microphone", "intermittent-microphone", "inverted-microphone",
                       "swapped-microphones", "shifted-boards", "misplaced-microphones",
                       "clipped-bursts", "silent-speaker", "swapped-speakers",
-                      "misplaced-speaker", "moved-pose"]
+                      "misplaced-speaker", "moved-pose", "hidden-board", "motion-blur",
+                      "glare", "mjpeg"]
 FindingAction = Literal["corrected", "left out", "noted"]
 
 
@@ -207,6 +208,7 @@ class Finding(_Model):
                                 description="where those microphones are wired")
     speakers: list[int] = Field(default_factory=list)
     poses: list[str] = Field(default_factory=list, description="pose steps concerned")
+    cameras: list[str] = Field(default_factory=list, description="cameras concerned")
     evidence: str
     advice: str = Field(description="what the calibration did about it, and what to check or "
                                     "do before the next capture")

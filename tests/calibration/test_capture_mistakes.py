@@ -1,5 +1,6 @@
-"""The capture's mistakes of wiring and playback, found in the recordings, named, and
-corrected or left out (calibration.capture_checks, calibration.levels).
+"""The capture's mistakes of wiring and playback, found in the recordings, and of the images,
+found in the images, named, and corrected or left out (calibration.capture_checks,
+calibration.levels, calibration.image_checks).
 
 Each session is a small realistic-lab capture (48 microphones, 5 poses, short bursts) with two
 or three mistakes made by the simulated world where a lab makes them (`micam simulate --mistake`), so
@@ -22,6 +23,8 @@ from calibration.capture_checks import (
     apply_verdict,
     check_capture,
 )
+from calibration.camera_calibration import CameraCalibrationError, calibrate_session
+from calibration.corners import Checkerboard
 from calibration.levels import CLIPPED_SAMPLES, DROPOUT_BLOCK, channel_levels, full_scale_of
 from calibration.pipeline import CalibrationOptions, CalibrationRun, calibrate, measure
 from calibration.result import compare_with_truth
@@ -68,6 +71,19 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, CalibrationRun,
     """Two speaker cables swapped and the rig nudged after one pose's images."""
     path = simulated_session(tmp_path_factory, "rig", *SMALL_LAB,
                              "--mistake", "swap-speakers=4,5", "--mistake", "moved-pose=2,20,2")
+    return (path, *_calibrated(path))
+
+
+@pytest.fixture(scope="module")
+def images(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, CalibrationRun, dict]:
+    """The four image mistakes in one 7-pose capture: a board 40 % hidden, one blurred by a
+    10 px motion, one in glare, every frame MJPEG at quality 85."""
+    lab = [*SMALL_LAB]
+    lab[lab.index("--poses") + 1] = "7"
+    path = simulated_session(tmp_path_factory, "images", *lab,
+                             "--mistake", "hidden-board=1,0,0.4",
+                             "--mistake", "motion-blur=3,0,10", "--mistake", "glare=5,0",
+                             "--mistake", "mjpeg=85")
     return (path, *_calibrated(path))
 
 
@@ -242,3 +258,36 @@ def test_a_late_reflection_after_a_short_burst_is_no_dropout() -> None:
     np.testing.assert_allclose(
         channel_levels(recording, 32768.0, burst_samples=4 * DROPOUT_BLOCK).dropout_share[0],
         [0.0, 1 / 4])
+
+
+def test_the_image_mistakes_are_named_by_camera_and_pose(images) -> None:
+    _, run, truth = images
+    made = {m["kind"]: m for m in truth["mistakes"]}
+    found = {f.kind: f for f in run.result.findings}
+    assert set(found) == {"hidden-board", "motion-blur", "glare", "mjpeg"}
+    for mistake, kind in (("hidden-board", "hidden-board"), ("motion-blur", "motion-blur"),
+                          ("glare", "glare")):
+        assert found[kind].cameras == made[mistake]["camera_names"]
+        assert found[kind].poses == made[mistake]["steps"]
+        assert found[kind].action == "left out"
+    assert found["mjpeg"].cameras == ["cam0"] and found["mjpeg"].action == "noted"
+    assert "34 of its 54 corners visible" in found["hidden-board"].evidence
+
+
+def test_views_that_cannot_be_trusted_are_left_out(images, clean) -> None:
+    _, run, truth = images
+    cams = run.measurements.cameras
+    left_out = {m.step for m in cams.missed if m.reason.startswith("left out")}
+    assert left_out == {"pose/0001", "pose/0003", "pose/0005"}
+    assert not left_out & {step for _, step in cams.views}
+    # the rest calibrate as well as the 5-pose capture without mistakes (within 1.5x)
+    assert _error_mm(run, truth) <= 1.5 * _error_mm(clean[1], clean[2])
+
+
+def test_too_few_trustworthy_views_are_refused_with_the_reasons(images) -> None:
+    path, run, _ = images
+    data = run.data
+    with pytest.raises(CameraCalibrationError, match="found in 5 of its images.*half hidden"):
+        calibrate_session(data.reader, Checkerboard.of_rig(data.rig), list(data.camera_names),
+                          min_views=6)
+

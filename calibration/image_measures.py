@@ -1,0 +1,98 @@
+"""Cheap measures of a checkerboard image that tell the capture's image mistakes apart: the
+sharpness of the board's edges (motion blur), saturated pixels on the board (glare), the
+8 x 8 block pattern of JPEG compression (MJPEG), and the X-corners visible in an image where
+the board was not found (a board half hidden).
+
+Each measure is of the image alone, in pixels or grey levels; the thresholds that turn them
+into findings, and why, are calibration.image_checks'.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from .corners import Checkerboard
+
+SATURATED = 254
+"""Grey level (8-bit) from which a pixel counts as saturated."""
+
+_PROFILE_SAMPLES = 25
+"""Samples across an edge, from one square's middle to the other's (0.7 of a square)."""
+
+
+def _grey(image: np.ndarray) -> np.ndarray:
+    return image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+
+
+def edge_sharpness(image: np.ndarray, corners_px: np.ndarray, board: Checkerboard) -> float:
+    """The steepest slope across the board's edges over the step's height (1/px): the median
+    over the edges between adjacent inner corners, of the edges along the rig's X and of those
+    along Y, the smaller of the two. A step blurred by a Gaussian of sigma pixels has
+    1 / (sigma sqrt(2 pi)) (0.4 at one pixel); blurred by a motion over L pixels about 1 / L
+    across the edges the motion crosses: the smaller family sees a motion in any direction
+    (by at least L / sqrt 2)."""
+    grey = _grey(image).astype(np.float32)
+    grid = corners_px.reshape(board.corners_y, board.corners_x, 2)
+    slopes = []
+    for a, b in ((grid[:, :-1], grid[:, 1:]), (grid[:-1], grid[1:])):
+        a, b = a.reshape(-1, 2), b.reshape(-1, 2)
+        along = b - a
+        length = np.linalg.norm(along, axis=1, keepdims=True)
+        normal = np.stack([-along[:, 1], along[:, 0]], axis=1) / length
+        t = np.linspace(-0.35, 0.35, _PROFILE_SAMPLES)[None, :, None] * length[:, :, None]
+        points = ((a + b) / 2)[:, None, :] + t * normal[:, None, :]
+        profile = cv2.remap(grey, points[..., 0].astype(np.float32),
+                            points[..., 1].astype(np.float32), cv2.INTER_LINEAR)
+        step = np.abs(profile[:, -3:].mean(axis=1) - profile[:, :3].mean(axis=1))
+        slope = np.abs(np.diff(profile, axis=1)).max(axis=1) / (t[:, 1, 0] - t[:, 0, 0])
+        slopes.append(float(np.median(slope / np.maximum(step, 1e-6))))
+    return min(slopes)
+
+
+def saturated_share(image: np.ndarray, hull_px: np.ndarray) -> float:
+    """The share of the pixels inside the convex hull of `hull_px` (n, 2) at `SATURATED` or
+    above: 0 on a board lit without highlights (whose white squares are exposed below full
+    scale), the glare's disc on one that reflects a lamp."""
+    grey = _grey(image)
+    mask = np.zeros(grey.shape, np.uint8)
+    cv2.fillConvexPoly(mask, cv2.convexHull(np.round(hull_px).astype(np.int32)), 1)
+    inside = grey[mask.astype(bool)]
+    return float(np.mean(inside >= SATURATED)) if inside.size else 0.0
+
+
+def blockiness(image: np.ndarray) -> float:
+    """How much larger the steps between neighbouring pixels are across the 8 x 8 block
+    boundaries of JPEG than elsewhere (the mean absolute difference, both directions): 1 on
+    raw frames, where nothing marks every eighth pixel; above it on frames JPEG-compressed
+    (each block quantized on its own leaves a seam at its edge)."""
+    grey = _grey(image).astype(np.float32)
+    at, off = 0.0, 0.0
+    for axis in (0, 1):
+        d = np.abs(np.diff(grey, axis=axis)).mean(axis=1 - axis)
+        seams = np.zeros(d.size, dtype=bool)
+        seams[7:-1:8] = True
+        at, off = at + float(d[seams].mean()), off + float(d[~seams].mean())
+    return at / off if off > 0 else 1.0
+
+
+def x_corner_response(image: np.ndarray) -> np.ndarray:
+    """The checkerboard X-corner response at every pixel (grey levels^2 / px^4): minus the
+    determinant of the Hessian of the image smoothed over 1.5 px, large where two dark and
+    two light quadrants meet, small on edges, flat areas and noise."""
+    grey = cv2.GaussianBlur(_grey(image).astype(np.float32), (0, 0), 1.5)
+    xx = cv2.Sobel(grey, cv2.CV_32F, 2, 0, ksize=3)
+    yy = cv2.Sobel(grey, cv2.CV_32F, 0, 2, ksize=3)
+    xy = cv2.Sobel(grey, cv2.CV_32F, 1, 1, ksize=3)
+    return np.asarray(xy * xy - xx * yy)
+
+
+def x_corners(image: np.ndarray, level: float, spacing_px: int) -> np.ndarray:
+    """(n, 2) pixels of the local maxima of `x_corner_response` above `level`, at least
+    `spacing_px` apart."""
+    response = x_corner_response(image)
+    size = 2 * max(1, spacing_px // 2) + 1
+    peaks = (response >= cv2.dilate(response, np.ones((size, size), np.uint8))) & (
+        response > level)
+    v, u = np.nonzero(peaks)
+    return np.stack([u, v], axis=1).astype(np.float64)
