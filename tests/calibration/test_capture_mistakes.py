@@ -290,4 +290,3 @@ def test_too_few_trustworthy_views_are_refused_with_the_reasons(images) -> None:
     with pytest.raises(CameraCalibrationError, match="found in 5 of its images.*half hidden"):
         calibrate_session(data.reader, Checkerboard.of_rig(data.rig), list(data.camera_names),
                           min_views=6)
-
