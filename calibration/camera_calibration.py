@@ -37,7 +37,7 @@ from .corners import (
     detect_corners_robustly,
 )
 from .errors import CalibrationInputError
-from .image_checks import ViewImage, check_images
+from .image_checks import ImageCheckMemo, ViewImage, check_images
 from .memo import LruMemo
 from .result import Finding
 
@@ -225,6 +225,7 @@ def calibrate_session(
     min_views: int = MIN_VIEWS,
     min_shared_views: int = MIN_SHARED_VIEWS,
     detections: DetectionMemo | None = None,
+    image_checks: ImageCheckMemo | None = None,
 ) -> CameraCalibration:
     """Calibrate every camera of a session from all its checkerboard images.
 
@@ -242,6 +243,7 @@ def calibrate_session(
         cameras: camera names, camera 0 first.
         known: intrinsics known from elsewhere, by camera name (see `calibrate_detections`).
         detections: the memo of detections to use and fill (None: remember nothing).
+        image_checks: the memo of the image checks' measures, likewise.
 
     Raises:
         CameraCalibrationError: camera 0 has too few views with a board.
@@ -253,11 +255,12 @@ def calibrate_session(
     def read(key: tuple[str, str]) -> np.ndarray:
         return reader.read_image(key[1], f"{key[0]}.png")
 
-    found = _detect_all(list(files), read, {key: file.sha256 for key, file in files.items()},
-                        detections, cameras, board, known, min_views, min_shared_views)
+    hashes = {key: file.sha256 for key, file in files.items()}
+    found = _detect_all(list(files), read, hashes, detections, cameras, board, known,
+                        min_views, min_shared_views)
     first = calibrate_detections(found, cameras, board, min_views, min_shared_views, known)
     verdict = check_images([ViewImage(c, s, corners) for (c, s), (corners, _) in found.items()],
-                           read, board)
+                           read, board, hashes, image_checks)
     if not verdict.left_out:
         return replace(first, findings=verdict.findings)
     kept = {key: d for key, d in found.items() if key not in verdict.left_out}

@@ -18,12 +18,14 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
 from ._cores import default_workers
 from .corners import Checkerboard
+from .memo import LruMemo
 from .image_measures import (
     blockiness,
     edge_sharpness,
@@ -102,14 +104,36 @@ class _Measured:
     spacing_px: float
 
 
+ImageCheckMemo = LruMemo[tuple, tuple[Any]]
+"""What the image checks measured, by the image's SHA-256 and all else the measure depends
+on: (sha, board) for a found board's measures, (sha, board, the camera's typical corner
+response and spacing) for an image without a board; each value in a 1-tuple (None, no
+finding, is a value too). A worker keeps one, so that its live jobs read each image once."""
+
+
 def check_images(views: list[ViewImage], read: Callable[[tuple[str, str]], np.ndarray],
-                 board: Checkerboard) -> ImageVerdict:
+                 board: Checkerboard, hashes: dict[tuple[str, str], str] | None = None,
+                 memo: ImageCheckMemo | None = None) -> ImageVerdict:
     """The image mistakes of `views` (every image of the cameras), each image read by `read`
     (camera, step). Images of a camera without a found view are not judged (nothing tells
-    how its board's corners look)."""
+    how its board's corners look). With a `memo` and the images' SHA-256 (`hashes`, by
+    (camera, step)), what was measured before is not measured again."""
+
+    def remembered(view: ViewImage, inputs: tuple, measure: Callable[[np.ndarray], Any]) -> Any:
+        key = (view.camera, view.step)
+        entry = None if memo is None or hashes is None else (hashes[key], board, *inputs)
+        if memo is not None and entry is not None and (known := memo.get(entry)) is not None:
+            return known[0]
+        value = measure(read(key))
+        if memo is not None and entry is not None:
+            memo.put(entry, (value,))
+        return value
+
     found = [v for v in views if v.corners_px is not None]
     with ThreadPoolExecutor(default_workers()) as pool:
-        measured = list(pool.map(lambda v: _measure(v, read((v.camera, v.step)), board), found))
+        measured: list[_Measured] = list(pool.map(
+            lambda v: replace(remembered(v, (), lambda image: _measure(v, image, board)),
+                              view=v), found))
     findings: list[Finding] = []
     left_out: dict[tuple[str, str], str] = {}
     by_camera: dict[str, list[_Measured]] = {}
@@ -151,8 +175,9 @@ def check_images(views: list[ViewImage], read: Callable[[tuple[str, str]], np.nd
                  for c, ms in by_camera.items()}
     missed = [v for v in views if v.corners_px is None and v.camera in reference]
     with ThreadPoolExecutor(default_workers()) as pool:
-        judged = list(pool.map(lambda v: _missed(v, read((v.camera, v.step)), board,
-                                                 *reference[v.camera]), missed))
+        judged = list(pool.map(lambda v: remembered(
+            v, reference[v.camera], lambda image: _missed(v, image, board,
+                                                          *reference[v.camera])), missed))
     for view, finding in zip(missed, judged, strict=True):
         if finding is not None:
             findings.append(finding)

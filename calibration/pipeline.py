@@ -67,6 +67,7 @@ from .choices import DEFAULT_LATENCY, LatencyModel, Stage
 from .delay_estimation import Weighting
 from .errors import CalibrationInputError
 from .fit_checks import SourceResiduals, moved_poses, speaker_findings
+from .image_checks import ImageCheckMemo
 from .layout_check import NominalLayout, check_layout, relabelled
 from .multilateration import multilaterate
 from .paper_method import solve_paper_method
@@ -161,7 +162,8 @@ CONFOUND_NOTE = (
 @dataclass(frozen=True)
 class WorkMemo:
     """The work a long-running caller remembers between calibrations, by the content of the
-    files it was done on: checkerboard detections per image, delays per pose.
+    files it was done on: checkerboard detections and image checks per image, delays per
+    pose.
 
     Its owner answers for the files it remembers, which are not read again: the worker
     verifies every file of its session copies against the journal when it fetches it. A
@@ -169,6 +171,8 @@ class WorkMemo:
 
     detections: DetectionMemo = field(default_factory=lambda: DetectionMemo(DETECTION_CACHE_SIZE))
     tofs: TofMemo = field(default_factory=lambda: TofMemo(TOF_CACHE_POSES))
+    image_checks: ImageCheckMemo = field(
+        default_factory=lambda: ImageCheckMemo(DETECTION_CACHE_SIZE))
 
 
 @dataclass(frozen=True)
@@ -336,7 +340,8 @@ def measure(path: Path, options: CalibrationOptions | None = None,
     with _timed(timings, "cameras", on_stage):
         cams = calibrate_session(data.reader, Checkerboard.of_rig(data.rig),
                                  list(data.camera_names), known_intrinsics(data, options),
-                                 detections=None if memo is None else memo.detections)
+                                 detections=None if memo is None else memo.detections,
+                                 image_checks=None if memo is None else memo.image_checks)
     with _timed(timings, "speakers", on_stage):
         speakers = speaker_positions(cams, data.speakers_rig_m, data.pose_steps)
         reference = _reference_position(cams, data)
