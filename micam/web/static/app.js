@@ -523,7 +523,8 @@ function drawChart(target, points, key, scale, unit, title, target_line = null) 
     target.append(svg("line", { x1: X(t), y1: 140, x2: X(t), y2: 144, class: "frame tick" }));
     target.append(svg("text", { x: X(t), y: 153, class: "axis tick-label", "text-anchor": "middle" }, t.toFixed(0)));
   }
-  target.append(svg("text", { x: 290, y: 158, class: "axis", "text-anchor": "end" }, "poses"));
+  // the axis title below the tick labels, centred (at the right end it sat on the last one)
+  target.append(svg("text", { x: 165, y: 167, class: "axis", "text-anchor": "middle" }, "poses"));
   target.append(svg("text", { x: 230, y: 14, class: "axis" }, unit));
 }
 
