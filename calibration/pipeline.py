@@ -884,6 +884,13 @@ def _per_board(boards: list[str], values: np.ndarray) -> dict[str, float]:
     return {b: float(v) for b, v in zip(boards, values, strict=True)}
 
 
+def _finite_median(values: np.ndarray) -> float | None:
+    """The median of `values`, or None where it is not finite (JSON has no infinity: it was
+    written as null, which the result's own model then refused to read back)."""
+    median = float(np.median(values))
+    return median if np.isfinite(median) else None
+
+
 def _finite_or_none(value: float, digits: int = 4) -> float | None:
     """`value` rounded, or None where it is not finite (JSON has no NaN)."""
     return round(value, digits) if np.isfinite(value) else None
@@ -943,7 +950,7 @@ def _assemble(m: Measurements, sol: MicrophoneSolution, options: CalibrationOpti
         tof_quality=TofQuality(
             median_snr_db=float(np.median(q_snr)), p05_snr_db=float(np.percentile(q_snr, 5)),
             median_peak_to_sidelobe_db=float(np.median(tofs.peak_to_sidelobe_db[located])),
-            median_predicted_std_s=float(np.median(tofs.std_s[located])),
+            median_predicted_std_s=_finite_median(tofs.std_s[located]),
             weighting=m.weighting, echo_ratio=_finite_or_none(tofs.echo_ratio(located))),
         timings_s=dict(timings),
         notes=notes,

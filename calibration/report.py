@@ -274,7 +274,9 @@ def _markdown(run: CalibrationRun, truth: dict | None) -> str:
     out += ["", "## Times of flight", "",
             f"- median SNR {q.median_snr_db:.1f} dB (5th percentile {q.p05_snr_db:.1f} dB), "
             f"median peak-to-sidelobe {q.median_peak_to_sidelobe_db:.1f} dB, median predicted "
-            f"std {significant(1e9 * q.median_predicted_std_s)} ns",
+            + ("std: none (more than half too faint to predict one)"
+               if q.median_predicted_std_s is None
+               else f"std {significant(1e9 * q.median_predicted_std_s)} ns"),
             *_weighting_line(q),
             f"- residuals: RMS {significant(1e9 * r.residuals.rms_s)} ns, median |r| "
             f"{significant(1e9 * r.residuals.median_abs_s)} ns, {r.residuals.n_outliers} "

@@ -101,7 +101,9 @@ class TofQuality(_Model):
     median_snr_db: float
     p05_snr_db: float
     median_peak_to_sidelobe_db: float
-    median_predicted_std_s: float
+    median_predicted_std_s: float | None = Field(
+        description="median of the located times of flight's predicted std, seconds; None "
+                    "when more than half are infinite (too little signal to predict one)")
     weighting: Literal["compact", "matched", "phat"] | None = Field(
         default=None, description="the correlations' spectral weighting (None: not recorded)")
     echo_ratio: float | None = Field(

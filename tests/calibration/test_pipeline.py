@@ -279,3 +279,21 @@ def test_a_subset_fit_with_c_per_pose_images_every_pose(measurements) -> None:
         expected = (bundle.state.speeds_of_sound_m_s[list(fitted).index(k)] if k in fitted
                     else bundle.state.speed_of_sound_m_s)
         assert bundle.speed_of_sound_at(k) == pytest.approx(expected, abs=1e-9)
+
+
+def test_a_result_whose_times_of_flight_are_mostly_too_faint_reads_back(
+        session: Path, tmp_path: Path) -> None:
+    """More than half the located times of flight with an infinite predicted std (a short
+    burst in a noisy room: a clean 3-pose realistic session with MLS order 10) made the
+    median infinite, written to result.json as null, which the result's own model refused to
+    read back (micam image and the page could not show that calibration)."""
+    from calibration.pipeline import _finite_median
+    from calibration.result import CalibrationResult
+
+    assert _finite_median(np.array([np.inf, np.inf, 1e-8])) is None
+    assert _finite_median(np.array([np.inf, 2e-8, 1e-8])) == 2e-8
+    out = tmp_path / "result.json"
+    assert main(["calibrate", str(session), "--out", str(out), "--no-joint"]) == 0
+    document = json.loads(out.read_text())
+    document["tof_quality"]["median_predicted_std_s"] = None
+    assert CalibrationResult.model_validate(document).tof_quality.median_predicted_std_s is None
