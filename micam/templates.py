@@ -318,6 +318,9 @@ height = 960
 # intrinsics_file = "cam0.yaml"   # a known calibration (OpenCV YAML/JSON, ROS, micam result)
 # intrinsics_use = "fixed"        # or "prior" with intrinsics_std = [fx, fy, cx, cy, k1..k3]
 
+# [layout]                        # the array's nominal layout: swapped cables are found by it
+# file = "array.xml"              # the maker's Acoular MicGeom XML ("Point k": microphone k)
+
 [recordings]
 # one reference recording per speaker, in speaker order
 references = ["reference/speaker0.wav", "reference/speaker1.wav", "reference/speaker2.wav",
