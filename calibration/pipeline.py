@@ -530,13 +530,17 @@ def _solve_checked(m: Measurements, options: CalibrationOptions, poses: np.ndarr
     checked against `layout` when there is one: the check looks at a solution free of the
     prior (which would hold swapped microphones to the wrong places), then the columns are
     relabelled as the check says and the prior (`session_prior`, in the session's order)
-    follows the new ids. The measurements carry the check's findings, and the earlier
+    follows the new ids. An implausible free solution is refused before the check
+    (`_check_plausible`). The measurements carry the check's findings, and the earlier
     findings name the microphones by their new ids."""
     free = replace(options, prior=None)
     solution = solve(m, free, poses)
     m, solution = _without_misfits(m, free, poses, solution)
     if layout is None:
         return m, options, solution
+    # a geometry whose model is wrong (a turned pattern, a wrong sample rate) fits no layout:
+    # say what is wrong with it, not that the layout does not fit
+    _check_plausible(m, free, _solution_figures(m, solution, free), frozen=True)
     verdict = check_layout(m.data, solution.positions_m, layout)
     earlier = [relabelled(f, verdict.renamed) for f in m.findings]
     m = replace(m, data=replace(m.data, mic_ids=verdict.ids),
