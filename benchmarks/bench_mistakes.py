@@ -9,7 +9,8 @@ same world without mistakes. Found means a finding of the expected kind (`EXPECT
 mistake without one (the calibration does not look for it yet) says "not looked for". Every
 calibration is given the array's nominal layout (`calibration.truth.nominal_layout_of`: the
 simulated positions off by 0.5 mm per axis, in a frame of their own), against which swapped
-microphone cables and a shifted column map are found; `--no-layout` leaves it out.
+microphone cables and a shifted column map are found; `--no-layout` leaves it out (and the
+one `micam simulate` writes into the session's description).
 
     .venv/bin/python benchmarks/bench_mistakes.py [--poses 8] [--seeds 1] [--keep DIR]
     .venv/bin/python benchmarks/bench_mistakes.py --poses 20 --seeds 1 2 3 4 5 --pairs
@@ -74,7 +75,7 @@ def _calibrated(path: Path, layout: bool) -> dict:
     start = time.perf_counter()
     try:
         run = calibrate(path, CalibrationOptions(
-            layout=nominal_layout_of(truth) if layout else None))
+            layout=nominal_layout_of(truth) if layout else None, described_layout=layout))
     except CalibrationInputError as exc:
         return {"refused": str(exc), "findings": [], "error_mm": None,
                 "seconds": round(time.perf_counter() - start, 2)}

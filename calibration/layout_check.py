@@ -23,6 +23,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from acquisition.contracts.rig_description import KnownLayout
 from acquisition.contracts.rigid import RigidTransform, kabsch
 
 from .capture_checks import KEPT_SHARE, _Wiring
@@ -61,6 +62,15 @@ class NominalLayout:
     ids: np.ndarray
     positions_m: np.ndarray
     tolerance_m: float = LAYOUT_TOLERANCE_M
+
+    @classmethod
+    def described(cls, known: KnownLayout, tolerance_m: float | None = None) -> NominalLayout:
+        """The layout a session's description carries; `tolerance_m` (metres) replaces its
+        own, which replaces `LAYOUT_TOLERANCE_M`."""
+        tolerance = next(t for t in (tolerance_m, known.tolerance_m, LAYOUT_TOLERANCE_M)
+                         if t is not None)
+        return cls(np.array(known.mic_ids), np.array(known.positions_m, dtype=np.float64),
+                   tolerance)
 
     def of(self, ids: np.ndarray) -> np.ndarray:
         """(len(ids), 3) the nominal positions of `ids`."""

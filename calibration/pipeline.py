@@ -206,7 +206,12 @@ class CalibrationOptions:
         layout: the array's nominal layout, by microphone id: the geometry, solved free of
             any prior, is compared with it, and swapped microphone cables or a column map
             off by whole boards are relabelled (calibration.layout_check); None (and no
-            prior): no such check.
+            prior): the layout of the session's description, if it has one (the options'
+            replace it, and the result's notes say so).
+        layout_tolerance_m: how far (m) a microphone may lie from its nominal place, for
+            whichever layout is used; None: that layout's own.
+        described_layout: False: the session description's layout is not used (a layout
+            check only with `layout` or `prior`; a benchmark's "without a layout").
         speaker_offsets: the joint fit estimates where each speaker's sound comes from on the
             rig (its offset from the stated position, held to the rig's stated tolerance in
             the board plane and to its acoustic-centre prior along the normal, and how far
@@ -245,6 +250,8 @@ class CalibrationOptions:
     joint: bool = True
     prior: PriorGeometry | None = None
     layout: NominalLayout | None = None
+    layout_tolerance_m: float | None = None
+    described_layout: bool = True
     speaker_offsets: bool = True
     print_scale: bool = True
     mic_delay_std_s: float | None = 1e-6
@@ -438,6 +445,7 @@ def calibrate_measured(m: Measurements, options: CalibrationOptions,
     sources; every board view still constrains the cameras, and every pose gets a board pose,
     so the others can be imaged with the result as held-out data)."""
     layout, session_prior = _nominal_layout(m, options), options.prior
+    m = replace(m, notes=[*m.notes, *_layout_notes(m, options)])
     options = _for_kept_microphones(options, m.kept_microphones)
     timings = dict(m.timings_s)
     with _timed(timings, "solver", on_stage):
@@ -485,10 +493,34 @@ def _session_ids(data: SessionData) -> np.ndarray:
 
 def _nominal_layout(m: Measurements, options: CalibrationOptions) -> NominalLayout | None:
     """The layout the geometry is checked against: the options', else the prior's (which is
-    given in the session's microphone order); None without either."""
-    if options.layout is not None or options.prior is None:
-        return options.layout
-    return NominalLayout(_session_ids(m.data), options.prior.positions_m)
+    given in the session's microphone order), else the session description's; None without
+    any."""
+    described = m.data.description.layout
+    if options.layout is not None:
+        layout: NominalLayout | None = options.layout
+    elif options.prior is not None:
+        layout = NominalLayout(_session_ids(m.data), options.prior.positions_m)
+    else:
+        layout = (None if described is None or not options.described_layout
+                  else NominalLayout.described(described))
+    if layout is None or options.layout_tolerance_m is None:
+        return layout
+    return replace(layout, tolerance_m=options.layout_tolerance_m)
+
+
+def _layout_notes(m: Measurements, options: CalibrationOptions) -> list[str]:
+    """Which layout the wiring is checked against, when the session's description has one:
+    its own, or (said, so that nobody wonders why it was not used) the options'."""
+    described = m.data.description.layout
+    if described is None or not options.described_layout:
+        return []
+    source = f" ({described.source})" if described.source else ""
+    if options.layout is None and options.prior is None:
+        return [f"wiring checked against the array's nominal layout in the session's "
+                f"description{source}"]
+    given = "layout" if options.layout is not None else "prior geometry"
+    return [f"wiring checked against the {given} given in the options, which replaces the "
+            f"nominal layout in the session's description{source}"]
 
 
 def _solve_checked(m: Measurements, options: CalibrationOptions, poses: np.ndarray | None,
@@ -498,13 +530,17 @@ def _solve_checked(m: Measurements, options: CalibrationOptions, poses: np.ndarr
     checked against `layout` when there is one: the check looks at a solution free of the
     prior (which would hold swapped microphones to the wrong places), then the columns are
     relabelled as the check says and the prior (`session_prior`, in the session's order)
-    follows the new ids. The measurements carry the check's findings, and the earlier
+    follows the new ids. An implausible free solution is refused before the check
+    (`_check_plausible`). The measurements carry the check's findings, and the earlier
     findings name the microphones by their new ids."""
     free = replace(options, prior=None)
     solution = solve(m, free, poses)
     m, solution = _without_misfits(m, free, poses, solution)
     if layout is None:
         return m, options, solution
+    # a geometry whose model is wrong (a turned pattern, a wrong sample rate) fits no layout:
+    # say what is wrong with it, not that the layout does not fit
+    _check_plausible(m, free, _solution_figures(m, solution, free), frozen=True)
     verdict = check_layout(m.data, solution.positions_m, layout)
     earlier = [relabelled(f, verdict.renamed) for f in m.findings]
     m = replace(m, data=replace(m.data, mic_ids=verdict.ids),

@@ -6,8 +6,6 @@ Comparing a result with the truth is one line because both use
 
 from __future__ import annotations
 
-import json
-import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Literal
 from xml.sax.saxutils import quoteattr
@@ -15,10 +13,10 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from acquisition.contracts.bounded_files import (
-    MAX_DOCUMENT_BYTES,
-    UnreadableFile,
-    read_bounded_text,
+from acquisition.contracts.positions_file import (
+    PositionsFileError,
+    positions_of,
+    read_positions,
 )
 from acquisition.contracts.session import write_atomic
 
@@ -337,44 +335,16 @@ def compare_with_truth(result: CalibrationResult, truth: dict,
 
 
 def load_prior_positions(path: Path, mic_ids: np.ndarray) -> np.ndarray:
-    """Microphone positions (len(mic_ids), 3), metres, of a known geometry, in `mic_ids` order.
-
-    Reads a result.json or truth.json (`microphones[].id / position_m`) or Acoular's MicGeom
-    XML (`<pos Name="Point k" x y z/>`, Point k being microphone id k, as written by
-    `write_acoular_xml`), of at most MAX_DOCUMENT_BYTES.
+    """Microphone positions (len(mic_ids), 3), metres, of a known geometry, in `mic_ids` order:
+    a result.json, a truth.json or an Acoular MicGeom XML
+    (acquisition.contracts.positions_file).
 
     Raises:
         PriorFileError: naming the file and what is wrong (unreadable, not one of those
             formats, a position that is not three finite numbers, missing microphones).
     """
-    path = Path(path)
-    is_xml = path.suffix.lower() == ".xml"
+    what = "the prior geometry"
     try:
-        text = read_bounded_text(path, MAX_DOCUMENT_BYTES)
-        if is_xml:
-            points = ET.fromstring(text).findall("pos")
-            by_id = {int(p.get("Name", "").split()[-1]):
-                     [float(p.get(axis, "")) for axis in "xyz"] for p in points}
-        else:
-            doc = json.loads(text)
-            by_id = {int(m["id"]): m["position_m"] for m in doc["microphones"]}
-        positions = {i: np.array(p, dtype=np.float64) for i, p in by_id.items()}
-    except UnreadableFile as exc:
-        raise PriorFileError(f"cannot read the prior geometry: {exc}") from None
-    except (ValueError, KeyError, TypeError, IndexError, OverflowError, RecursionError,
-            ET.ParseError) as exc:
-        raise PriorFileError(f"cannot read the prior geometry {path}: {exc}; give a "
-                             "result.json, a truth.json or an Acoular MicGeom XML") from None
-    bad = [i for i, p in positions.items() if p.shape != (3,) or not np.all(np.isfinite(p))]
-    if bad:
-        raise PriorFileError(f"the prior geometry {path} gives microphone {bad[0]} the "
-                             f"position {by_id[bad[0]]}; give each microphone three finite "
-                             "coordinates, metres")
-    missing = [int(i) for i in mic_ids if int(i) not in positions]
-    if missing:
-        hint = ('; micam names microphone k "Point k", from 0: an XML counting from '
-                '"Point 1" (as Acoular\'s export_mpos and earlier micam versions write it) '
-                'needs its names lowered by 1' if is_xml else "")
-        raise PriorFileError(f"the prior geometry {path} lacks microphones {missing[:10]}"
-                             f"{' ...' if len(missing) > 10 else ''}{hint}")
-    return np.array([positions[int(i)] for i in mic_ids], dtype=np.float64)
+        return positions_of(read_positions(path, what), mic_ids, path, what)
+    except PositionsFileError as exc:
+        raise PriorFileError(str(exc)) from None

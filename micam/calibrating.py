@@ -10,6 +10,7 @@ the same session and options.
 from __future__ import annotations
 
 import argparse
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -48,23 +49,28 @@ def _prior(args: argparse.Namespace):
 
 
 def _layout(args: argparse.Namespace, data):
-    """The nominal layout the wiring is checked against: --layout, else --prior (None: no
-    check), with --layout-tolerance-mm; by the session's microphone ids."""
-    from calibration.layout_check import LAYOUT_TOLERANCE_M, NominalLayout
+    """The nominal layout the wiring is checked against, given on the command line: --layout,
+    else --prior (None: neither; the calibration then takes the session description's, if it
+    has one), by the session's microphone ids. Says on stderr when it replaces the
+    description's."""
+    from calibration.layout_check import NominalLayout
     from calibration.result import PriorFileError, load_prior_positions
 
     flag, path = ("--layout", args.layout) if args.layout is not None else ("--prior", args.prior)
+    described = data.description.layout
     if path is None:
-        if args.layout_tolerance_mm is not None:
-            raise UserError("--layout-tolerance-mm needs --layout or --prior")
+        if args.layout_tolerance_mm is not None and described is None:
+            raise UserError("--layout-tolerance-mm needs --layout, --prior or a [layout] in "
+                            "the session's description")
         return None
     try:
         positions = load_prior_positions(path, data.mic_ids)
     except PriorFileError as exc:
         raise UserError(f"{flag}: {exc}") from None
-    tolerance = (LAYOUT_TOLERANCE_M if args.layout_tolerance_mm is None
-                 else args.layout_tolerance_mm / 1000.0)
-    return NominalLayout(data.mic_ids, positions, tolerance)
+    if described is not None:
+        print(f"micam: {flag} {path} replaces the nominal layout in the session's description",
+              file=sys.stderr)
+    return NominalLayout(data.mic_ids, positions)
 
 
 _AIR_FLAGS = {"temperature_c": "--temperature", "temperature_std_c": "--temperature-std",
@@ -191,7 +197,10 @@ def calibrate_session(args: argparse.Namespace, on_stage: Callable[[str], None] 
         method=args.method, latency=args.latency, speed_of_sound=args.speed_of_sound,
         refine_poses=args.refine_poses, weighting=args.weighting,
         allow_interrupted=args.allow_interrupted, joint=not args.no_joint,
-        prior=prior, layout=_layout(args, data), speed_of_sound_prior=_known_air(args),
+        prior=prior, layout=_layout(args, data),
+        layout_tolerance_m=(None if args.layout_tolerance_mm is None
+                            else args.layout_tolerance_mm / 1000.0),
+        speed_of_sound_prior=_known_air(args),
         intrinsics=_known_intrinsics(args, data) or None)
     run = calibrate(args.session, options, on_stage)  # input errors are UserErrors
     run.result.write(out)

@@ -221,7 +221,8 @@ def _daemon(title: str, boards: list[tuple[str, str, int, int]], n_mics: int,
             f'device = "/dev/v4l/by-id/usb-{PLACEHOLDER}-{camera}-video-index0"   # ls /dev/v4l/by-id/',
             "width = 1280",
             "height = 960",
-            'fourcc = "MJPG"',
+            'fourcc = "MJPG"          # or "YUYV" (uncompressed): a mode the camera lists for',
+            "                         # this size (v4l2-ctl --list-formats-ext)",
             "# exposure = 150        # V4L2 exposure_absolute; leave out for the camera's own",
             "",
         ]
@@ -317,6 +318,9 @@ width = 1280
 height = 960
 # intrinsics_file = "cam0.yaml"   # a known calibration (OpenCV YAML/JSON, ROS, micam result)
 # intrinsics_use = "fixed"        # or "prior" with intrinsics_std = [fx, fy, cx, cy, k1..k3]
+
+# [layout]                        # the array's nominal layout: swapped cables are found by it
+# file = "array.xml"              # the maker's Acoular MicGeom XML ("Point k": microphone k)
 
 [recordings]
 # one reference recording per speaker, in speaker order

@@ -34,7 +34,7 @@ from daq.audio import AudioConfig, AudioDeviceConfig, open_audio_boards
 from .analog_bench import AcousticBench
 from .audio_world import RANGE_V
 from .cameras import SimulatedCamera
-from .capture import SimulatedCapture, SimulationOptions, rig_entry, world_for
+from .capture import SimulatedCapture, SimulationOptions, nominal_layout, rig_entry, world_for
 from .geometry import RigidTransform
 from .jack_world import MIC_PORTS, SPEAKER_PORTS, WorldProcess
 from .setups import Setups
@@ -92,6 +92,7 @@ def audio_capture_config(world: World, n_poses: int, burst: BurstConfig,
         rig=rig_entry(rig),
         cameras=tuple(CameraEntry(name=c.name, device_id=c.device_id) for c in cameras),
         n_poses=n_poses,
+        layout=nominal_layout(world.layout),
     )
 
 

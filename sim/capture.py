@@ -23,7 +23,11 @@ from acquisition.contracts.capture_config import (
     RigEntry,
     SpeakerEntry,
 )
-from acquisition.contracts.rig_description import MIN_STEADY_PERIOD_S, steady_mls_order
+from acquisition.contracts.rig_description import (
+    MIN_STEADY_PERIOD_S,
+    KnownLayout,
+    steady_mls_order,
+)
 from acquisition.contracts.stimulus import mls_length
 from daq import Board, InputChannel, OutputChannel, SyncGroup, board_model
 
@@ -183,6 +187,17 @@ def rig_entry(rig: Rig) -> RigEntry:
                     speaker_diameter_m=rig.speaker_diameter_m, origin_square=rig.origin_square)
 
 
+def nominal_layout(layout: ArrayLayout) -> KnownLayout:
+    """The array's nominal layout as its maker would state it, for the session's description:
+    the simulated array is built exactly to its microphone positions (metres, camera-0 frame;
+    the calibration places the layout rigidly, so its frame does not matter). A mistake of the
+    cables (sim.mistakes) leaves it as it is: it is what the array was built to."""
+    return KnownLayout(mic_ids=tuple(range(layout.n_mics)),
+                       positions_m=tuple((float(x), float(y), float(z))
+                                         for x, y, z in layout.mic_positions_m),
+                       source=f"the simulated array {layout.name}")
+
+
 def capture_config_for(layout: ArrayLayout, rig: Rig, n_poses: int, sample_rate_hz: float,
                        burst: BurstConfig, cameras: list[Camera]) -> CaptureConfig:
     """The capture configuration of a simulated array: every wired input, in board order."""
@@ -222,6 +237,7 @@ def capture_config_for(layout: ArrayLayout, rig: Rig, n_poses: int, sample_rate_
         rig=rig_entry(rig),
         cameras=tuple(CameraEntry(name=c.name, device_id=c.device_id) for c in cameras),
         n_poses=n_poses,
+        layout=nominal_layout(layout),
     )
 
 

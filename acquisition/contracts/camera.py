@@ -3,9 +3,15 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from typing import Literal, Protocol, runtime_checkable
 
 import numpy as np
+
+PixelFormat = Literal["MJPG", "YUYV"]
+"""The V4L2 pixel formats (FOURCC) a real camera may be asked for: MJPG, the JPEG frames most
+UVC webcams deliver at their larger sizes, and YUYV, uncompressed 4:2:2 (two bytes per pixel,
+luma first), what UVC and many industrial cameras deliver at their smaller sizes or lower
+rates. `v4l2-ctl --list-formats-ext` lists a camera's modes."""
 
 
 class CameraError(RuntimeError):

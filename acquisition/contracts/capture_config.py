@@ -23,9 +23,11 @@ from .rig_description import (
     CameraDescription,
     ChannelGroup,
     DescriptionError,
+    KnownLayout,
     ReferenceMicrophone,
     RigArrayDescription,
     RigDescription,
+    layout_problems,
 )
 from .session import SessionError
 from .stimulus import mls_length
@@ -130,6 +132,9 @@ class CaptureConfig(ConfigModel):
     rig: RigEntry
     cameras: tuple[CameraEntry, ...]
     n_poses: int = Field(ge=1)
+    layout: KnownLayout | None = Field(
+        default=None, description="the array's nominal layout, carried into the session's "
+                                  "description (rig_description.KnownLayout)")
 
     @model_validator(mode="after")
     def _consistent(self) -> CaptureConfig:
@@ -182,6 +187,10 @@ class CaptureConfig(ConfigModel):
         period = self._burst_layout().period_problem(self.sample_rate_hz, "burst")
         if period is not None:
             problems.append(period)
+        if self.layout is not None:
+            problems += layout_problems(self.layout.mic_ids, len(self.layout.positions_m),
+                                        [c.mic_id for c in self.columns
+                                         if c.role == "mic" and c.mic_id is not None])
         return problems
 
     def _burst_layout(self) -> BurstLayout:
@@ -227,6 +236,7 @@ class CaptureConfig(ConfigModel):
             cameras=tuple(CameraDescription(name=c.name, width=image_sizes[c.name][0],
                                             height=image_sizes[c.name][1])
                           for c in self.cameras if c.name in image_sizes),
+            layout=self.layout,
         )
 
     @classmethod

@@ -26,9 +26,9 @@ from __future__ import annotations
 
 import math
 import re
-from typing import Final, Literal
+from typing import Annotated, Final, Literal
 
-from pydantic import Field, ValidationError, model_validator
+from pydantic import Field, FiniteFloat, ValidationError, model_validator
 
 from .air import AirReading, SpeedOfSoundPrior
 from .config_model import ConfigModel, describe_problems
@@ -45,7 +45,8 @@ NAME_PATTERN = r"[A-Za-z0-9][A-Za-z0-9_.-]*"
 CAMERA_MODEL_COEFFICIENTS = 5
 """micam's lens model: OpenCV's k1, k2, p1, p2, k3 (the paper's equation 4)."""
 
-_NAMES_ITS_FIELD = re.compile(r"(rig|air|burst|channels|reference|cameras)[\w.\[\], ]*: ")
+_NAMES_ITS_FIELD = re.compile(
+    r"(rig|air|burst|channels|reference|cameras|layout)[\w.\[\], ]*: ")
 """A cross-field problem of this module: it starts with the fields it is about."""
 
 
@@ -360,6 +361,63 @@ def air_problems(air: KnownAir, where: str = "air") -> list[str]:
     return []
 
 
+MAX_LAYOUT_MICROPHONES = 10_000
+"""Most microphones a nominal layout may hold (the largest arrays have a few thousand)."""
+
+LayoutIds = Annotated[tuple[int, ...], Field(
+    min_length=1, max_length=MAX_LAYOUT_MICROPHONES, examples=[[0, 1, 2]],
+    description="the microphone ids the layout places (every id of the channel map, and "
+                "possibly more)")]
+LayoutPositions = Annotated[tuple[tuple[FiniteFloat, FiniteFloat, FiniteFloat], ...], Field(
+    min_length=1, max_length=MAX_LAYOUT_MICROPHONES,
+    examples=[[[0.0, 0.0, 0.0], [0.04, 0.0, 0.0], [0.0, 0.04, 0.0]]],
+    description="the nominal position of each of those microphones, in the same order, "
+                "metres, in the array's own frame (any rigid placement)")]
+LayoutTolerance = Annotated[float | None, Field(
+    default=None, gt=0, le=0.1, examples=[0.005],
+    description="how far a microphone may lie from its nominal place and still be taken "
+                "for itself, metres (default 0.005)")]
+
+
+class KnownLayout(ConfigModel):
+    """The array's nominal layout: where each microphone was built to be (the maker's design).
+
+    A swapped microphone cable, or a column map off by a board, leaves every recording as good
+    as the others: only the layout the array was built to shows which id belongs where. The
+    calibration compares its measured geometry with this one (calibration.layout_check) and
+    relabels the columns a permutation of cables explains. Stored in the description itself
+    (an import reads its file into these values), so that a session carries it wherever it
+    is moved.
+    """
+
+    mic_ids: LayoutIds
+    positions_m: LayoutPositions
+    tolerance_m: LayoutTolerance = None
+    source: str | None = Field(
+        default=None, max_length=1000, examples=["array64.xml"],
+        description="where the positions come from (a file's name), for a person")
+
+
+def layout_problems(ids: tuple[int, ...], n_positions: int, channel_ids: list[int],
+                    where: str = "layout") -> list[str]:
+    """What keeps a nominal layout (`ids` with `n_positions` positions) from placing every
+    microphone of the channel map (`channel_ids`), one line each."""
+    problems = []
+    if len(ids) != n_positions:
+        problems.append(f"{where}.positions_m: {n_positions} positions for {len(ids)} "
+                        "microphone ids; write one position [x, y, z] per id, in the same order")
+    twice = sorted({i for i in ids if ids.count(i) > 1})
+    if twice:
+        problems.append(f"{where}.mic_ids: microphone {twice[0]} is placed twice; write each "
+                        "microphone's id once")
+    missing = sorted(set(channel_ids) - set(ids))
+    if missing:
+        problems.append(f"{where}.mic_ids: microphones {missing[:10]}"
+                        f"{' ...' if len(missing) > 10 else ''} of the channel map are not in "
+                        "the layout; write the nominal position of every microphone")
+    return problems
+
+
 class RigArrayDescription(ConfigModel):
     """What calibration knows of a session: rig, array, recordings' layout, cameras, air."""
 
@@ -375,6 +433,9 @@ class RigArrayDescription(ConfigModel):
     cameras: tuple[CameraDescription, ...] = Field(min_length=1,
                                                    description="camera 0 (the frame) first")
     air: KnownAir | None = None
+    layout: KnownLayout | None = Field(
+        default=None, description="the array's nominal layout, to check the wiring against "
+                                  "(swapped cables, a column map off by a board)")
 
     @model_validator(mode="after")
     def _consistent(self) -> RigArrayDescription:
@@ -440,6 +501,9 @@ class RigArrayDescription(ConfigModel):
         period = self.burst.period_problem(self.sample_rate_hz, "burst")
         if period is not None:
             problems.append(period)
+        if isinstance(self.layout, KnownLayout):  # an import's is checked when it is read
+            problems += layout_problems(self.layout.mic_ids, len(self.layout.positions_m),
+                                        list(mic_ids))
         return problems
 
     # -- what calibration asks of it ----------------------------------------------------------

@@ -25,6 +25,7 @@ from pydantic_settings import (
 
 from daq.audio import AudioConfig
 
+from acquisition.contracts.camera import PixelFormat
 from acquisition.contracts.capture_config import CaptureConfig
 from acquisition.contracts.config_model import ConfigModel, describe_problems
 from acquisition.contracts.errors import UserError
@@ -131,7 +132,11 @@ class V4L2CameraConfig(ConfigModel):
     device: str = Field(description="/dev/v4l/by-id/... (stable) or /dev/videoN")
     width: int = Field(gt=0)
     height: int = Field(gt=0)
-    fourcc: str = Field(default="MJPG", min_length=4, max_length=4)
+    fourcc: PixelFormat = Field(
+        default="MJPG", examples=["YUYV"],
+        description="the pixel format the camera is asked for: MJPG (JPEG frames) or YUYV "
+                    "(uncompressed); one of the modes `v4l2-ctl --list-formats-ext` lists "
+                    "for this width and height")
     fps: float | None = Field(default=None, gt=0)
     exposure: float | None = Field(
         default=None, description="V4L2 exposure_absolute (driver units, usually 100 us); "

@@ -26,8 +26,14 @@ import numpy as np
 from pydantic import ValidationError
 
 from acquisition.contracts.output_paths import new_directory_problem
+from acquisition.contracts.positions_file import (
+    PositionsFileError,
+    positions_of,
+    read_positions,
+)
 from acquisition.contracts.rig_description import (
     CameraDescription,
+    KnownLayout,
     RigArrayDescription,
     problem_text,
 )
@@ -68,7 +74,7 @@ class _Step:
 
 def description_of(spec: ImportSpec, base: Path) -> RigArrayDescription:
     """The description the session stores: the spec's, with the cameras' intrinsics files
-    read into values."""
+    and the layout's file read into values."""
     cameras = []
     for i, c in enumerate(spec.cameras):
         known = c.intrinsics
@@ -83,12 +89,41 @@ def description_of(spec: ImportSpec, base: Path) -> RigArrayDescription:
                                       "from its images)") from None
         cameras.append(CameraDescription(name=c.name, width=c.width, height=c.height,
                                          intrinsics=known))
-    fields = spec.model_dump(exclude={"cameras", "recordings", "session_id"})
+    fields = spec.model_dump(exclude={"cameras", "recordings", "session_id", "layout"})
     try:
-        return RigArrayDescription.model_validate({**fields, "cameras": cameras})
+        return RigArrayDescription.model_validate({**fields, "cameras": cameras,
+                                                   "layout": _layout_of(spec, base)})
     except ValidationError as exc:
         raise ImportSpecError(problem_text("the imported description", exc,
                                            RigArrayDescription)) from None
+
+
+def _layout_of(spec: ImportSpec, base: Path) -> KnownLayout | None:
+    """The spec's nominal layout with its file (inside `base`) read into positions: every
+    microphone the file places, sorted by id, named by the file's path as written.
+
+    Raises:
+        ImportSpecError: naming `layout.file`: a path out of `base`, a missing file, one that is
+            not a geometry file, or one that lacks microphones of the channel map.
+    """
+    given = spec.layout
+    if given is None:
+        return None
+    if given.file is None:  # the positions themselves (ImportLayout.problems checked them)
+        return KnownLayout.model_validate(given.model_dump(exclude={"file"}))
+    where = "layout.file"
+    try:
+        path = inside(base, given.file, where)
+        positions = read_positions(path, "the layout")
+        positions_of(positions, [m for m, _, _ in spec.microphones()], path, "the layout")
+    except PositionsFileError as exc:
+        raise ImportSpecError(f"{where}: {exc} (write the path of the array's layout, or leave "
+                              "[layout] out to calibrate without checking the wiring)") from None
+    ids = sorted(positions)
+    return KnownLayout(mic_ids=tuple(ids),
+                       positions_m=tuple((float(x), float(y), float(z))
+                                         for x, y, z in (positions[i] for i in ids)),
+                       tolerance_m=given.tolerance_m, source=given.file)
 
 
 def plan(spec: ImportSpec, base: Path) -> list[_Step]:

@@ -16,7 +16,11 @@ from acquisition.contracts.config_model import ConfigModel
 from acquisition.contracts.errors import UserError
 from acquisition.contracts.rig_description import (
     CameraDescription,
+    LayoutIds,
+    LayoutPositions,
+    LayoutTolerance,
     RigArrayDescription,
+    layout_problems,
     problem_text,
 )
 
@@ -90,24 +94,55 @@ class ImportCamera(CameraDescription):
                     "prior (default: the file's, if it is a micam result)")
 
 
+class ImportLayout(ConfigModel):
+    """The array's nominal layout as the import TOML gives it: a file (the maker's Acoular
+    XML, or a micam result.json / truth.json), or the positions themselves as the description
+    stores them (rig_description.KnownLayout)."""
+
+    file: str | None = Field(
+        default=None, examples=["array64.xml"],
+        description="the layout's file, relative to the TOML file: an Acoular MicGeom XML "
+                    '(microphone k named "Point k"), a micam result.json or truth.json')
+    mic_ids: LayoutIds | None = None
+    positions_m: LayoutPositions | None = None
+    tolerance_m: LayoutTolerance = None
+
+    def problems(self, channel_ids: list[int]) -> list[str]:
+        """What is missing or contradictory, one line each (a file's content is checked
+        when it is read)."""
+        inline = self.mic_ids is not None or self.positions_m is not None
+        if self.file is not None and inline:
+            return ["layout: both file and mic_ids/positions_m are given; write only one of "
+                    "them"]
+        if self.file is not None:
+            return []
+        if self.mic_ids is None or self.positions_m is None:
+            return ["layout: no positions; write file = \"array.xml\" (the maker's layout), "
+                    "or mic_ids = [...] with positions_m = [[x, y, z], ...]"]
+        return layout_problems(self.mic_ids, len(self.positions_m), channel_ids)
+
+
 class ImportSpec(RigArrayDescription):
     """The import TOML: the rig and array description, the cameras (optionally with a known
     calibration file) and the recordings."""
 
     cameras: tuple[ImportCamera, ...] = Field(min_length=1,  # type: ignore[assignment]
                                               description="camera 0 (the frame) first")
+    layout: ImportLayout | None = Field(  # type: ignore[assignment]
+        default=None, description="the array's nominal layout, to check the wiring against")
     recordings: RecordingFiles
     session_id: str | None = Field(default=None, pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]*$",
                                    examples=["lab-2026-03-02"])
 
     @model_validator(mode="after")
     def _files_fit_the_description(self) -> ImportSpec:
-        problems = self._recording_problems()
+        problems = self._import_problems()
         if problems:
             raise ValueError("\n".join(problems))
         return self
 
-    def _recording_problems(self) -> list[str]:
+    def _import_problems(self) -> list[str]:
+        """What the import's own fields (recordings, cameras' files, layout) get wrong."""
         problems = []
         n = self.n_speakers
         rec = self.recordings
@@ -146,6 +181,8 @@ class ImportSpec(RigArrayDescription):
                 problems.append(f"cameras[{i}].intrinsics_std: a prior needs its standard "
                                 "deviations; write intrinsics_std = [fx, fy, cx, cy, k1, k2, "
                                 "p1, p2, k3], or intrinsics_use = 'fixed'")
+        if self.layout is not None:
+            problems += self.layout.problems([m for m, _, _ in self.microphones()])
         return problems
 
 

@@ -62,9 +62,11 @@ def add_calibration_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--layout", type=Path, default=None, metavar="FILE",
                    help="the array's nominal layout (same formats as --prior), only to check "
                         "the wiring against: swapped microphone cables and a column map off "
-                        "by a board are found and relabelled (default: --prior's, if given)")
+                        "by a board are found and relabelled (default: --prior's, if given, "
+                        "else the session description's [layout]; this replaces it)")
     p.add_argument("--layout-tolerance-mm", type=positive(1000, " mm"), default=None,
-                   help="how far a microphone may lie from its nominal place (default 5)")
+                   help="how far a microphone may lie from its nominal place (default: the "
+                        "layout's own, else 5)")
     p.add_argument("--temperature", type=number(-40, 60, " degC"), default=None, metavar="DEGC",
                    help="the air temperature measured during the session, degC (with "
                         "--temperature-std); replaces the session's own")

@@ -4,6 +4,7 @@ name the TOML field, what is wrong and what to write (nothing is written then)."
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import cv2
@@ -221,6 +222,56 @@ def test_ros_and_micam_result_intrinsics(tmp_path: Path) -> None:
     assert known.use == "prior" and known.std == (0.1,) * 9
     with pytest.raises(IntrinsicsFileError, match="without camera 'cam1'"):
         read_intrinsics(result, "cam1", (W, H))
+
+
+DESIGN_XML = ('<?xml version="1.0" encoding="utf-8"?>\n<MicArray name="design">\n'
+              '  <pos Name="Point 10" x="0.01" y="0.02" z="0.0"/>\n'
+              '  <pos Name="Point 11" x="0.05" y="0.02" z="0.001"/>\n'
+              '  <pos Name="Point 12" x="0.09" y="0.02" z="0.0"/>\n</MicArray>\n')
+
+
+def test_the_maker_s_layout_file_is_read_into_the_session(tmp_path: Path) -> None:
+    (tmp_path / "design").mkdir()
+    (tmp_path / "design" / "array.xml").write_text(DESIGN_XML)
+    toml = TOML.replace("[recordings]", '[layout]\nfile = "design/array.xml"\n'
+                        "tolerance_m = 0.004\n[recordings]")
+    import_session(_folder(tmp_path, toml), tmp_path / "s")
+    layout = SessionReader(tmp_path / "s").capture["layout"]
+    assert layout == {"mic_ids": [10, 11, 12],
+                      "positions_m": [[0.01, 0.02, 0.0], [0.05, 0.02, 0.001],
+                                      [0.09, 0.02, 0.0]],
+                      "tolerance_m": 0.004, "source": "design/array.xml"}
+
+
+@pytest.mark.parametrize(("layout", "words"), [
+    ('file = "../array.xml"', "layout.file: '../array.xml' must be a path inside the TOML "
+                              "file's folder"),
+    ('file = "/etc/array.xml"', "layout.file: '/etc/array.xml' must be a path inside"),
+    ('file = "absent.xml"', "layout.file: 'absent.xml' does not exist"),
+    ('file = "bad.xml"', "layout.file: cannot read the layout"),
+    ('file = "short.xml"', "layout.file: the layout"),
+    ('file = "design.xml"\nmic_ids = [10, 11]', "layout: both file and mic_ids"),
+    ("mic_ids = [10, 11]\npositions_m = [[0, 0, 0]]",
+     "layout.positions_m: 1 positions for 2 microphone ids"),
+    ("mic_ids = [10]\npositions_m = [[0, 0, 0]]", "layout.mic_ids: microphones [11] of the "
+                                                   "channel map are not in the layout"),
+    ("mic_ids = [10, 11]\npositions_m = [[0, 0, 0], [0, nan, 0]]",
+     "layout.positions_m[1][1]: Input should be a finite number"),
+])
+def test_a_wrong_layout_is_refused_in_one_line_naming_its_field(
+        tmp_path: Path, layout: str, words: str, capsys: pytest.CaptureFixture) -> None:
+    """A path out of the folder, a missing file, a malformed XML, one that lacks microphones
+    of the channel map, and wrong inline positions: each one line, the field and the fix."""
+    (tmp_path / "bad.xml").write_text(DESIGN_XML[:-12])  # the closing tag cut off
+    (tmp_path / "short.xml").write_text(DESIGN_XML.replace("Point 11", "Point 13"))
+    (tmp_path / "design.xml").write_text(DESIGN_XML)
+    spec = _folder(tmp_path, TOML.replace("[recordings]", f"[layout]\n{layout}\n[recordings]"))
+    assert main(["import", str(spec), "--out", str(tmp_path / "s")]) == 2
+    err = capsys.readouterr().err
+    assert words in err, err
+    problems = [line for line in err.splitlines() if re.search(r"\blayout[.:\[]", line)]
+    assert len(problems) == 1 and ("write" in problems[0] or "should be" in problems[0]), err
+    assert not (tmp_path / "s").exists()
 
 
 # ---------------------------------------------------------------------------------------------

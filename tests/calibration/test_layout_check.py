@@ -10,13 +10,16 @@ calibration once, on a realistic capture with both mistakes, given the layout as
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from acquisition.daemon.result_check import ResultRejected, SessionFacts, check_result
 from calibration.layout_check import (
+    LAYOUT_TOLERANCE_M,
     LayoutMismatchError,
     NominalLayout,
     check_layout,
@@ -136,9 +139,6 @@ def test_layout_options_are_checked_before_any_work(small_session: Path, tmp_pat
     from micam.cli import main
 
     out = str(tmp_path / "r.json")
-    assert main(["calibrate", str(small_session), "--out", out,
-                 "--layout-tolerance-mm", "3"]) == 2
-    assert "--layout-tolerance-mm needs --layout or --prior" in capsys.readouterr().err
     (tmp_path / "design.xml").write_text('<MicArray><pos Name="Point 0" x="0" y="0" z="0"/>'
                                          "</MicArray>")
     assert main(["calibrate", str(small_session), "--out", out,
@@ -147,23 +147,92 @@ def test_layout_options_are_checked_before_any_work(small_session: Path, tmp_pat
     assert not (tmp_path / "r.json").exists()
 
 
+def test_a_tolerance_without_any_layout_is_refused(small_session: Path) -> None:
+    import argparse
+
+    from acquisition.contracts.errors import UserError
+    from micam.calibrating import _layout
+
+    data = load_session(small_session)
+    args = argparse.Namespace(layout=None, prior=None, layout_tolerance_mm=3.0)
+    assert _layout(args, data) is None  # the calibration takes the description's
+    bare = replace(data, description=data.description.model_copy(update={"layout": None}))
+    with pytest.raises(UserError, match="--layout-tolerance-mm needs --layout, --prior or a "
+                                        r"\[layout\] in the session's description"):
+        _layout(args, bare)
+
+
+def test_the_options_layout_replaces_the_description_s_and_says_so(small_session: Path) -> None:
+    """The layout of the options (--layout, else --prior), else the description's; the
+    tolerance option applies to whichever is used; the notes say which."""
+    from calibration.pipeline import CalibrationOptions, _layout_notes, _nominal_layout
+    from calibration.solver import PriorGeometry
+
+    m = SimpleNamespace(data=load_session(small_session))
+    described = m.data.description.layout
+    assert described is not None and described.source == "the simulated array scatter48"
+    own = _nominal_layout(m, CalibrationOptions())
+    np.testing.assert_array_equal(own.positions_m, described.positions_m)
+    assert own.tolerance_m == LAYOUT_TOLERANCE_M
+    assert "in the session's description (the simulated array scatter48)" in \
+        _layout_notes(m, CalibrationOptions())[0]
+    given = NominalLayout(own.ids, own.positions_m + 1.0)
+    for options in (CalibrationOptions(layout=given, layout_tolerance_m=0.002),
+                    CalibrationOptions(prior=PriorGeometry(given.of(m.data.mic_ids), None),
+                                       layout_tolerance_m=0.002)):
+        used = _nominal_layout(m, options)
+        np.testing.assert_array_equal(used.of(m.data.mic_ids), given.of(m.data.mic_ids))
+        assert used.tolerance_m == 0.002
+        assert "replaces the nominal layout in the session's description" in \
+            _layout_notes(m, options)[0]
+
+
+@pytest.fixture(scope="module")
+def mistaken(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A realistic capture of 3 poses whose column map is off by one board and two of whose
+    cables are swapped as well (the mistakes compose); its description carries the array's
+    nominal layout, as `micam simulate` writes it."""
+    return simulated_session(tmp_path_factory, "layout", *SMALL_LAB[:4], "--poses", "3",
+                             *SMALL_LAB[6:], "--mistake", "swap-mics", "--mistake",
+                             "board-shift")
+
+
+@pytest.mark.slow
+def test_the_description_s_layout_finds_the_mistakes_without_any_option(
+        mistaken: Path, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    from micam.cli import main
+
+    out = tmp_path / "result.json"
+    assert main(["calibrate", str(mistaken), "--out", str(out), "--no-joint"]) == 0
+    err = capsys.readouterr().err
+    assert "micam: finding: the column map looks shifted by" in err
+    assert "replaces" not in err
+    result = json.loads(out.read_text())
+    truth = json.loads((mistaken / "truth.json").read_text())
+    swapped = next(m["microphones"] for m in truth["mistakes"] if m["kind"] == "swap-mics")
+    named = {f["kind"]: f for f in result["findings"] if f["action"] == "corrected"}
+    assert set(named) == {"shifted-boards", "swapped-microphones"}
+    assert named["swapped-microphones"]["microphones"] == sorted(swapped)
+    assert any("layout in the session's description" in note for note in result["notes"])
+
+
 @pytest.mark.slow
 def test_a_capture_with_both_mistakes_is_calibrated_under_the_right_ids(
-        tmp_path_factory: pytest.TempPathFactory, tmp_path: Path,
-        capsys: pytest.CaptureFixture) -> None:
+        mistaken: Path, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     """`micam calibrate --prior` with the maker's layout on a realistic capture whose column
     map is off by one board and two of whose cables are swapped as well (the mistakes
     compose); the camera-frozen solution of 3 poses is enough to tell them apart."""
     from micam.cli import main
 
-    path = simulated_session(tmp_path_factory, "layout", *SMALL_LAB[:4], "--poses", "3",
-                             *SMALL_LAB[6:], "--mistake", "swap-mics", "--mistake", "board-shift")
+    path = mistaken
     truth = json.loads((path / "truth.json").read_text())
     write_acoular(nominal_layout_of(truth), tmp_path / "design.xml")
     out = tmp_path / "result.json"
     assert main(["calibrate", str(path), "--out", str(out), "--prior",
                  str(tmp_path / "design.xml"), "--prior-std-mm", "1", "--no-joint"]) == 0
-    assert "micam: finding: the column map looks shifted by" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "micam: finding: the column map looks shifted by" in err
+    assert "--prior" in err and "replaces the nominal layout in the session's description" in err
     result = json.loads(out.read_text())
     swapped = next(m["microphones"] for m in truth["mistakes"] if m["kind"] == "swap-mics")
     named = {f["kind"]: f for f in result["findings"] if f["action"] == "corrected"}

@@ -166,6 +166,17 @@ def test_a_misspelt_hardware_key_is_named_with_its_section(
     assert "Traceback" not in message and "pydantic" not in message
 
 
+def test_a_camera_s_pixel_format_is_one_micam_decodes(tmp_path: Path,
+                                                      hardware_toml: str) -> None:
+    text = hardware_toml.replace('height = 960', 'height = 960, fourcc = "YUYV"', 1)
+    config = load_config(_write(tmp_path, text))
+    assert config.hardware is not None and config.hardware.cameras[0].fourcc == "YUYV"
+    with pytest.raises(ConfigError) as caught:
+        load_config(_write(tmp_path, text.replace('"YUYV"', '"MJPEG"')))
+    (line,) = [ln for ln in str(caught.value).splitlines() if "fourcc" in ln]
+    assert line.startswith("  hardware.cameras[0].fourcc: Input should be 'MJPG' or 'YUYV'"), line
+
+
 def test_every_problem_on_its_own_line(tmp_path: Path, hardware_toml: str) -> None:
     text = (hardware_toml.replace("mls_order = ", "mls_ordr = ", 1)
             + '[quality]\nclipping = "maybe"\n')
