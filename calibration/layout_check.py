@@ -23,7 +23,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from acquisition.contracts.rigid import RigidTransform, kabsch
+from kernel.rigid import RigidTransform, kabsch
 
 from .capture_checks import KEPT_SHARE, _Wiring
 from .errors import CalibrationInputError

@@ -36,10 +36,10 @@ from typing import Literal
 
 import numpy as np
 
-from acquisition.contracts.air import NOMINAL_SPEED_OF_SOUND_M_S, SpeedOfSoundPrior
 from acquisition.contracts.rig_description import KnownIntrinsics
-from acquisition.contracts.rigid import RigidTransform
 from acquisition.contracts.step_ids import REFMIC_STEP
+from kernel.air import NOMINAL_SPEED_OF_SOUND_M_S, SpeedOfSoundPrior
+from kernel.rigid import RigidTransform
 
 from .bundle import (
     FIXED,

@@ -18,8 +18,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from acquisition.contracts.rigid import RigidTransform, kabsch
 from acquisition.contracts.step_ids import pose_index, pose_step
+from kernel.rigid import RigidTransform, kabsch
 
 from .figures.geometry import ArrayPicture, CameraMark, geometry_figure
 from .figures.residuals import (

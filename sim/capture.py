@@ -24,8 +24,8 @@ from acquisition.contracts.capture_config import (
     SpeakerEntry,
 )
 from acquisition.contracts.rig_description import MIN_STEADY_PERIOD_S, steady_mls_order
-from acquisition.contracts.stimulus import mls_length
 from daq import Board, InputChannel, OutputChannel, SyncGroup, board_model
+from kernel.stimulus import mls_length
 
 from .air_sensor import SimulatedAirSensor
 from .arrays import ARRAY_KINDS, ArrayLayout, array_layout

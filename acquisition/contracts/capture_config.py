@@ -16,6 +16,7 @@ from typing import Any, Literal
 from pydantic import Field, ValidationError, model_validator
 
 from daq import CODE_FULL_SCALE, InputChannel, OutputChannel, ScanConfig
+from kernel.stimulus import mls_length
 
 from .config_model import ConfigModel, describe_problems
 from .rig_description import (
@@ -28,7 +29,6 @@ from .rig_description import (
     RigDescription,
 )
 from .session import SessionError
-from .stimulus import mls_length
 
 
 class BoardEntry(ConfigModel):

@@ -30,10 +30,11 @@ from typing import Final, Literal
 
 from pydantic import Field, ValidationError, model_validator
 
-from .air import AirReading, SpeedOfSoundPrior
+from kernel.air import AirReading, SpeedOfSoundPrior
+from kernel.stimulus import mls_length
+
 from .config_model import ConfigModel, describe_problems
 from .errors import UserError
-from .stimulus import mls_length
 
 DESCRIPTION_KIND: Final = "rig-and-array"
 """The `kind` of a description stored as a session's capture (a capture configuration has
@@ -307,7 +308,7 @@ class KnownAir(ConfigModel):
 
     def speed_of_sound_prior(self) -> SpeedOfSoundPrior:
         """(c, standard deviation) in m/s: the measured c, or Cramer's c of the measured air
-        (acquisition.contracts.air) with the temperature's and the humidity's std carried through
+        (kernel.air) with the temperature's and the humidity's std carried through
         (humidity unknown: 0.5 +- 0.5)."""
         if self.speed_of_sound_m_s is not None:
             return SpeedOfSoundPrior(self.speed_of_sound_m_s,

@@ -34,7 +34,7 @@ from acquisition.contracts.bounded_files import (
     UnreadableFile,
     read_bounded_text,
 )
-from acquisition.contracts.rigid import RigidTransform
+from kernel.rigid import RigidTransform
 
 from ..errors import CalibrationInputError
 from .csm_calibration import ChannelResponses, responses_from_document

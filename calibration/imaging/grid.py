@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from acquisition.contracts.rigid import RigidTransform
+from kernel.rigid import RigidTransform
 
 from ..errors import CalibrationInputError
 

@@ -18,7 +18,6 @@ from matplotlib.patches import Rectangle
 from matplotlib.text import Text
 from matplotlib.transforms import Bbox
 
-from acquisition.contracts.rigid import RigidTransform
 from calibration.figures.geometry import ArrayPicture, CameraMark, geometry_figure
 from calibration.figures.maps import MapPanel, ScaleBar, acoustic_map_figure
 from calibration.figures.recording_map import pixels_per_metre
@@ -31,6 +30,7 @@ from calibration.figures.residuals import (
 from calibration.figures.study import study_figure
 from calibration.imaging.geometry import CameraView
 from calibration.imaging.grid import PlaneGrid
+from kernel.rigid import RigidTransform
 
 TOUCH_PX = 0.5
 """How far (figure pixels) a box may reach past another before it counts as overlapping."""

@@ -97,7 +97,7 @@ def test_map_of_the_wrong_size_is_refused(scene) -> None:
 
 def test_a_camera_sees_only_what_is_in_front_of_it_and_within_its_image() -> None:
     """What `micam image` warns about: a speaker outside the camera's view."""
-    from acquisition.contracts.rigid import RigidTransform
+    from kernel.rigid import RigidTransform
 
     view = CameraView(name="cam1", width=640, height=480,
                       K=np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]]), dist=np.zeros(5),
