@@ -37,11 +37,11 @@ import numpy as np
 
 from acquisition.contracts.session import SessionReader
 from micam.simulated import record_simulated_session
-from calibration.figures.evaluation import csm_calibration_figure
 from calibration.figures.style import save
 from calibration.imaging import load_geometry
 from calibration.imaging.csm_calibration import ChannelResponses, simulated_phase_error
 from calibration.imaging.evaluate import ImagingSettings, channel_calibration, evaluate_session
+from calibration.imaging.figures.evaluation import csm_calibration_figure
 from calibration.imaging.holdout import geometry_of
 from calibration.pipeline import calibrate
 from sim.capture import SimulationOptions

@@ -123,9 +123,9 @@ def _write_json(path: Path, document: dict) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from acquisition.contracts.session import SessionReader
-    from calibration.figures.evaluation import localization_figure
     from calibration.figures.style import save
     from calibration.imaging.evaluate import ImagingSettings, evaluate_session
+    from calibration.imaging.figures.evaluation import localization_figure
     from calibration.imaging.holdout import cross_validate
 
     check_outputs(("--json", args.json), ("--figure", args.figure))

@@ -52,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
     from acquisition.contracts.session import SessionReader
     from calibration.figures.style import save
     from calibration.imaging.evaluate import ImagingSettings
-    from calibration.figures.recording_map import recording_map
+    from calibration.imaging.figures.recording_map import recording_map
     from calibration.report import significant
 
     check_outputs(("--out", args.out))

@@ -20,7 +20,6 @@ from matplotlib.transforms import Bbox
 
 from calibration.figures.geometry import ArrayPicture, CameraMark, geometry_figure
 from calibration.figures.maps import MapPanel, ScaleBar, acoustic_map_figure
-from calibration.figures.recording_map import pixels_per_metre
 from calibration.figures.residuals import (
     CornerResiduals,
     TofResiduals,
@@ -28,6 +27,7 @@ from calibration.figures.residuals import (
     tof_residual_figure,
 )
 from calibration.figures.study import study_figure
+from calibration.imaging.figures.recording_map import pixels_per_metre
 from calibration.imaging.geometry import CameraView
 from calibration.imaging.grid import PlaneGrid
 from kernel.rigid import RigidTransform

@@ -70,8 +70,8 @@ def _png_pixel(fig, ax, xy: np.ndarray) -> np.ndarray:
 def test_map_figure_marks_speakers_and_sources_at_their_pixels(session: Path,
                                                               tmp_path: Path) -> None:
     from calibration.figures.maps import PLAYING_COLOUR, map_colours
-    from calibration.figures.recording_map import recording_map
     from calibration.figures.style import save
+    from calibration.imaging.figures.recording_map import recording_map
 
     drawn = recording_map(SessionReader(session), load_geometry(session / "truth.json"), 0, 2,
                           8000.0, ImagingSettings(bands_hz=(8000.0,)), dynamic_range_db=20.0)

@@ -16,8 +16,9 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
-from ..imaging.evaluate import Evaluation
-from .style import PAGE_IN, PALETTE, new_figure, styled
+from calibration.figures.style import PAGE_IN, PALETTE, new_figure, styled
+
+from ..evaluate import Evaluation
 
 
 @styled

@@ -17,16 +17,16 @@ from matplotlib.figure import Figure
 
 from acquisition.contracts.session import SessionReader
 from acquisition.contracts.step_ids import pose_step
+from calibration.errors import CalibrationInputError
+from calibration.figures.maps import MapPanel, ScaleBar, acoustic_map_figure
 
-from ..errors import CalibrationInputError
-from ..imaging.beamform import beamform_csm
-from ..imaging.cleansc import CleanScOptions, clean_sc
-from ..imaging.evaluate import ImagingSettings, bin_spectra, geometry_steering, mic_signals
-from ..imaging.geometry import ArrayGeometry, CameraView
-from ..imaging.grid import PlaneGrid
-from ..imaging.overlay import clean_sources, field_of_view_grid, map_to_image
-from ..imaging.steering import Formulation
-from .maps import MapPanel, ScaleBar, acoustic_map_figure
+from ..beamform import beamform_csm
+from ..cleansc import CleanScOptions, clean_sc
+from ..evaluate import ImagingSettings, bin_spectra, geometry_steering, mic_signals
+from ..geometry import ArrayGeometry, CameraView
+from ..grid import PlaneGrid
+from ..overlay import clean_sources, field_of_view_grid, map_to_image
+from ..steering import Formulation
 
 
 @dataclass(frozen=True)
