@@ -99,7 +99,7 @@ def test_no_type_but_rigid_transform_holds_a_rotation_and_a_translation() -> Non
     """#18 found five types for one rigid transform; records hold a RigidTransform in a field
     named for its direction (`cam0_to_cam`, `rig_to_cam0`) instead of their own R and t."""
     found = {(str(path.relative_to(REPO)), name)
-             for top in ("acquisition", "calibration", "daq", "kernel", "micam", "sim",
+             for top in ("acquisition", "calibration", "daq", "imaging", "kernel", "micam", "sim",
                          "benchmarks", "tests")
              for path in sorted((REPO / top).rglob("*.py"))
              for name in transform_like_classes(path.read_text())}

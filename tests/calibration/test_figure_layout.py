@@ -27,9 +27,9 @@ from calibration.figures.residuals import (
     tof_residual_figure,
 )
 from calibration.figures.study import study_figure
-from calibration.imaging.figures.recording_map import pixels_per_metre
-from calibration.imaging.geometry import CameraView
-from calibration.imaging.grid import PlaneGrid
+from imaging.figures.recording_map import pixels_per_metre
+from imaging.geometry import CameraView
+from imaging.grid import PlaneGrid
 from kernel.rigid import RigidTransform
 
 TOUCH_PX = 0.5

@@ -22,15 +22,15 @@ import numpy as np
 
 from acquisition.contracts.session import SessionReader
 from acquisition.contracts.step_ids import pose_index
-
-from ..errors import CalibrationInputError
-from ..pipeline import (
+from calibration.errors import CalibrationInputError
+from calibration.pipeline import (
     CalibrationOptions,
     CalibrationRun,
     Measurements,
     calibrate_measured,
     measure,
 )
+
 from .evaluate import (
     Evaluation,
     ImagingSettings,

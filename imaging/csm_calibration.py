@@ -35,7 +35,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..errors import CalibrationInputError
+from calibration.errors import CalibrationInputError
+
 from .csm import CrossSpectra, band_edges
 
 MAX_RESPONSE_FREQUENCIES = 100_000

@@ -38,7 +38,7 @@ from enum import StrEnum
 
 import numpy as np
 
-from ..errors import CalibrationInputError
+from calibration.errors import CalibrationInputError
 
 
 class Formulation(StrEnum):

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from calibration.errors import CalibrationInputError
-from calibration.imaging import CameraView, CleanScOptions, SteeringModel, beamform_csm, clean_sc
-from calibration.imaging.evaluate import rig_grid
-from calibration.imaging.geometry import BoardPose
-from calibration.imaging.overlay import clean_sources, field_of_view_grid, map_to_image
+from imaging import CameraView, CleanScOptions, SteeringModel, beamform_csm, clean_sc
+from imaging.evaluate import rig_grid
+from imaging.geometry import BoardPose
+from imaging.overlay import clean_sources, field_of_view_grid, map_to_image
 from sim.geometry import CameraModel
 
 from .helpers import C, point_source_csm, sphere_bench

@@ -45,9 +45,10 @@ from enum import StrEnum
 
 import numpy as np
 
-from .._blas import single_threaded_blas
-from .._cores import resolve_workers
-from ..errors import CalibrationInputError
+from calibration._blas import single_threaded_blas
+from calibration._cores import resolve_workers
+from calibration.errors import CalibrationInputError
+
 from .beamform import beamform_csm, diagonal_norm
 from .csm import CrossSpectra
 from .lazymap import BLOCK_POINTS, LazyMap

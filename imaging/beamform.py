@@ -34,7 +34,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import CalibrationInputError
+from calibration.errors import CalibrationInputError
+
 from .csm import CrossSpectra
 from .parallel import run_blocks
 from .steering import SteeringModel

@@ -25,8 +25,8 @@ from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any
 
-from .._blas import single_threaded_blas
-from .._cores import resolve_workers
+from calibration._blas import single_threaded_blas
+from calibration._cores import resolve_workers
 
 Mapper = Callable[[Callable[..., Any], list[tuple[Any, ...]]], Iterable[Any]]
 """Runs function(*job) for every job somewhere else, results in the jobs' order: a pool of
@@ -81,7 +81,7 @@ def process_pool(workers: int) -> ProcessPoolExecutor:
         context = multiprocessing.get_context("forkserver" if "forkserver" in methods
                                               else "spawn")
         if context.get_start_method() == "forkserver":
-            context.set_forkserver_preload(["calibration.imaging"])
+            context.set_forkserver_preload(["imaging"])
         pool = _POOLS[workers] = ProcessPoolExecutor(workers, mp_context=context)
     return pool
 

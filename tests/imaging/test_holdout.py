@@ -11,9 +11,9 @@ import pytest
 
 from acquisition.contracts.errors import UserError
 from calibration.errors import CalibrationInputError
-from calibration.imaging import load_geometry
-from calibration.imaging.evaluate import ImagingSettings
-from calibration.imaging.holdout import cross_validate, fold_poses
+from imaging import load_geometry
+from imaging.evaluate import ImagingSettings
+from imaging.holdout import cross_validate, fold_poses
 from micam.commands import evaluate_imaging
 from tests.conftest import simulated_session
 

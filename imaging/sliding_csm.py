@@ -18,7 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._blas import single_threaded_blas
+from calibration._blas import single_threaded_blas
+
 from .csm import WelchOptions, _dft_spectra
 from .csm_calibration import ChannelResponses
 

@@ -14,9 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from calibration.errors import CalibrationInputError
 from kernel.rigid import RigidTransform
-
-from ..errors import CalibrationInputError
 
 
 def _axis(n_points: int, lo: float, hi: float, spacing: float) -> np.ndarray:

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from calibration.errors import CalibrationInputError
-from calibration.imaging import (
+from imaging import (
     Formulation,
     PlaneGrid,
     SteeringModel,
@@ -16,7 +16,7 @@ from calibration.imaging import (
     beamform_csm,
     cross_spectra,
 )
-from calibration.imaging.csm import CrossSpectra
+from imaging.csm import CrossSpectra
 from sim.arrays import sphere72
 from sim.multi_source import record_uncorrelated_noise
 
@@ -192,7 +192,7 @@ def test_single_precision_steering_vectors_keep_float64_phases() -> None:
 
 
 def test_unit_phasors_match_the_exponential() -> None:
-    from calibration.imaging.steering import unit_phasors
+    from imaging.steering import unit_phasors
 
     rng = np.random.default_rng(0)
     for scale in (0.0, 1e-3, 0.15, 3.0, 300.0):

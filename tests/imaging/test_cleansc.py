@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from calibration.errors import CalibrationInputError
-from calibration.imaging import (
+from imaging import (
     CleanScOptions,
     PlaneGrid,
     SteeringModel,
@@ -16,8 +16,8 @@ from calibration.imaging import (
     clean_sc_spectra,
     cross_spectra,
 )
-from calibration.imaging.evaluate import rig_grid
-from calibration.imaging.geometry import BoardPose
+from imaging.evaluate import rig_grid
+from imaging.geometry import BoardPose
 from sim.arrays import sphere72
 from sim.multi_source import record_uncorrelated_noise
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calibration.imaging.live_spectrum import FLOOR_DB, MeanSpectrum
+from imaging.live_spectrum import FLOOR_DB, MeanSpectrum
 
 FS = 48_000.0
 

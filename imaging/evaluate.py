@@ -30,9 +30,9 @@ import numpy as np
 
 from acquisition.contracts.session import SessionReader
 from acquisition.contracts.step_ids import pose_index, pose_step
+from calibration._cores import resolve_workers
+from calibration.errors import CalibrationInputError
 
-from .._cores import resolve_workers
-from ..errors import CalibrationInputError
 from .cleansc import LOCKSTEP_BINS, CleanScOptions, clean_sc_many
 from .csm import CrossSpectra, WelchOptions, band_bins, cross_spectra, octave_band_centres
 from .csm_calibration import ChannelResponses, apply_responses, correct_csm, eigen_calibration

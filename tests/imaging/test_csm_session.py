@@ -13,9 +13,9 @@ import pytest
 
 from acquisition.contracts.errors import UserError
 from acquisition.contracts.session import SessionReader
-from calibration.imaging import load_geometry
-from calibration.imaging.csm_calibration import simulated_phase_error
-from calibration.imaging.evaluate import ImagingSettings, channel_calibration, evaluate_session
+from imaging import load_geometry
+from imaging.csm_calibration import simulated_phase_error
+from imaging.evaluate import ImagingSettings, channel_calibration, evaluate_session
 from micam.commands import evaluate_imaging
 from tests.conftest import simulated_session
 

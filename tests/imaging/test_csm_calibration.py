@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from calibration.errors import CalibrationInputError
-from calibration.imaging import SteeringModel, WelchOptions
-from calibration.imaging.csm import CrossSpectra
-from calibration.imaging.csm_calibration import (
+from imaging import SteeringModel, WelchOptions
+from imaging.csm import CrossSpectra
+from imaging.csm_calibration import (
     ChannelResponses,
     apply_responses,
     correct_csm,
@@ -19,7 +19,7 @@ from calibration.imaging.csm_calibration import (
     responses_from_document,
     simulated_phase_error,
 )
-from calibration.imaging.steering import Formulation
+from imaging.steering import Formulation
 from sim.arrays import array_layout
 
 from .helpers import C, point_source_csm

@@ -29,8 +29,9 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
-from .._blas import single_threaded_blas
-from ..errors import CalibrationInputError
+from calibration._blas import single_threaded_blas
+from calibration.errors import CalibrationInputError
+
 from .beamform import beamform_csm
 from .cleansc import CleanScOptions, clean_sc
 from .csm import WelchOptions, band_bins

@@ -9,15 +9,15 @@ import numpy as np
 import pytest
 
 from calibration.errors import CalibrationInputError
-from calibration.imaging.csm import WelchOptions, band_bins, cross_spectra
-from calibration.imaging.csm_calibration import ChannelResponses, correct_csm
-from calibration.imaging.geometry import geometry_from_dict
-from calibration.imaging.live import LiveImager, LiveSettings
-from calibration.imaging.live_draw import draw_live_frame
-from calibration.imaging.live_frames import MapFrames
-from calibration.imaging.overlay import ImageMapper, map_to_image
-from calibration.imaging.sliding_csm import SlidingCsm
-from calibration.imaging.view_plane import depth_plane_grid
+from imaging.csm import WelchOptions, band_bins, cross_spectra
+from imaging.csm_calibration import ChannelResponses, correct_csm
+from imaging.geometry import geometry_from_dict
+from imaging.live import LiveImager, LiveSettings
+from imaging.live_draw import draw_live_frame
+from imaging.live_frames import MapFrames
+from imaging.overlay import ImageMapper, map_to_image
+from imaging.sliding_csm import SlidingCsm
+from imaging.view_plane import depth_plane_grid
 from sim.arrays import array_layout
 from sim.live_scene import LiveScene, LiveSource, Trajectory, world_truth
 from sim.world import World

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from calibration._cores import resolve_workers
-from calibration.imaging import (
+from imaging import (
     CleanScOptions,
     PlaneGrid,
     SteeringModel,
@@ -15,8 +15,8 @@ from calibration.imaging import (
     clean_sc,
     clean_sc_spectra,
 )
-from calibration.imaging.csm import CrossSpectra
-from calibration.imaging.parallel import point_blocks, run_blocks
+from imaging.csm import CrossSpectra
+from imaging.parallel import point_blocks, run_blocks
 from sim.arrays import sphere72
 
 from .helpers import C, point_source_csm

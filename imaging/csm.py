@@ -31,7 +31,7 @@ import scipy.signal
 from numpy.lib.stride_tricks import sliding_window_view
 from scipy import fft as sfft
 
-from ..errors import CalibrationInputError
+from calibration.errors import CalibrationInputError
 
 DFT_MAX_BINS = 80
 """Up to this many bins a direct DFT (a matrix product, N x 2F per block, at BLAS speed) is

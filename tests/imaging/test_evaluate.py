@@ -13,8 +13,8 @@ import pytest
 from acquisition.contracts.errors import UserError
 from acquisition.contracts.session import SessionReader
 from calibration.errors import CalibrationInputError
-from calibration.imaging import load_geometry
-from calibration.imaging.evaluate import ImagingSettings, evaluate_session
+from imaging import load_geometry
+from imaging.evaluate import ImagingSettings, evaluate_session
 from micam.commands import evaluate_imaging, image, simulate
 
 pytestmark = pytest.mark.slow  # every test here: a recorded session, imaged
@@ -71,7 +71,7 @@ def test_map_figure_marks_speakers_and_sources_at_their_pixels(session: Path,
                                                               tmp_path: Path) -> None:
     from calibration.figures.maps import PLAYING_COLOUR, map_colours
     from calibration.figures.style import save
-    from calibration.imaging.figures.recording_map import recording_map
+    from imaging.figures.recording_map import recording_map
 
     drawn = recording_map(SessionReader(session), load_geometry(session / "truth.json"), 0, 2,
                           8000.0, ImagingSettings(bands_hz=(8000.0,)), dynamic_range_db=20.0)

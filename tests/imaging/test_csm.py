@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from calibration.errors import CalibrationInputError
-from calibration.imaging import (
+from imaging import (
     WelchOptions,
     band_bins,
     band_edges,
@@ -14,7 +14,7 @@ from calibration.imaging import (
     octave_band_centres,
     remove_diagonal,
 )
-from calibration.imaging.csm import acoular_block_count
+from imaging.csm import acoular_block_count
 
 
 def direct_csm(x: np.ndarray, bins: np.ndarray, n: int, hop: int) -> np.ndarray:

@@ -19,7 +19,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..errors import CalibrationInputError
+from calibration.errors import CalibrationInputError
+
 from .live import LiveImager, LiveMap, LiveSettings
 from .live_draw import draw_live_frame
 from .live_spectrum import MeanSpectrum

@@ -14,7 +14,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from ..errors import CalibrationInputError
+from calibration.errors import CalibrationInputError
+
 from .cleansc import CleanScResult, Component
 from .geometry import BoardPose, CameraView
 from .grid import PlaneGrid

@@ -34,9 +34,9 @@ from acquisition.contracts.bounded_files import (
     UnreadableFile,
     read_bounded_text,
 )
+from calibration.errors import CalibrationInputError
 from kernel.rigid import RigidTransform
 
-from ..errors import CalibrationInputError
 from .csm_calibration import ChannelResponses, responses_from_document
 
 MAX_LATENCY_S = 0.01

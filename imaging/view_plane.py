@@ -11,7 +11,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from ..errors import CalibrationInputError
+from calibration.errors import CalibrationInputError
+
 from .geometry import CameraView
 from .grid import PlaneGrid
 
