@@ -71,6 +71,13 @@ from .image_checks import ImageCheckMemo
 from .layout_check import NominalLayout, check_layout, relabelled
 from .multilateration import multilaterate
 from .paper_method import solve_paper_method
+from .plan import (
+    _bundle_steps,
+    board_indices,
+    known_intrinsics,
+    known_speed_of_sound,
+    speed_of_sound_plan,
+)
 from .plausibility import (
     AIR_RANGE_M_S,
     FitFigures,
@@ -100,7 +107,6 @@ from .result import (
     PoseResult,
     ResidualStats,
     RigFitResult,
-    SpeedOfSoundFrom,
     SpeedOfSoundReference,
     TofQuality,
     TransformResult,
@@ -624,39 +630,6 @@ def _reference_position(cams: CameraCalibration,
         return None
 
 
-def known_intrinsics(data: SessionData,
-                     options: CalibrationOptions) -> dict[str, KnownIntrinsics]:
-    """The cameras' known intrinsics: the session description's, replaced by the options'."""
-    known = {c.name: c.intrinsics for c in data.description.cameras if c.intrinsics is not None}
-    return {**known, **(options.intrinsics or {})}
-
-
-def speed_of_sound_plan(m: Measurements, options: CalibrationOptions
-                        ) -> tuple[SpeedOfSoundFrom, float, float | None]:
-    """Where the camera-frozen solver's c comes from, its start value and its prior std
-    (None: fixed at the reference-microphone fit, or solved with the solver's default)."""
-    if m.reference_fit is not None and options.speed_of_sound == "reference":
-        return "reference_microphone", m.reference_fit.speed_of_sound_m_s, None
-    known = known_speed_of_sound(m, options)
-    if known is not None:
-        return "known", known[0], known[1]
-    c0 = (m.reference_fit.speed_of_sound_m_s if m.reference_fit is not None
-          else NOMINAL_SPEED_OF_SOUND_M_S)
-    return "solved", c0, None
-
-
-def known_speed_of_sound(m: Measurements,
-                         options: CalibrationOptions) -> SpeedOfSoundPrior | None:
-    """The known (c, std) in m/s: the options', else the session description's air (a
-    reading someone wrote down), else the session's air-sensor readings."""
-    if options.speed_of_sound_prior is not None:
-        return options.speed_of_sound_prior
-    air = m.data.description.air
-    if air is not None:
-        return air.speed_of_sound_prior()
-    return m.air if options.air_sensor else None
-
-
 def _rig_sources(data: SessionData, speakers: SpeakerPositions, pose_idx: np.ndarray,
                  spk_idx: np.ndarray) -> RigSources:
     """The sources of the chosen poses and speakers, pose after pose."""
@@ -669,12 +642,6 @@ def _rig_sources(data: SessionData, speakers: SpeakerPositions, pose_idx: np.nda
         speaker_of_source=np.tile(spk_idx, len(poses)),
         pose_covariance=np.array([p.rig_to_cam0.cov for p in poses]),
     )
-
-
-def board_indices(data: SessionData) -> tuple[list[str], np.ndarray]:
-    """The array boards (sorted serials) and each microphone's index into them."""
-    boards = sorted(set(data.mic_boards))
-    return boards, np.array([boards.index(b) for b in data.mic_boards])
 
 
 def solve(m: Measurements, options: CalibrationOptions,
@@ -705,15 +672,6 @@ def solve(m: Measurements, options: CalibrationOptions,
         return solve_paper_method(sources, tof, std, solver_options)
     return solve_microphones(sources, tof, std, board_of_mic=board_of_mic,
                              options=solver_options, prior_geometry=options.prior)
-
-
-def _bundle_steps(m: Measurements) -> tuple[list[str], list[RigPoseInCam0]]:
-    """The board poses of the joint fit: the located pose steps, then the reference-microphone
-    step when it was located (its corners constrain the cameras too)."""
-    poses = list(m.speakers.poses)
-    if m.reference is not None:
-        poses.append(m.reference.pose)
-    return [p.step for p in poses], poses
 
 
 def _latency_layout(data: SessionData, options: CalibrationOptions) -> tuple[np.ndarray, int]:

@@ -30,7 +30,8 @@ from .figures.residuals import (
     tof_residual_figure,
 )
 from .figures.style import save_all
-from .pipeline import CalibrationRun, _bundle_steps
+from .pipeline import CalibrationRun
+from .plan import _bundle_steps
 from .result import CalibrationResult, TofQuality, compare_with_truth
 
 FIGURES = ("geometry.png", "residuals.png", "corners.png", "tof_quality.png")
