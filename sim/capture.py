@@ -12,7 +12,14 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from acquisition.contracts.burst import BurstConfig, folding, holds_the_room, steady_mls_order
+from acquisition.contracts.burst import (
+    BurstConfig,
+    MlsOrder,
+    Periods,
+    folding,
+    holds_the_room,
+    steady_mls_order,
+)
 from acquisition.contracts.camera import Camera
 from acquisition.contracts.capture_config import (
     BoardEntry,
@@ -55,9 +62,9 @@ class SimulationOptions(BaseModel):
     seed: int = 0
     noise: float = Field(default=1.0, ge=0.0, description="scale of every noise; 0 = none")
     temperature_c: float = Field(default=20.0, ge=-40.0, le=60.0)
-    mls_order: int = Field(default=14, ge=6, le=18)
-    mls_periods: int | None = Field(
-        default=None, ge=1, le=8,
+    mls_order: MlsOrder = 14
+    mls_periods: Periods | None = Field(
+        default=None,
         description="periods of the sequence per burst (BurstConfig); None: 2 where the "
                     "period is long enough for it (MIN_STEADY_PERIOD_S), 1 for shorter ones")
     body_diffraction: bool = False
