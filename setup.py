@@ -8,7 +8,7 @@ design card has them) and are shipped as the package `micam.data.udev`, where
 
 from setuptools import find_namespace_packages, setup
 
-PACKAGES = ["daq*", "sim*", "acquisition*", "calibration*", "micam*"]
+PACKAGES = ["kernel*", "daq*", "sim*", "acquisition*", "calibration*", "imaging*", "micam*"]
 
 setup(packages=[*find_namespace_packages(include=PACKAGES), "micam.data.udev"],
       package_dir={"micam.data.udev": "udev"})

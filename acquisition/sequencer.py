@@ -28,13 +28,13 @@ import numpy as np
 
 from daq import SyncGroup, volts_to_codes
 
-from acquisition.contracts.air import AIR_FILE, AirSensor
 from acquisition.contracts.camera import Camera
 from acquisition.contracts.capture_config import CaptureConfig
 from acquisition.contracts.instructions import Instruction, InstructionKind, Operator
 from acquisition.contracts.session import StepRecorder
 from acquisition.contracts.step_ids import REFMIC_STEP, pose_step, reference_step
-from acquisition.contracts.stimulus import mls_burst
+from kernel.air import AIR_FILE, AirSensor
+from kernel.stimulus import mls_burst
 
 
 @dataclass(frozen=True)

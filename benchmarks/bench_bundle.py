@@ -22,13 +22,13 @@ from pathlib import Path
 from micam.simulated import record_simulated_session
 from calibration.pipeline import (
     CalibrationOptions,
-    _assemble,
     fit_joint,
     joint_measurements,
     measure,
     solve,
 )
 from calibration.result import compare_with_truth
+from calibration.result_assembly import _assemble
 from sim.capture import SimulationOptions
 
 CASES = {

@@ -26,12 +26,12 @@ from calibration.crlb import expected_error_norm, joint_crlb
 from calibration.pipeline import (
     CalibrationOptions,
     _rig_sources,
-    board_indices,
     fit_joint,
     joint_measurements,
     measure,
     solve,
 )
+from calibration.plan import board_indices
 from sim.capture import SimulationOptions
 
 

@@ -36,14 +36,14 @@ from pathlib import Path
 import numpy as np
 
 from acquisition.contracts.session import SessionReader
-from micam.simulated import record_simulated_session
-from calibration.figures.evaluation import csm_calibration_figure
 from calibration.figures.style import save
-from calibration.imaging import load_geometry
-from calibration.imaging.csm_calibration import ChannelResponses, simulated_phase_error
-from calibration.imaging.evaluate import ImagingSettings, channel_calibration, evaluate_session
-from calibration.imaging.holdout import geometry_of
 from calibration.pipeline import calibrate
+from imaging import load_geometry
+from imaging.csm_calibration import ChannelResponses, simulated_phase_error
+from imaging.evaluate import ImagingSettings, channel_calibration, evaluate_session
+from imaging.figures.evaluation import csm_calibration_figure
+from imaging.holdout import geometry_of
+from micam.simulated import record_simulated_session
 from sim.capture import SimulationOptions
 
 

@@ -16,7 +16,7 @@ The CSM is one pass of BLAS products on one thread for micam in both settings. N
 library's start-up is counted: micam's CLEAN-SC process pool is started and Acoular's numba
 kernels compiled before the timing. The per-bin agreement of the maps is reported. micam's
 beamforming runs in single precision (complex64 products on float64 phases,
-`calibration.imaging.beamform`), its CLEAN-SC in float64 (see `calibration.imaging.cleansc`);
+`imaging.beamform`), its CLEAN-SC in float64 (see `imaging.cleansc`);
 the beamforming maps are also computed in float64 and the difference reported.
 
 Then the mean CLEAN-SC localization error over the 1/12-octave bands of 5-15 kHz is measured
@@ -50,7 +50,7 @@ from pathlib import Path
 import numpy as np
 
 from acquisition.contracts.session import SessionReader
-from calibration.imaging import (
+from imaging import (
     CleanScOptions,
     PlaneGrid,
     SteeringModel,
@@ -61,10 +61,10 @@ from calibration.imaging import (
     cross_spectra,
     load_geometry,
 )
-from calibration.imaging.csm import acoular_block_count
-from calibration.imaging.evaluate import ImagingSettings, evaluate_session
-from sim.arrays import array_layout
+from imaging.csm import acoular_block_count
+from imaging.evaluate import ImagingSettings, evaluate_session
 from sim.analog_bench import AcousticBench
+from sim.arrays import array_layout
 from sim.geometry import RigidTransform
 from sim.multi_source import record_uncorrelated_noise
 from sim.poses import FACING_CAMERA
@@ -72,7 +72,7 @@ from sim.world import World
 
 BAND_HZ, FRACTION, N_GRID, SPACING_M = 8000.0, 12, 101, 0.006
 STAGES = ("csm", "beamforming", "clean_sc")
-DAS_PRECISION = "single"  # complex64 products on float64 phases (see calibration.imaging.beamform)
+DAS_PRECISION = "single"  # complex64 products on float64 phases (see imaging.beamform)
 
 
 SETTINGS = ("one thread", "all cores")
@@ -221,7 +221,7 @@ def speed(repeat: int, clean_pairs: int) -> dict:
                                                                                das_double)
     if theirs:
         spectra = outputs["csm"][0]
-        # Acoular normalises by a fractional block count (see calibration.imaging.csm).
+        # Acoular normalises by a fractional block count (see imaging.csm).
         factor = spectra.n_blocks / acoular_block_count(rec.signals_v.shape[0], WelchOptions())
         report["csm_block_count_factor"] = factor
         report["agreement"] = {

@@ -38,10 +38,10 @@ from _figures import report
 from bench_daemon import cpu_seconds, start_daemon
 
 from acquisition.daemon.client import DaemonClient
-from calibration.imaging.geometry import ArrayGeometry, geometry_from_dict
-from calibration.imaging.live import LiveImager, LiveSettings
+from imaging.geometry import ArrayGeometry, geometry_from_dict
+from imaging.live import LiveImager, LiveSettings
+from imaging.live_frames import MapFrames, caption_of
 from micam.live_feed import LiveFeed
-from calibration.imaging.live_frames import MapFrames, caption_of
 from sim.arrays import array_layout
 from sim.capture import SimulationOptions
 from sim.live_light import render_scene_image

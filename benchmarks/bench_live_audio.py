@@ -32,9 +32,9 @@ from bench_daemon import cpu_seconds, start_daemon
 from bench_live import settings
 
 from acquisition.daemon.client import DaemonClient
-from calibration.imaging.geometry import ArrayGeometry, geometry_from_dict
-from calibration.imaging.live import LiveImager
-from calibration.imaging.live_frames import MapFrames, caption_of
+from imaging.geometry import ArrayGeometry, geometry_from_dict
+from imaging.live import LiveImager
+from imaging.live_frames import MapFrames, caption_of
 from micam.live_feed import LiveFeed
 from sim import jack_server
 from sim.capture import SimulationOptions, world_for

@@ -21,9 +21,9 @@ import numpy as np
 from PIL import Image
 
 from calibration.figures.style import save_palette_png
-from calibration.imaging.geometry import geometry_from_dict
-from calibration.imaging.live import LiveImager, LiveSettings
-from calibration.imaging.live_frames import MapFrames, caption_of
+from imaging.geometry import geometry_from_dict
+from imaging.live import LiveImager, LiveSettings
+from imaging.live_frames import MapFrames, caption_of
 from sim.arrays import array_layout
 from sim.live_light import render_scene_image
 from sim.live_scene import demo_scene, world_truth

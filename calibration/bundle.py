@@ -65,8 +65,8 @@ from scipy import sparse
 from scipy.linalg import cho_factor, cho_solve
 from scipy.spatial.transform import Rotation
 
-from acquisition.contracts.air import NOMINAL_SPEED_OF_SOUND_M_S, SpeedOfSoundPrior
-from acquisition.contracts.rigid import RigidTransform, rotated_point_jacobian, rotation_from_rotvec
+from kernel.air import NOMINAL_SPEED_OF_SOUND_M_S, SpeedOfSoundPrior
+from kernel.rigid import RigidTransform, rotated_point_jacobian, rotation_from_rotvec
 
 from ._blas import single_threaded_blas
 from ._cores import default_workers

@@ -25,8 +25,8 @@ import cv2
 import numpy as np
 
 from acquisition.contracts.rig_description import KnownIntrinsics
-from acquisition.contracts.rigid import RigidTransform
 from acquisition.contracts.session import SessionReader
+from kernel.rigid import RigidTransform
 
 from ._blas import single_threaded_blas
 from ._cores import default_workers

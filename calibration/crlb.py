@@ -27,9 +27,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import sparse
 
-from acquisition.contracts.rigid import rotated_point_jacobian
 from calibration.choices import DEFAULT_LATENCY, LatencyModel
 from calibration.solver import RigSources, SolverOptions, latency_columns
+from kernel.rigid import rotated_point_jacobian
 
 
 def mic_position_crlb(

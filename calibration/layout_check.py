@@ -24,7 +24,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from acquisition.contracts.rig_description import KnownLayout
-from acquisition.contracts.rigid import RigidTransform, kabsch
+from kernel.rigid import RigidTransform, kabsch
 
 from .capture_checks import KEPT_SHARE, _Wiring
 from .errors import CalibrationInputError

@@ -36,10 +36,10 @@ from typing import Literal
 
 import numpy as np
 
-from acquisition.contracts.air import NOMINAL_SPEED_OF_SOUND_M_S, SpeedOfSoundPrior
 from acquisition.contracts.rig_description import KnownIntrinsics
-from acquisition.contracts.rigid import RigidTransform
 from acquisition.contracts.step_ids import REFMIC_STEP
+from kernel.air import NOMINAL_SPEED_OF_SOUND_M_S, SpeedOfSoundPrior
+from kernel.rigid import RigidTransform
 
 from .bundle import (
     FIXED,
@@ -71,6 +71,13 @@ from .image_checks import ImageCheckMemo
 from .layout_check import NominalLayout, check_layout, relabelled
 from .multilateration import multilaterate
 from .paper_method import solve_paper_method
+from .plan import (
+    _bundle_steps,
+    board_indices,
+    known_intrinsics,
+    known_speed_of_sound,
+    speed_of_sound_plan,
+)
 from .plausibility import (
     AIR_RANGE_M_S,
     FitFigures,
@@ -88,22 +95,14 @@ from .responses import (
     estimate_responses,
     evenly_spread,
 )
-from .result import (
-    CalibrationResult,
-    CameraFrozenResult,
-    CameraResult,
-    Finding,
-    JointFitResult,
-    MicrophoneResponse,
-    MicrophoneResponsesResult,
-    MicrophoneResult,
-    PoseResult,
-    ResidualStats,
-    RigFitResult,
-    SpeedOfSoundFrom,
-    SpeedOfSoundReference,
-    TofQuality,
-    TransformResult,
+from .result import CalibrationResult, Finding
+from .result_assembly import (
+    _assemble,
+    _frozen_summary,
+    _joint_summary,
+    _responses_result,
+    _rig_summary,
+    _with_delays,
 )
 from .session_data import SessionData, load_session
 from .solver import (
@@ -149,13 +148,6 @@ JOINT_NOTE = (
     "and latencies fitted to the corner pixels and the times of flight together); the "
     "camera-frozen solution it started from is under camera_frozen. Gauges: the camera-0 "
     "frame, the checkerboard's printed scale, latency 0 for the reference microphone's board."
-)
-CONFOUND_NOTE = (
-    "The speed of sound and the metric scale are confounded: scaling every length and c by "
-    "one factor leaves every time of flight unchanged. The joint fit takes the scale from the "
-    "absolute references it is given (the print's stated scale and tolerance, the speakers' "
-    "stated positions and tolerance, a measured air state); with none of them measured well, "
-    "c is the paper's 'scaled' c (IV-G)."
 )
 
 
@@ -660,39 +652,6 @@ def _reference_position(cams: CameraCalibration,
         return None
 
 
-def known_intrinsics(data: SessionData,
-                     options: CalibrationOptions) -> dict[str, KnownIntrinsics]:
-    """The cameras' known intrinsics: the session description's, replaced by the options'."""
-    known = {c.name: c.intrinsics for c in data.description.cameras if c.intrinsics is not None}
-    return {**known, **(options.intrinsics or {})}
-
-
-def speed_of_sound_plan(m: Measurements, options: CalibrationOptions
-                        ) -> tuple[SpeedOfSoundFrom, float, float | None]:
-    """Where the camera-frozen solver's c comes from, its start value and its prior std
-    (None: fixed at the reference-microphone fit, or solved with the solver's default)."""
-    if m.reference_fit is not None and options.speed_of_sound == "reference":
-        return "reference_microphone", m.reference_fit.speed_of_sound_m_s, None
-    known = known_speed_of_sound(m, options)
-    if known is not None:
-        return "known", known[0], known[1]
-    c0 = (m.reference_fit.speed_of_sound_m_s if m.reference_fit is not None
-          else NOMINAL_SPEED_OF_SOUND_M_S)
-    return "solved", c0, None
-
-
-def known_speed_of_sound(m: Measurements,
-                         options: CalibrationOptions) -> SpeedOfSoundPrior | None:
-    """The known (c, std) in m/s: the options', else the session description's air (a
-    reading someone wrote down), else the session's air-sensor readings."""
-    if options.speed_of_sound_prior is not None:
-        return options.speed_of_sound_prior
-    air = m.data.description.air
-    if air is not None:
-        return air.speed_of_sound_prior()
-    return m.air if options.air_sensor else None
-
-
 def _rig_sources(data: SessionData, speakers: SpeakerPositions, pose_idx: np.ndarray,
                  spk_idx: np.ndarray) -> RigSources:
     """The sources of the chosen poses and speakers, pose after pose."""
@@ -705,12 +664,6 @@ def _rig_sources(data: SessionData, speakers: SpeakerPositions, pose_idx: np.nda
         speaker_of_source=np.tile(spk_idx, len(poses)),
         pose_covariance=np.array([p.rig_to_cam0.cov for p in poses]),
     )
-
-
-def board_indices(data: SessionData) -> tuple[list[str], np.ndarray]:
-    """The array boards (sorted serials) and each microphone's index into them."""
-    boards = sorted(set(data.mic_boards))
-    return boards, np.array([boards.index(b) for b in data.mic_boards])
 
 
 def solve(m: Measurements, options: CalibrationOptions,
@@ -741,15 +694,6 @@ def solve(m: Measurements, options: CalibrationOptions,
         return solve_paper_method(sources, tof, std, solver_options)
     return solve_microphones(sources, tof, std, board_of_mic=board_of_mic,
                              options=solver_options, prior_geometry=options.prior)
-
-
-def _bundle_steps(m: Measurements) -> tuple[list[str], list[RigPoseInCam0]]:
-    """The board poses of the joint fit: the located pose steps, then the reference-microphone
-    step when it was located (its corners constrain the cameras too)."""
-    poses = list(m.speakers.poses)
-    if m.reference is not None:
-        poses.append(m.reference.pose)
-    return [p.step for p in poses], poses
 
 
 def _latency_layout(data: SessionData, options: CalibrationOptions) -> tuple[np.ndarray, int]:
@@ -914,154 +858,6 @@ def joint_measurements(m: Measurements, bundle: BundleSolution, frozen: Micropho
     return joint_m, solution
 
 
-def _per_board(boards: list[str], values: np.ndarray) -> dict[str, float]:
-    """Board serial -> value; a single value (no or one common latency) applies to all."""
-    values = np.broadcast_to(np.asarray(values, dtype=float), (len(boards),))
-    return {b: float(v) for b, v in zip(boards, values, strict=True)}
-
-
-def _finite_median(values: np.ndarray) -> float | None:
-    """The median of `values`, or None where it is not finite (JSON has no infinity: it was
-    written as null, which the result's own model then refused to read back)."""
-    median = float(np.median(values))
-    return median if np.isfinite(median) else None
-
-
-def _finite_or_none(value: float, digits: int = 4) -> float | None:
-    """`value` rounded, or None where it is not finite (JSON has no NaN)."""
-    return round(value, digits) if np.isfinite(value) else None
-
-
-def _vec(v: np.ndarray) -> tuple[float, float, float]:
-    return (float(v[0]), float(v[1]), float(v[2]))
-
-
-def _assemble(m: Measurements, sol: MicrophoneSolution, options: CalibrationOptions,
-              timings: dict[str, float]) -> CalibrationResult:
-    data, cams, speakers, tofs = m.data, m.cameras, m.speakers, m.tofs
-    located, reference_fit, reference = m.located, m.reference_fit, m.reference
-    boards, _ = board_indices(data)
-    residuals = sol.residuals_s
-    valid = np.isfinite(residuals) & ~sol.outliers
-    mics = _microphone_results(data, sol)
-    q_snr = tofs.snr_db[located]
-    notes = [CONFOUND_NOTE]
-    notes += [f"{m.camera} {m.step}: {m.reason}" for m in cams.missed]
-    notes += [f"camera {name} not calibrated: {why}" for name, why in cams.uncalibrated.items()]
-    notes += [f"{step}: the board was not found in any calibrated camera; pose skipped"
-              for step in speakers.unlocated]
-    source, c0, c_std = speed_of_sound_plan(m, options)
-    notes.append(_speed_of_sound_note(m, options, source, c0, c_std))
-    notes += [f"camera {name}: intrinsics given as {known.use}"
-              + ("" if known.use == "fixed" or known.std is not None
-                 else "; without their std the joint fit refines them freely")
-              for name, known in known_intrinsics(data, options).items()]
-    notes += m.notes
-    ref_entry = None
-    if reference_fit is not None and reference is not None:
-        ref_entry = SpeedOfSoundReference(
-            speed_of_sound_m_s=reference_fit.speed_of_sound_m_s,
-            speed_of_sound_std_m_s=reference_fit.speed_of_sound_std_m_s, n=reference_fit.n,
-            residual_rms_m=reference_fit.residual_rms_m,
-            reference_microphone_m=_vec(reference.position_m))
-    return CalibrationResult(
-        session_id=data.reader.session_id,
-        method=options.method,
-        microphones=mics,
-        speed_of_sound_m_s=sol.speed_of_sound_m_s,
-        speed_of_sound_std_m_s=(sol.speed_of_sound_std_m_s if sol.speed_of_sound_std_m_s > 0
-                                or reference_fit is None
-                                else reference_fit.speed_of_sound_std_m_s),
-        speed_of_sound_reference=ref_entry,
-        speed_of_sound_from=source,
-        speed_of_sound_known_m_s=known_speed_of_sound(m, options),
-        latency_s=_per_board(boards, sol.latency_s),
-        latency_std_s=_per_board(boards, sol.latency_std_s),
-        cameras=[_camera_result(cams, name) for name in cams.intrinsics],
-        poses=[_pose_result(data, speakers, i) for i in range(len(speakers.poses))],
-        residuals=ResidualStats(
-            rms_s=float(np.sqrt(np.mean(residuals[valid] ** 2))),
-            median_abs_s=float(np.median(np.abs(residuals[valid]))),
-            n_measurements=int(valid.sum()), n_outliers=int(sol.outliers.sum())),
-        tof_quality=TofQuality(
-            median_snr_db=float(np.median(q_snr)), p05_snr_db=float(np.percentile(q_snr, 5)),
-            median_peak_to_sidelobe_db=float(np.median(tofs.peak_to_sidelobe_db[located])),
-            median_predicted_std_s=_finite_median(tofs.std_s[located]),
-            weighting=m.weighting, echo_ratio=_finite_or_none(tofs.echo_ratio(located))),
-        timings_s=dict(timings),
-        notes=notes,
-        findings=m.findings,
-        latency_gauge_board=data.reference_group,
-    )
-
-
-def _speed_of_sound_note(m: Measurements, options: CalibrationOptions, source: str, c0: float,
-                         c_std: float | None) -> str:
-    """Where the camera-frozen solver's c came from, for a person."""
-    if source == "reference_microphone":
-        return ("Speed of sound (camera frozen): fixed at the reference-microphone fit (paper "
-                "IV-G, the reference microphone on its stand in every pose recording).")
-    why = ("the pose recordings do not hold the reference microphone"
-           if m.data.reference_column is None else
-           "the session has no located image of the reference microphone on its stand"
-           if m.reference is None else "--speed-of-sound solve")
-    if source == "known":
-        air = m.data.description.air
-        given = ("given" if options.speed_of_sound_prior is not None
-                 else air.source() if air is not None else "the session's air sensor")
-        return (f"Speed of sound (camera frozen): held to the known {c0:.3f} ± {c_std:.3f} m/s "
-                f"({given}), because {why}.")
-    return (f"Speed of sound (camera frozen): solved from the times of flight (no known c), "
-            f"because {why}; give a measured air temperature or c to constrain it.")
-
-
-def _microphone_results(data: SessionData, sol: MicrophoneSolution) -> list[MicrophoneResult]:
-    """Every microphone's position, std and residuals in a solution."""
-    valid = np.isfinite(sol.residuals_s) & ~sol.outliers
-    std = sol.std_m  # NaN where the solver gives no covariance (the paper method)
-    mics = []
-    for m, mic_id in enumerate(data.mic_ids):
-        r = sol.residuals_s[:, m][valid[:, m]]
-        mics.append(MicrophoneResult(
-            id=int(mic_id), position_m=_vec(sol.positions_m[m]), std_m=_vec(std[m]),
-            board=data.mic_boards[m],
-            residual_rms_s=float(np.sqrt(np.mean(r**2))) if r.size else float("nan"),
-            n_measurements=int(r.size)))
-    return mics
-
-
-def _frozen_summary(m: Measurements, sol: MicrophoneSolution,
-                    options: CalibrationOptions) -> CameraFrozenResult:
-    """The camera-frozen solution, for the result beside the joint one."""
-    boards, _ = board_indices(m.data)
-    intr = m.cameras.intrinsics
-    return CameraFrozenResult(
-        microphones=_microphone_results(m.data, sol),
-        speed_of_sound_from=speed_of_sound_plan(m, options)[0],
-        speed_of_sound_m_s=sol.speed_of_sound_m_s,
-        speed_of_sound_std_m_s=(sol.speed_of_sound_std_m_s if m.reference_fit is None
-                                else m.reference_fit.speed_of_sound_std_m_s),
-        latency_s=_per_board(boards, sol.latency_s),
-        latency_std_s=_per_board(boards, sol.latency_std_s),
-        focal_px={n: (float(c.K[0, 0]), float(c.K[1, 1])) for n, c in intr.items()},
-        focal_std_px={n: (float(c.std[0]), float(c.std[1])) for n, c in intr.items()},
-    )
-
-
-def _with_delays(mics: list[MicrophoneResult], bundle: BundleSolution,
-                 frozen: MicrophoneSolution) -> list[MicrophoneResult]:
-    """The microphones with their own delays, where the joint fit estimated them."""
-    if not bundle.std.mic_delays_s.any():
-        return mics
-    solved = np.flatnonzero(np.all(np.isfinite(frozen.positions_m), axis=1))
-    out = list(mics)
-    for i, m in enumerate(solved):
-        out[m] = mics[m].model_copy(update={
-            "delay_s": float(bundle.state.mic_delays_s[i]),
-            "delay_std_s": float(bundle.std.mic_delays_s[i])})
-    return out
-
-
 def _flights(m: Measurements, mics_m: np.ndarray, solved: np.ndarray, mic_latency_s: np.ndarray,
              pose_indices: list[int],
              pose_geometry: Callable[[int], tuple[np.ndarray, np.ndarray, float]],
@@ -1138,77 +934,6 @@ def _without_dispersion(m: Measurements, responses: MicrophoneResponses) -> Meas
     of flight (calibration.responses.dispersion_delays)."""
     shift = dispersion_delays(m.tofs, responses, m.data.fs)
     return replace(m, tofs=replace(m.tofs, tof_s=m.tofs.tof_s - shift))
-
-
-def _responses_result(m: Measurements, est: MicrophoneResponses) -> MicrophoneResponsesResult:
-    """The responses as result.json carries them."""
-    data = m.data
-    return MicrophoneResponsesResult(
-        frequencies_hz=est.frequencies_hz.tolist(), n_sources=est.n_sources,
-        microphones=[MicrophoneResponse(
-            id=int(mic_id), gain=est.gain[i].tolist(), phase_rad=est.phase_rad[i].tolist(),
-            gain_std=est.gain_std[i].tolist(), phase_std_rad=est.phase_std_rad[i].tolist())
-            for i, mic_id in enumerate(data.mic_ids) if np.all(np.isfinite(est.gain[i]))])
-
-
-def _rig_summary(m: Measurements, bundle: BundleSolution) -> RigFitResult:
-    """The rig as the joint fit found it: speaker positions and print scale."""
-    offsets = bundle.state.speaker_offsets_m
-    std = bundle.std.speaker_offsets_m
-    return RigFitResult(
-        speakers_rig_m=[_vec(p) for p in m.data.speakers_rig_m + offsets],
-        speakers_rig_std_m=[_vec(s) for s in std], offsets_m=[_vec(o) for o in offsets],
-        print_scale=bundle.state.print_scale, print_scale_std=float(bundle.std.print_scale),
-        acoustic_centre_off_axis_m=bundle.state.off_axis_m,
-        acoustic_centre_off_axis_std_m=float(bundle.std.off_axis_m))
-
-
-def _joint_summary(m: Measurements, bundle: BundleSolution,
-                   options: CalibrationOptions) -> JointFitResult:
-    """The joint fit's noise estimates, outliers and convergence, for the result."""
-    names = list(m.cameras.intrinsics)
-    view_camera = board_views(m.cameras, _bundle_steps(m)[0])[0]
-    per_pose = bundle.state.speeds_of_sound_m_s.size > 1
-    on_stand = m.data.reference_column is not None
-    return JointFitResult(
-        sigmas=bundle.sigmas,
-        corner_outliers={n: int(bundle.corner_outliers[view_camera == i].sum())
-                         for i, n in enumerate(names)},
-        tof_outliers=int(bundle.tof_outliers.sum()),
-        reference_tof_outliers=int(bundle.reference_outliers.sum()),
-        chi2_per_dof=bundle.chi2_per_dof,
-        iterations=bundle.iterations,
-        reference_microphone_m=(_vec(bundle.state.reference_m) if on_stand else None),
-        reference_microphone_std_m=(_vec(bundle.std.reference_m) if on_stand else None),
-        speed_of_sound_per_pose_m_s=(bundle.state.speeds_of_sound_m_s.tolist() if per_pose
-                                     else None),
-        speed_of_sound_per_pose_std_m_s=(bundle.std.speeds_of_sound_m_s.tolist() if per_pose
-                                         else None),
-    )
-
-
-def _camera_result(cams: CameraCalibration, name: str) -> CameraResult:
-    intr = cams.intrinsics[name]
-    ext = cams.cam_from_cam0[name]
-    missed = [m.step for m in cams.missed if m.camera == name]
-    return CameraResult(
-        name=name, width=intr.width, height=intr.height, K=intr.K.tolist(),
-        dist=intr.dist.ravel().tolist(),
-        from_cam0=TransformResult(rotvec=_vec(ext.cam0_to_cam.rotvec),
-                                  t_m=_vec(ext.cam0_to_cam.t)),
-        reprojection_rms_px=float(intr.rms_px), images_used=int(intr.n_views),
-        images_without_board=missed, intrinsics_std=intr.std.tolist())
-
-
-def _pose_result(data: SessionData, speakers: SpeakerPositions, i: int) -> PoseResult:
-    pose = speakers.poses[i]
-    return PoseResult(
-        index=int(pose.step.split("/")[1]), step=pose.step, camera=pose.camera,
-        rig_to_cam0=TransformResult(rotvec=_vec(pose.rig_to_cam0.transform.rotvec),
-                                    t_m=_vec(pose.rig_to_cam0.transform.t)),
-        speakers_m=[_vec(p) for p in speakers.positions_m[i]],
-        speakers_std_m=[_vec(np.sqrt(np.diag(c))) for c in speakers.cov_m2[i]],
-        reprojection_rms_px=float(pose.rms_px))
 
 
 __all__ = [

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from acquisition.contracts.air import SpeedOfSoundPrior, speed_of_sound
+from kernel.air import SpeedOfSoundPrior, speed_of_sound
 
 from .errors import CalibrationInputError
 from .robust import robust_sigma

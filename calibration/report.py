@@ -18,8 +18,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from acquisition.contracts.rigid import RigidTransform, kabsch
 from acquisition.contracts.step_ids import pose_index, pose_step
+from kernel.rigid import RigidTransform, kabsch
 
 from .figures.geometry import ArrayPicture, CameraMark, geometry_figure
 from .figures.residuals import (
@@ -30,7 +30,8 @@ from .figures.residuals import (
     tof_residual_figure,
 )
 from .figures.style import save_all
-from .pipeline import CalibrationRun, _bundle_steps
+from .pipeline import CalibrationRun
+from .plan import _bundle_steps
 from .result import CalibrationResult, TofQuality, compare_with_truth
 
 FIGURES = ("geometry.png", "residuals.png", "corners.png", "tof_quality.png")

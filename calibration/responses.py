@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from acquisition.contracts.air import piston_directivity
+from kernel.air import piston_directivity
 
 from .times_of_flight import SessionTofs
 

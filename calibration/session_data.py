@@ -17,7 +17,6 @@ from pathlib import Path
 import numpy as np
 from pydantic import ValidationError
 
-from acquisition.contracts.air import AIR_FILE, AirReading
 from acquisition.contracts.capture_config import CaptureConfig
 from acquisition.contracts.config_model import describe_problems
 from acquisition.contracts.errors import UserError
@@ -29,6 +28,7 @@ from acquisition.contracts.rig_description import (
 )
 from acquisition.contracts.session import SessionError, SessionReader
 from acquisition.contracts.step_ids import is_pose_step, reference_step
+from kernel.air import AIR_FILE, AirReading
 
 from .errors import CalibrationInputError
 from .levels import full_scale_of

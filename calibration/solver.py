@@ -22,7 +22,7 @@ least-squares fit on the inliers whose Jacobian gives the covariance.
 
 The paper's own solver (section IV-I, after Dobler: a derivative-free coordinate search from
 zero coordinates) is calibration.paper_method, kept as a baseline; the SO(3) helpers are
-acquisition.contracts.rigid's, the robust scale and normal-matrix inverse calibration.robust's.
+kernel.rigid's, the robust scale and normal-matrix inverse calibration.robust's.
 """
 
 from __future__ import annotations
@@ -34,8 +34,8 @@ from scipy import sparse
 from scipy.optimize import OptimizeResult, least_squares
 from scipy.spatial.transform import Rotation
 
-from acquisition.contracts.air import NOMINAL_SPEED_OF_SOUND_M_S
-from acquisition.contracts.rigid import RigidTransform, kabsch, rotated_point_jacobian
+from kernel.air import NOMINAL_SPEED_OF_SOUND_M_S
+from kernel.rigid import RigidTransform, kabsch, rotated_point_jacobian
 
 from .choices import DEFAULT_LATENCY, LatencyModel
 from .errors import CalibrationInputError

@@ -21,8 +21,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from acquisition.contracts.rigid import RigidTransform
 from acquisition.contracts.step_ids import REFMIC_STEP, is_pose_step
+from kernel.rigid import RigidTransform
 
 from .camera_calibration import CameraCalibration, Pose
 from .errors import CalibrationInputError

@@ -1,5 +1,5 @@
 """Speed of sound: the paper's camera-scaled fit (section IV-G). (The speed of sound of air
-from its temperature and humidity, Cramer's formula, is `acquisition.contracts.air.speed_of_sound`.)
+from its temperature and humidity, Cramer's formula, is `kernel.air.speed_of_sound`.)
 
 Why fit c instead of measuring temperature: the microphone solver only sees ranges c * TOF
 against source positions measured by the camera. An error in the camera's metric scale

@@ -33,10 +33,10 @@ from .pipeline import (
     CalibrationOptions,
     Measurements,
     _rig_sources,
-    board_indices,
     fit_joint,
     solve,
 )
+from .plan import board_indices
 from .solver import MicrophoneSolution
 
 PER_BOARD_FROM_SOURCES = 6

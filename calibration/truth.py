@@ -22,7 +22,7 @@ from acquisition.contracts.bounded_files import (
     read_bounded_text,
 )
 from acquisition.contracts.config_model import dotted
-from acquisition.contracts.rigid import RigidTransform
+from kernel.rigid import RigidTransform
 
 from .errors import CalibrationInputError
 from .layout_check import NominalLayout

@@ -21,8 +21,8 @@ from acquisition.contracts.errors import UserError
 from .outputs import check_output_dirs, check_outputs
 
 if TYPE_CHECKING:
-    from acquisition.contracts.air import SpeedOfSoundPrior
     from calibration.pipeline import CalibrationRun
+    from kernel.air import SpeedOfSoundPrior
 
 
 def _prior(args: argparse.Namespace):

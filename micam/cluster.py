@@ -5,7 +5,7 @@ the bands of `micam study`, the calibrations of `micam evaluate-imaging --folds`
 benchmarks/bench_real_lab.py. `cluster` opens the client (a `LocalCluster` of worker
 processes, one thread each, or an existing scheduler) and says where its dashboard is;
 `submit` makes one task per job, retried `retries` times; `ClusterMap` is the `Mapper` that
-calibration/ takes (`calibration.imaging.parallel.Mapper`: function(*job) for every job,
+calibration/ takes (`imaging.parallel.Mapper`: function(*job) for every job,
 results in the jobs' order), so a study runs its cells on the cluster without knowing Dask.
 
 It is a module of micam/ itself, not of micam/batch/, so that the commands (micam/commands/)
@@ -134,7 +134,7 @@ def _call(function: Callable[..., Any], *job: Any) -> Any:
 
 class ClusterMap:
     """function(*job) for every job as tasks on a Dask client's workers, results in the
-    jobs' order as they come (a `calibration.imaging.parallel.Mapper`). A task refused for
+    jobs' order as they come (a `imaging.parallel.Mapper`). A task refused for
     bad input raises its `UserError` here, at once; one that raised anything else (a bug)
     raises it here after its retries; one whose workers kept dying raises `UserError`."""
 

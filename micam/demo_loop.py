@@ -25,7 +25,7 @@ from types import TracebackType
 
 from .cli import main as micam
 from acquisition.daemon.client import DaemonClient, EventStream
-from acquisition.daemon.display import format_live
+from micam.display import format_live
 from acquisition.contracts.protocol import CalibrationEvent, LiveCalibrationEvent
 
 STOP_WAIT_S = 30.0

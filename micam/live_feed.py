@@ -24,7 +24,6 @@ import zmq
 from pydantic import ValidationError
 
 from acquisition.contracts.errors import UserError
-from acquisition.daemon.client import DaemonClient
 from acquisition.contracts.protocol import (
     EVENT_ADAPTER,
     LIVE_FRAME_TOPIC,
@@ -33,9 +32,10 @@ from acquisition.contracts.protocol import (
     LiveFrameEvent,
     SamplesHeader,
 )
+from acquisition.daemon.client import DaemonClient
 
-from calibration.imaging.geometry import ArrayGeometry
-from calibration.imaging.live_frames import DrawnFrame, MapFrames
+from imaging.geometry import ArrayGeometry
+from imaging.live_frames import DrawnFrame, MapFrames
 
 
 @dataclass(frozen=True)

@@ -22,7 +22,7 @@ import json
 import textwrap
 
 from acquisition.contracts.errors import UserError
-from acquisition.contracts.stimulus import mls_length
+from kernel.stimulus import mls_length
 from sim.geometry import PAPER_SPEAKERS_MM
 
 TEMPLATES = ("paper", "generic", "audio", "uma16", "import")

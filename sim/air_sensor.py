@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from acquisition.contracts.air import AirReading
+from kernel.air import AirReading
 
 from .world import World
 
@@ -12,7 +12,7 @@ from .world import World
 class SimulatedAirSensor:
     """Reads the simulated world's air with the lab model's fixed calibration errors (drawn
     once per world, `LabTruth.sensor_errors`) and a little reading noise, stating the model's
-    accuracy with every reading (`acquisition.contracts.air.AirSensor`).
+    accuracy with every reading (`kernel.air.AirSensor`).
 
     The reading noise is seeded by the world's seed and the session's progress, so that a
     resumed capture reads what an uninterrupted one did.

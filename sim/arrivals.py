@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from acquisition.contracts.air import piston_directivity
+from kernel.air import piston_directivity
 
 from .lab import LabTruth, RoomModel
 

@@ -17,10 +17,10 @@ from typing import Literal
 
 import numpy as np
 
+from acquisition.contracts.burst import BurstConfig
 from acquisition.contracts.camera import Camera
 from acquisition.contracts.capture_config import (
     BoardEntry,
-    BurstConfig,
     CameraEntry,
     CaptureConfig,
     ColumnEntry,

@@ -12,10 +12,17 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from acquisition.contracts.burst import (
+    BurstConfig,
+    MlsOrder,
+    Periods,
+    folding,
+    holds_the_room,
+    steady_mls_order,
+)
 from acquisition.contracts.camera import Camera
 from acquisition.contracts.capture_config import (
     BoardEntry,
-    BurstConfig,
     CameraEntry,
     CaptureConfig,
     ColumnEntry,
@@ -23,12 +30,7 @@ from acquisition.contracts.capture_config import (
     RigEntry,
     SpeakerEntry,
 )
-from acquisition.contracts.rig_description import (
-    MIN_STEADY_PERIOD_S,
-    KnownLayout,
-    steady_mls_order,
-)
-from acquisition.contracts.stimulus import mls_length
+from acquisition.contracts.rig_description import KnownLayout
 from daq import Board, InputChannel, OutputChannel, SyncGroup, board_model
 
 from .air_sensor import SimulatedAirSensor
@@ -61,9 +63,9 @@ class SimulationOptions(BaseModel):
     seed: int = 0
     noise: float = Field(default=1.0, ge=0.0, description="scale of every noise; 0 = none")
     temperature_c: float = Field(default=20.0, ge=-40.0, le=60.0)
-    mls_order: int = Field(default=14, ge=6, le=18)
-    mls_periods: int | None = Field(
-        default=None, ge=1, le=8,
+    mls_order: MlsOrder = 14
+    mls_periods: Periods | None = Field(
+        default=None,
         description="periods of the sequence per burst (BurstConfig); None: 2 where the "
                     "period is long enough for it (MIN_STEADY_PERIOD_S), 1 for shorter ones")
     body_diffraction: bool = False
@@ -134,12 +136,10 @@ class SimulationOptions(BaseModel):
     @model_validator(mode="after")
     def _periods_fit(self) -> SimulationOptions:
         fs = World.sample_rate_hz
-        period_s = mls_length(self.mls_order) / fs
-        if self.burst(fs).periods > 1 and period_s < MIN_STEADY_PERIOD_S:
-            raise ValueError(
-                f"{self.mls_periods} periods of an MLS of order {self.mls_order} "
-                f"({1e3 * period_s:.1f} ms) fold the room onto the direct sound; simulate with "
-                f"--mls-order {steady_mls_order(fs)} or more, or --mls-periods 1")
+        problem = folding(self.mls_order, self.burst(fs).periods, fs)
+        if problem is not None:
+            raise ValueError(f"{problem}; simulate with --mls-order {steady_mls_order(fs)} or "
+                             "more, or --mls-periods 1")
         return self
 
     def burst(self, sample_rate_hz: float) -> BurstConfig:
@@ -148,8 +148,7 @@ class SimulationOptions(BaseModel):
         otherwise (the short bursts of quick tests)."""
         periods = self.mls_periods
         if periods is None:
-            long_enough = mls_length(self.mls_order) / sample_rate_hz >= MIN_STEADY_PERIOD_S
-            periods = 2 if long_enough else 1
+            periods = 2 if holds_the_room(self.mls_order, sample_rate_hz) else 1
         return BurstConfig(mls_order=self.mls_order, periods=periods)
 
 

@@ -21,8 +21,8 @@ import numpy as np
 import scipy.signal
 import soundfile as sf
 
-from acquisition.contracts.air import speed_of_sound as air_speed_of_sound
-from acquisition.contracts.rigid import RigidTransform, rotation_from_rotvec
+from kernel.air import speed_of_sound as air_speed_of_sound
+from kernel.rigid import RigidTransform, rotation_from_rotvec
 
 from .geometry import Rig, pinhole
 from .light import render_rig_image

@@ -18,7 +18,7 @@ from typing import Literal
 import cv2
 import numpy as np
 
-from acquisition.contracts.rigid import RigidTransform, rotation_from_rotvec, rotvec_from_rotation
+from kernel.rigid import RigidTransform, rotation_from_rotvec, rotvec_from_rotation
 
 __all__ = ["CameraModel", "Rig", "RigidTransform", "pinhole", "rotation_from_rotvec",
            "rotvec_from_rotation"]

@@ -15,7 +15,7 @@ import numpy as np
 import scipy.fft
 import scipy.signal
 
-from acquisition.contracts.stimulus import mls_burst
+from kernel.stimulus import mls_burst
 
 __all__ = ["SpeakerResponse", "creeping_path_length", "fft_length", "mls_burst", "propagate"]
 

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from acquisition.contracts.air import speed_of_sound
+from kernel.air import speed_of_sound
 
 from .arrays import ArrayLayout
 from .geometry import Rig, RigidTransform
@@ -78,7 +78,7 @@ class World:
         temperature_c: air temperature at the start of the session (the lab's air drift
             changes it as the session progresses).
         relative_humidity: of the air (0..1); with the temperature and the pressure it sets
-            the speed of sound by Cramer's formula (acquisition.contracts.air).
+            the speed of sound by Cramer's formula (kernel.air).
         pressure_pa: the air's static pressure.
         sample_rate_hz: the shared sample clock of all boards.
         noise: levels and noise.

@@ -11,15 +11,15 @@ import cv2
 import numpy as np
 import pytest
 
-from acquisition.contracts.rigid import (
+from acquisition.contracts.session import partial_path, sha256_file, write_atomic
+from calibration.robust import inverse_normal, robust_sigma
+from kernel.rigid import (
     RigidTransform,
     kabsch,
     rotated_point_jacobian,
     rotation_from_rotvec,
     rotvec_from_rotation,
 )
-from acquisition.contracts.session import partial_path, sha256_file, write_atomic
-from calibration.robust import inverse_normal, robust_sigma
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -69,7 +69,7 @@ def test_a_transform_keeps_the_rotation_vector_it_was_made_from() -> None:
 ROTATION_FIELDS = {"R", "rotation", "rotation_matrix", "rvec", "rotvec"}
 TRANSLATION_FIELDS = {"t", "tvec", "t_m", "translation", "translation_m"}
 NOT_A_TRANSFORM_TYPE = {
-    ("acquisition/contracts/rigid.py", "RigidTransform"): "the one type",
+    ("kernel/rigid.py", "RigidTransform"): "the one type",
     ("calibration/result.py", "TransformResult"): "result.json's form of one (the schema)",
     ("calibration/solver.py", "RigSources"): "the solver's batched (n_pose, 3) unknowns",
 }
@@ -99,8 +99,8 @@ def test_no_type_but_rigid_transform_holds_a_rotation_and_a_translation() -> Non
     """#18 found five types for one rigid transform; records hold a RigidTransform in a field
     named for its direction (`cam0_to_cam`, `rig_to_cam0`) instead of their own R and t."""
     found = {(str(path.relative_to(REPO)), name)
-             for top in ("acquisition", "calibration", "daq", "micam", "sim", "benchmarks",
-                         "tests")
+             for top in ("acquisition", "calibration", "daq", "imaging", "kernel", "micam", "sim",
+                         "benchmarks", "tests")
              for path in sorted((REPO / top).rglob("*.py"))
              for name in transform_like_classes(path.read_text())}
     assert found - NOT_A_TRANSFORM_TYPE.keys() == set()

@@ -7,8 +7,8 @@ import re
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-ROOTS = ("micam/", "acquisition/", "calibration/", "sim/", "daq/", "tests/", "benchmarks/",
-         "docs/", "udev/", "pyproject.toml")
+ROOTS = ("micam/", "imaging/", "acquisition/", "calibration/", "sim/", "daq/", "kernel/",
+         "tests/", "benchmarks/", "docs/", "udev/", "pyproject.toml")
 
 
 def _tour() -> str:

@@ -1,11 +1,11 @@
 """The capture configuration: what hardware records what, frozen into every session's manifest.
 
 It says which column of a recording is which microphone (or the reference microphone), the
-volts per code of each column, which output drives which speaker, the burst, the rig and the
-cameras. Calibration reads none of the hardware in it: it reads the rig and array description
-that `CaptureConfig.description` derives (acquisition/contracts/rig_description.py). Every
-model refuses unknown keys (ConfigModel), so a misspelt key of a hand-written
-`[hardware.capture]` is an error.
+volts per code of each column, which output drives which speaker, the burst
+(acquisition/contracts/burst.py), the rig and the cameras. Calibration reads none of the
+hardware in it: it reads the rig and array description that `CaptureConfig.description`
+derives (acquisition/contracts/rig_description.py). Every model refuses unknown keys
+(ConfigModel), so a misspelt key of a hand-written `[hardware.capture]` is an error.
 """
 
 from __future__ import annotations
@@ -17,9 +17,9 @@ from pydantic import Field, ValidationError, model_validator
 
 from daq import CODE_FULL_SCALE, InputChannel, OutputChannel, ScanConfig
 
+from .burst import BurstConfig
 from .config_model import ConfigModel, describe_problems
 from .rig_description import (
-    BurstLayout,
     CameraDescription,
     ChannelGroup,
     DescriptionError,
@@ -30,7 +30,6 @@ from .rig_description import (
     layout_problems,
 )
 from .session import SessionError
-from .stimulus import mls_length
 
 
 class BoardEntry(ConfigModel):
@@ -80,31 +79,6 @@ class ReferenceMicEntry(ConfigModel):
     board: str
     channel: int
     distance_from_speaker_m: float = 0.002
-
-
-class BurstConfig(ConfigModel):
-    """The MLS burst each speaker plays: `pre_samples` of silence, `periods` periods of an MLS
-    of `mls_order` at `amplitude_v` volts back to back, then `post_samples` of recording while
-    it dies away.
-
-    Why more than one period: after the first, every microphone hears the periodic steady
-    state (the direct sound and every reflection of a period arrive within it), so one period
-    correlated circularly against the reference's is exactly the periodic impulse response: a
-    room's reflections are clean pulses that leave the direct one alone, and the sequence's
-    flat spectrum costs no precision (calibration.delay_estimation). One period (the default,
-    and what sessions recorded before it existed hold) is a burst whose reflections bias
-    delays by tens of nanoseconds in a room."""
-
-    mls_order: int = Field(default=14, ge=4, le=20)
-    amplitude_v: float = Field(default=1.0, gt=0, le=10)
-    pre_samples: int = Field(default=512, ge=0)
-    post_samples: int = Field(default=2048, ge=0)
-    periods: int = Field(default=1, ge=1, le=8)
-
-    @property
-    def n_samples(self) -> int:
-        """Length of one recording, samples per channel."""
-        return self.pre_samples + self.periods * mls_length(self.mls_order) + self.post_samples
 
 
 RigEntry = RigDescription
@@ -184,7 +158,7 @@ class CaptureConfig(ConfigModel):
             if c.role == "mic" and c.mic_id is None:
                 problems.append(f"columns[{j}].mic_id: missing for a 'mic' column; write the "
                                 "microphone's id, e.g. mic_id = 0")
-        period = self._burst_layout().period_problem(self.sample_rate_hz, "burst")
+        period = self.burst.layout().period_problem(self.sample_rate_hz, "burst")
         if period is not None:
             problems.append(period)
         if self.layout is not None:
@@ -192,12 +166,6 @@ class CaptureConfig(ConfigModel):
                                         [c.mic_id for c in self.columns
                                          if c.role == "mic" and c.mic_id is not None])
         return problems
-
-    def _burst_layout(self) -> BurstLayout:
-        """What each recording of this capture holds (the description's burst)."""
-        return BurstLayout(silence_before_samples=self.burst.pre_samples,
-                           mls_order=self.burst.mls_order, periods=self.burst.periods,
-                           silence_after_samples=self.burst.post_samples)
 
     def description(self, image_sizes: dict[str, tuple[int, int]]) -> RigArrayDescription:
         """What calibration knows of a session captured with this configuration.
@@ -232,7 +200,7 @@ class CaptureConfig(ConfigModel):
                 group=self.reference.board, reference_recordings_column=reference_column,
                 pose_recordings_column=reference_column,
                 distance_from_speaker_m=self.reference.distance_from_speaker_m),
-            burst=self._burst_layout(),
+            burst=self.burst.layout(),
             cameras=tuple(CameraDescription(name=c.name, width=image_sizes[c.name][0],
                                             height=image_sizes[c.name][1])
                           for c in self.cameras if c.name in image_sizes),

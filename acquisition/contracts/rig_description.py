@@ -5,7 +5,8 @@ square size and which colour its origin square has, or a marker), the speakers' 
 positions and how well they are known, the reference microphone (which column records it in
 the reference recordings, and in the pose recordings if it does there at all, its distance from
 each speaker, its clock/latency group), the channel map (microphone id, recording column,
-clock/latency group), the sample rate, the burst layout, the cameras by name and image size,
+clock/latency group), the sample rate, the burst layout (`BurstLayout`, whose fields the
+capture's burst shares: acquisition/contracts/burst.py), the cameras by name and image size,
 and what the user measured (air temperature or speed of sound, a known camera calibration).
 
 It holds no hardware: board models, serials, input ranges, output wiring, a pose count or a
@@ -24,16 +25,16 @@ cross-field checks below in the same `field: problem; write ...` form.
 
 from __future__ import annotations
 
-import math
 import re
 from typing import Annotated, Final, Literal
 
 from pydantic import Field, FiniteFloat, ValidationError, model_validator
 
-from .air import AirReading, SpeedOfSoundPrior
+from kernel.air import AirReading, SpeedOfSoundPrior
+
+from .burst import BurstLayout
 from .config_model import ConfigModel, describe_problems
 from .errors import UserError
-from .stimulus import mls_length
 
 DESCRIPTION_KIND: Final = "rig-and-array"
 """The `kind` of a description stored as a session's capture (a capture configuration has
@@ -196,68 +197,6 @@ class ReferenceMicrophone(ConfigModel):
                     "value for all speakers or one per speaker")
 
 
-MIN_STEADY_PERIOD_S = 0.04
-"""Shortest MLS period (seconds) that bursts of two or more periods may have: their circular
-correlation spans lags of +-half a period, and the positive half must hold the longest path
-calibration searches (6 m, 17.5 ms) with room to spare for early reflections."""
-
-
-def steady_mls_order(sample_rate_hz: float) -> int:
-    """The lowest MLS order whose period lasts MIN_STEADY_PERIOD_S at `sample_rate_hz`."""
-    return math.ceil(math.log2(MIN_STEADY_PERIOD_S * sample_rate_hz + 1))
-
-
-class BurstLayout(ConfigModel):
-    """What each recording holds, in samples: silence, `periods` periods of the test sequence
-    (an MLS of `mls_order`) back to back, the silence played after them, and what the
-    recorder kept after that."""
-
-    silence_before_samples: int = Field(default=0, ge=0, examples=[512])
-    mls_order: int = Field(ge=4, le=20, examples=[14],
-                           description="the sequence is 2**mls_order - 1 samples long")
-    periods: int = Field(
-        default=1, ge=1, le=8, examples=[2],
-        description="periods of the sequence played back to back; with 2 or more the last "
-                    "is correlated circularly, which keeps a room's reflections off the "
-                    "direct sound")
-    silence_after_samples: int = Field(default=0, ge=0, examples=[2048])
-    extra_recorded_samples: int = Field(
-        default=0, ge=0, examples=[0],
-        description="samples the recorder kept after the silence that followed the sequence")
-
-    @property
-    def sequence_samples(self) -> int:
-        return mls_length(self.mls_order)
-
-    @property
-    def n_samples(self) -> int:
-        """Length of one recording, samples per channel."""
-        return (self.silence_before_samples + self.periods * self.sequence_samples
-                + self.silence_after_samples + self.extra_recorded_samples)
-
-    def period_problem(self, sample_rate_hz: float, where: str) -> str | None:
-        """What is wrong with periods >= 2 of a sequence this short at `sample_rate_hz`
-        (None: nothing): its circular correlation must hold every path calibration searches
-        (6 m) and a room's early reflections, which a period shorter than
-        `MIN_STEADY_PERIOD_S` would fold onto the direct sound."""
-        period_s = self.sequence_samples / sample_rate_hz
-        if self.periods < 2 or period_s >= MIN_STEADY_PERIOD_S:
-            return None
-        return (f"{where}: {self.periods} periods of an MLS of order {self.mls_order} "
-                f"({1e3 * period_s:.1f} ms at {sample_rate_hz:g} Hz) fold the room onto the "
-                f"direct sound; write mls_order = {steady_mls_order(sample_rate_hz)} or more "
-                f"(a period of at least {1e3 * MIN_STEADY_PERIOD_S:g} ms), or periods = 1")
-
-    @property
-    def steady_window(self) -> tuple[int, int] | None:
-        """(first, stop) samples of the last period, where every arrival is periodic; None
-        with a single period."""
-        if self.periods < 2:
-            return None
-        start = self.silence_before_samples + (self.periods - 1) * self.sequence_samples
-        return start, start + self.sequence_samples
-
-
 class KnownIntrinsics(ConfigModel):
     """A camera calibration known from elsewhere (OpenCV's model: pixels, k1 k2 p1 p2 k3)."""
 
@@ -308,7 +247,7 @@ class KnownAir(ConfigModel):
 
     def speed_of_sound_prior(self) -> SpeedOfSoundPrior:
         """(c, standard deviation) in m/s: the measured c, or Cramer's c of the measured air
-        (acquisition.contracts.air) with the temperature's and the humidity's std carried through
+        (kernel.air) with the temperature's and the humidity's std carried through
         (humidity unknown: 0.5 +- 0.5)."""
         if self.speed_of_sound_m_s is not None:
             return SpeedOfSoundPrior(self.speed_of_sound_m_s,

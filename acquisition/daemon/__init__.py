@@ -4,9 +4,9 @@
 config (pydantic settings), states (the state
 machine), server (sockets), security and endpoints (CURVE, what is local), run (one open
 session and its quality gate), quality (checks), hardware (what the daemon drives), service (the
-loop), systemd, translog (transitions in the session), client and display (for the
-commands; their options are micam.commands.client_options). The names below are imported on
-first use, so that `micam --help` stays light.
+loop), handlers (its requests), systemd, translog (transitions in the session), client (for the
+commands; their options are micam.commands.client_options, their display micam.display). The
+names below are imported on first use, so that `micam --help` stays light.
 """
 
 from __future__ import annotations

@@ -14,10 +14,10 @@ from dataclasses import dataclass, field
 
 from daq import Board, SyncGroup
 
-from acquisition.contracts.air import AirSensor
 from acquisition.contracts.camera import Camera
 from acquisition.contracts.capture_config import CaptureConfig
 from acquisition.contracts.instructions import Operator
+from kernel.air import AirSensor
 from .config import ConfigError, HardwareConfig
 
 

@@ -28,8 +28,8 @@ from acquisition.contracts.instructions import Instruction, InstructionKind
 from ..sequencer import CaptureSequencer, Progress, plan_steps
 from acquisition.contracts.session import SessionWriter
 from acquisition.contracts.session._layout import attempt_dir
-from acquisition.contracts.stimulus import mls_length
 from acquisition.contracts.step_ids import REFMIC_STEP, is_pose_step
+from kernel.stimulus import mls_length
 from .config import DaemonConfig
 from .hardware import Hardware
 from .previews import Previews

@@ -15,55 +15,34 @@ would but tidier; at the next start the daemon offers the session for resuming o
 
 from __future__ import annotations
 
-import json
+import functools
 import logging
 import time
-import uuid
 from collections.abc import Callable
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 import zmq
 from pydantic import BaseModel, ValidationError
 
-from acquisition.contracts.capture_config import CaptureConfig
-from ..live.mode import POLL_S as LIVE_POLL_S
-from ..sequencer import plan_steps
-from acquisition.contracts.session import SessionError, SessionReader, SessionWriter
-from acquisition.contracts.session import write_atomic
+from acquisition.contracts.protocol import ErrorEvent, Request, SessionStartArgs, StateEvent
+from acquisition.contracts.session import SessionError, SessionReader
 from acquisition.contracts.step_ids import is_pose_step
+
+from ..live.mode import POLL_S as LIVE_POLL_S
+from . import handlers
 from .broker import CALIBRATION_DIR, JOBS_QUEUE, RESULT_FILE, Broker
 from .config import DaemonConfig
 from .files import CHUNK_QUEUE, FETCH_QUEUE, MAX_FETCH_BYTES, FileServer
 from .hardware import Hardware
-from .index import SessionIndex, summarize
+from .index import SessionIndex
 from .jobs import job_for_session
 from .live_control import LiveControl
 from .outbox import Outbox
 from .previews import Previews
-from acquisition.contracts.protocol import (
-    CAMERA_MIN_VIEWS,
-    PROTOCOL_VERSION,
-    CaptureResult,
-    ColumnInfo,
-    DescribeResult,
-    ErrorEvent,
-    QualityInfo,
-    Request,
-    RigInfo,
-    SessionFileArgs,
-    SessionReportArgs,
-    SessionReportResult,
-    SessionStartArgs,
-    SessionSummary,
-    StateEvent,
-    StatusResult,
-)
 from .run import SessionEnding, SessionRun
 from .server import ControlServer, Refusal
-from .session_files import session_dir, session_file, session_report
-from .states import WAITING_STATES, State, StateMachine, Transition, WrongState, check_allowed
+from .states import State, StateMachine, Transition, WrongState, check_allowed
 from .systemd import Watchdog, sd_notify, set_log_context
 from .translog import TransitionLog
 
@@ -88,36 +67,21 @@ class Daemon:
         self.watchdog = Watchdog()
         self.run: SessionRun | None = None
         self.terminating = False
-        self._translog: TransitionLog | None = None
+        self.translog: TransitionLog | None = None
         self._reconciled = False
         self._handlers: dict[str, Callable[[Any], BaseModel | dict[str, Any]]] = {
-            "ping": lambda _: {"pong": True, "protocol": PROTOCOL_VERSION},
-            "status": lambda _: self.status(),
-            "sessions.list": lambda _: self.list_sessions(),
-            "describe": lambda _: self.describe(),
-            "previews": lambda r: {"seconds": self.previews.request(r.args.seconds)},
-            "session.report": lambda r: self._report(r.args),
-            "session.file": lambda r: self._file(r.args),
-            "session.start": lambda r: self._start(r.args),
-            "session.stop": lambda _: self._stop(),
-            "session.abort": lambda _: self._abort(),
-            "session.pause": lambda _: self._pause(),
-            "session.resume": lambda _: self._unpause(),
-            "capture": lambda _: self._capture(),
-            "redo": lambda _: self._redo(),
-            "live.start": lambda r: self.live.start(r.args),
-            "live.stop": lambda _: self.live.stop(),
-            "live.record": lambda r: self.live.record(r.args),
-        }
+            command: functools.partial(handler, self)
+            for command, handler in handlers.HANDLERS.items()}
         rig = hardware.config.rig
-        self.previews = Previews(config.previews, hardware.cameras,
-                                 (rig.corners_x, rig.corners_y), self.publish,
-                                 config.camera_timeout_s)
+        self.previews: Previews = Previews(config.previews, hardware.cameras,
+                                           (rig.corners_x, rig.corners_y), self.publish,
+                                           config.camera_timeout_s)
         self.index = SessionIndex(self.session_root,
                                   busy=lambda: self.machine.state is State.CAPTURING)
         self.server = ControlServer(config.sockets, self._handle)
-        self.live = LiveControl(hardware, self.machine, self.session_root, self.publish,
-                                self.server.publish_frames, config.camera_timeout_s)
+        self.live: LiveControl = LiveControl(hardware, self.machine, self.session_root,
+                                             self.publish, self.server.publish_frames,
+                                             config.camera_timeout_s)
         try:
             self.broker, self.files = self._open_broker()
         except BaseException:
@@ -254,7 +218,7 @@ class Daemon:
         if self.config.resume_at_start == "auto":
             log.warning("session %s was interrupted; resuming it (resume_at_start = auto)", left)
             try:
-                self._start(SessionStartArgs(resume=left))
+                handlers.start(self, SessionStartArgs(resume=left))
             except Refusal as refusal:
                 log.error("cannot resume session %s: %s", left, refusal.message)
             return
@@ -278,9 +242,9 @@ class Daemon:
         path = self.run.path if self.run is not None else None
         self.machine.go(State.STOPPING, reason)
         self.machine.go(State.IDLE, reason)
-        if self._translog is not None:
-            self._translog.close()
-            self._translog = None
+        if self.translog is not None:
+            self.translog.close()
+            self.translog = None
         self.run = None
         if path is not None:
             self.index.update(path)
@@ -289,8 +253,8 @@ class Daemon:
         run = self.run
         set_log_context(run.session_id if run else None, run.step if run else None)
         log.info("%s -> %s (%s)", t.previous.value, t.state.value, t.reason)
-        if self._translog is not None:
-            self._translog.append(previous=t.previous.value, state=t.state.value,
+        if self.translog is not None:
+            self.translog.append(previous=t.previous.value, state=t.state.value,
                                   reason=t.reason, step=run.step if run else None)
         self.publish(StateEvent, state=t.state.value, previous=t.previous.value, reason=t.reason)
         where = f"session {run.session_id}, {len(run.completed())}/{run.steps_total} steps" \
@@ -305,200 +269,6 @@ class Daemon:
         except WrongState as exc:
             raise Refusal("wrong_state", str(exc)) from None
         return self._handlers[request.command](request)
-
-    def _open_run(self) -> SessionRun:
-        assert self.run is not None, "check_allowed admits this command only with a session"
-        return self.run
-
-    def status(self) -> StatusResult:
-        run = self.run
-        session = None
-        if run is not None:
-            session = summarize(run.session_id, run.path, "open", run.completed(),
-                                run.writer.capture, run.created_utc)
-        return StatusResult(
-            state=self.machine.state.value, simulated=self.hardware.simulated, session=session,
-            step=run.step if run else None,
-            instruction=run.instruction.text if run and run.instruction else None,
-            captures_requested=run.captures_requested if run else 0,
-            last_capture=run.last_capture if run else None,
-            paused=bool(run and run.paused), hands_free=self.config.hands_free.enabled,
-            events_endpoint=self.server.events_endpoint,
-            last_event_seq=self.server.last_event_seq, calibration=self.broker.status(),
-            resumable=None if run else self.index.newest_interrupted(),
-            cameras=run.cameras_seen() if run else [], coverage=run.coverage if run else [],
-            previews_until_s=self.previews.remaining_s, live=self.live.status())
-
-    def describe(self) -> DescribeResult:
-        """What the daemon captures with, for clients that name and draw what events carry."""
-        capture = self.hardware.config
-        quality = self.config.quality
-        return DescribeResult(
-            simulated=self.hardware.simulated,
-            columns=[ColumnInfo(column=j, board=c.board, channel=c.channel, role=c.role,
-                                mic_id=c.mic_id, range_v=c.range_v)
-                     for j, c in enumerate(capture.columns)],
-            cameras=[c.name for c in capture.cameras],
-            rig=RigInfo(corners_x=capture.rig.corners_x, corners_y=capture.rig.corners_y,
-                        square_m=capture.rig.square_m,
-                        speakers_m=[(p[0], p[1], p[2]) for p in capture.rig.speakers_m]),
-            n_poses=capture.n_poses, max_poses=self.hardware.max_poses,
-            quality=QualityInfo(clip_fraction=quality.clip_fraction,
-                                min_level_dbfs=quality.min_level_dbfs,
-                                min_snr_db=quality.min_snr_db,
-                                min_channel_snr_db=quality.min_channel_snr_db),
-            camera_min_views=CAMERA_MIN_VIEWS, live_min_poses=self.config.workers.live_min_poses,
-            live=self.config.workers.live, preview_fps=self.config.previews.fps,
-            preview_width=self.config.previews.width)
-
-    def _summary_of(self, session_id: str) -> SessionSummary:
-        """The summary of a session: the open one as `status` has it, else the index's."""
-        current = self.status().session
-        if current is not None and current.id == session_id:
-            return current
-        for entry in self.index.listing().sessions:
-            if entry["id"] == session_id:
-                return SessionSummary.model_validate(entry)
-        raise SessionError(f"session {session_id} is not in the daemon's index (yet)")
-
-    def _report(self, args: SessionReportArgs) -> SessionReportResult:
-        try:
-            path = session_dir(self.session_root, args.session)
-            return session_report(path, self._summary_of(args.session))
-        except SessionError as exc:
-            raise Refusal("session_error", str(exc)) from None
-
-    def _file(self, args: SessionFileArgs) -> dict[str, Any]:
-        try:
-            return session_file(session_dir(self.session_root, args.session),
-                                args.path).model_dump()
-        except SessionError as exc:
-            raise Refusal("session_error", str(exc)) from None
-
-    def list_sessions(self) -> dict[str, Any]:
-        """The indexed sessions (the open one as `status` describes it); no journal is read."""
-        listing = self.index.listing()
-        sessions = listing.sessions
-        run = self.run
-        if run is not None:
-            current = self.status().session
-            assert current is not None
-            sessions = [current.model_dump(mode="json") if s["path"] == str(run.path) else s
-                        for s in sessions]
-            if not any(s["path"] == str(run.path) for s in listing.sessions):
-                sessions.append(current.model_dump(mode="json"))
-        return {"root": str(self.session_root), "sessions": sessions,
-                "problems": listing.problems, "complete": listing.complete}
-
-    def _start(self, args: SessionStartArgs) -> dict[str, Any]:
-        refusal = self.hardware.recording_refusal("a capture")
-        if refusal is not None:
-            raise Refusal("session_error", refusal)
-        config = self.hardware.config
-        if args.poses is not None:
-            limit = self.hardware.max_poses
-            if limit is not None and args.poses > limit:
-                raise Refusal("session_error", f"the simulated world has {limit} poses; ask for "
-                                               f"at most {limit} or configure more")
-            config = config.model_copy(update={"n_poses": args.poses})
-        try:
-            writer = self._reopen(args.resume) if args.resume else self._create(config)
-        except SessionError as exc:
-            raise Refusal("session_error", str(exc)) from None
-        except OSError as exc:  # a full or read-only disk under the session root
-            raise Refusal("session_error", f"cannot write the session under "
-                                           f"{self.session_root}: {exc}") from None
-        try:
-            created = SessionReader(writer.path).created_utc
-            self.run = SessionRun(self, self.hardware, writer, self.config, created)
-            self._translog = TransitionLog(writer.path)
-        except BaseException:
-            self.run = None
-            writer.close()
-            raise
-        verb = "resumed" if args.resume else "created"
-        self.machine.go(State.SESSION_OPEN, f"session {writer.session_id} {verb}")
-        self.index.update(writer.path)
-        session = self.status().session
-        assert session is not None
-        return {"session": session.model_dump(mode="json"), "resumed": bool(args.resume)}
-
-    def _create(self, config: CaptureConfig) -> SessionWriter:
-        session_id = f"{datetime.now(UTC):%Y-%m-%dT%H-%M-%SZ}_{uuid.uuid4().hex[:8]}"
-        path = self.session_root / session_id
-        writer = SessionWriter.create(path, capture=config.model_dump(mode="json"),
-                                      session_id=session_id)
-        for name, document in self.hardware.session_files.items():
-            data = json.dumps(document, indent=1).encode()
-            write_atomic(path / name, lambda fh: fh.write(data))  # called before the next
-        return writer
-
-    def _reopen(self, which: str) -> SessionWriter:
-        path = self._find_interrupted() if which == "last" else self.session_root / which
-        writer = SessionWriter.resume(path)
-        try:
-            recorded = CaptureConfig.of_session(writer.capture, path)
-        except SessionError:
-            writer.close()
-            raise
-        ours = self.hardware.config.model_copy(update={"n_poses": recorded.n_poses})
-        if recorded != ours:
-            writer.close()
-            raise SessionError(f"session {path.name} was recorded with another hardware "
-                               "configuration than this daemon's; resume it with the daemon "
-                               "configuration it was started with")
-        return writer
-
-    def _find_interrupted(self) -> Path:
-        name = self.index.newest_interrupted()
-        if name is not None:
-            return self.session_root / name
-        if not self.index.complete:
-            raise SessionError(f"the daemon is still reading the sessions in {self.session_root}"
-                               "; try again in a moment, or name the session to resume")
-        raise SessionError(f"no interrupted session in {self.session_root}")
-
-    def _stop(self) -> dict[str, Any]:
-        run = self._open_run()
-        done = run.completed()
-        missing = [s.id for s in plan_steps(run.capture)
-                   if not is_pose_step(s.id) and s.id not in done]
-        if missing:
-            raise Refusal("wrong_state",
-                          f"cannot stop: {', '.join(missing)} not recorded yet, and calibration "
-                          "needs them; capture them, or `micam session abort`")
-        poses = sum(is_pose_step(s) for s in done)
-        run.ending = SessionEnding("success", f"stopped by the operator after {poses} of "
-                                              f"{run.capture.n_poses} poses", after_burst=False)
-        return {"state": self.machine.state.value, "stopping": True}
-
-    def _abort(self) -> dict[str, Any]:
-        self._open_run().ending = SessionEnding("aborted", "aborted by the operator",
-                                                after_burst=True)
-        return {"state": self.machine.state.value, "stopping": True}
-
-    def _pause(self) -> dict[str, Any]:
-        run = self._open_run()
-        run.paused = True
-        if self.machine.state in WAITING_STATES:
-            self.machine.go(State.PAUSED, "paused by the operator")
-        return {"state": self.machine.state.value}
-
-    def _unpause(self) -> dict[str, Any]:
-        run = self._open_run()
-        run.paused = False
-        self.machine.go(run.waiting_state(), "resumed by the operator")
-        return {"state": self.machine.state.value}
-
-    def _capture(self) -> CaptureResult:
-        run = self._open_run()
-        number = run.request_capture("capture requested by the operator")
-        return CaptureResult(number=number, step=run.next_step)
-
-    def _redo(self) -> dict[str, Any]:
-        run = self._open_run()
-        run.redo = True
-        return {"step": run.step}
 
 
 def _guarded(what: str, work: Callable[..., object], *args: object) -> bool:

@@ -31,7 +31,7 @@ from acquisition.contracts.job_messages import (
     PoseSuggestion,
     PoseTaken,
 )
-from acquisition.contracts.rigid import RigidTransform
+from kernel.rigid import RigidTransform
 
 from ..crlb import expected_error_norm, mic_position_crlb
 from ..pipeline import Measurements

@@ -8,7 +8,9 @@ and the range (`micam live video: error: argument --grid: 100000 is not an integ
 range of its own (the simulation's, the protocol's) takes the same range: the model is not
 imported here, to keep `micam --help` light, and tests/micam/test_numeric_options.py checks
 that the two agree, and walks the whole parser to fail on a numeric option that takes any
-value.
+value. The burst's options are the exception: they take the burst's own bounds from
+acquisition.contracts.burst (which loads pydantic and the kernel's constants only), and
+tests/acquisition/test_burst.py checks every model and option of a burst against them.
 """
 
 from __future__ import annotations
@@ -19,7 +21,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from acquisition.contracts.burst import MAX_PERIODS
 from acquisition.contracts.errors import UserError
+from kernel.stimulus import MAX_MLS_ORDER, MIN_MLS_ORDER
 
 
 def _plain(value: float) -> str:
@@ -96,3 +100,7 @@ POSE = integer(0, 9_999)
 """A pose number (a session has at most 10 000 poses)."""
 SPEAKER = integer(0, 999)
 """A speaker's number at a pose."""
+MLS_ORDER = integer(MIN_MLS_ORDER, MAX_MLS_ORDER)
+"""The order of a burst's MLS: the burst's own bounds (acquisition.contracts.burst)."""
+BURST_PERIODS = integer(1, MAX_PERIODS)
+"""The periods of a burst's MLS: the burst's own bounds."""

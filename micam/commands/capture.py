@@ -30,7 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run_capture(args: argparse.Namespace) -> int:
     from acquisition.daemon.client import client_from_args
-    from acquisition.daemon.display import format_event, format_status
+    from micam.display import format_event, format_status
     from acquisition.contracts.protocol import CaptureResult
 
     with client_from_args(args) as client:

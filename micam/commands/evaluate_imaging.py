@@ -21,7 +21,7 @@ from . import imaging_options
 from .bounded import BAND_HZ, FRACTION, integer, number
 
 if TYPE_CHECKING:
-    from calibration.imaging.evaluate import Evaluation, Summary
+    from imaging.evaluate import Evaluation, Summary
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -123,10 +123,10 @@ def _write_json(path: Path, document: dict) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from acquisition.contracts.session import SessionReader
-    from calibration.figures.evaluation import localization_figure
     from calibration.figures.style import save
-    from calibration.imaging.evaluate import ImagingSettings, evaluate_session
-    from calibration.imaging.holdout import cross_validate
+    from imaging.evaluate import ImagingSettings, evaluate_session
+    from imaging.figures.evaluation import localization_figure
+    from imaging.holdout import cross_validate
 
     check_outputs(("--json", args.json), ("--figure", args.figure))
     truth_path = args.truth or (args.session / "truth.json")

@@ -51,9 +51,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from acquisition.contracts.session import SessionReader
     from calibration.figures.style import save
-    from calibration.imaging.evaluate import ImagingSettings
-    from calibration.figures.recording_map import recording_map
     from calibration.report import significant
+    from imaging.evaluate import ImagingSettings
+    from imaging.figures.recording_map import recording_map
 
     check_outputs(("--out", args.out))
     geometry = imaging_options.geometry_file("--geometry", args.geometry)

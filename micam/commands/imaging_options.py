@@ -35,9 +35,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def geometry_file(flag: str, path: Path):
-    """The geometry in `path` (`calibration.imaging.load_geometry`), read before any work; a
+    """The geometry in `path` (`imaging.load_geometry`), read before any work; a
     malformed or oversized file is a UserError naming `flag`, the file and what is wrong."""
-    from calibration.imaging.geometry import GeometryFileError, load_geometry
+    from imaging.geometry import GeometryFileError, load_geometry
 
     try:
         return load_geometry(path)
@@ -59,7 +59,7 @@ def recording(text: str) -> tuple[int, int]:
 
 def with_simulated_error(args: argparse.Namespace, settings, n_mics: int):
     """The imaging settings with the --mic-phase-error-deg of the options, if any."""
-    from calibration.imaging.csm_calibration import simulated_phase_error
+    from imaging.csm_calibration import simulated_phase_error
 
     if not args.mic_phase_error_deg:
         return settings
@@ -75,7 +75,7 @@ def corrected_settings(args: argparse.Namespace, reader, geometry, settings):
 
     Raises UserError for --responses without responses in the geometry file, and the
     eigenvalue calibration's input errors (CalibrationInputError, SessionError)."""
-    from calibration.imaging.evaluate import channel_calibration
+    from imaging.evaluate import channel_calibration
 
     settings = with_simulated_error(args, settings, geometry.n_mics)
     if args.responses:

@@ -143,8 +143,8 @@ def _wait_written(events, path: str, timeout_s: float) -> None:
 
 
 def _video(args: argparse.Namespace) -> int:
-    from calibration.imaging.live import LiveSettings
-    from calibration.imaging.live_frames import VideoFile
+    from imaging.live import LiveSettings
+    from imaging.live_frames import VideoFile
 
     check_outputs(("--out", args.out))
     geometry = geometry_file("--geometry", args.geometry)
@@ -176,9 +176,9 @@ def _check_grid(grid: int, n_mics: int) -> None:
 
 def _video_of_recording(path: Path, geometry, settings, fps: float, video) -> int:
     from acquisition.live.record import read_live_recording
-    from calibration.imaging.live import LiveImager
+    from imaging.live import LiveImager
+    from imaging.live_frames import MapFrames, caption_of
     from micam.live_feed import mic_columns
-    from calibration.imaging.live_frames import MapFrames, caption_of
 
     codes, fs, first, frames, config = read_live_recording(path, settings.camera)
     imager = LiveImager(geometry, settings, fs)
@@ -196,9 +196,9 @@ def _video_of_recording(path: Path, geometry, settings, fps: float, video) -> in
 
 def _video_of_live(args: argparse.Namespace, geometry, settings, video) -> int:
     from acquisition.daemon.client import client_from_args
-    from calibration.imaging.live import LiveImager
+    from imaging.live import LiveImager
+    from imaging.live_frames import MapFrames, caption_of
     from micam.live_feed import LiveFeed
-    from calibration.imaging.live_frames import MapFrames, caption_of
 
     with client_from_args(args) as client:
         status = client.status()

@@ -39,7 +39,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from acquisition.daemon.client import client_from_args
-    from acquisition.daemon.display import format_status
+    from micam.display import format_status
 
     with client_from_args(args) as client:
         if args.action == "status":

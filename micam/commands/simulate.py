@@ -12,8 +12,9 @@ from typing import TYPE_CHECKING
 from pydantic import ValidationError
 from tqdm import tqdm
 
+from acquisition.contracts.burst import MIN_STEADY_PERIOD_S
 from acquisition.contracts.errors import UserError
-from .bounded import SEED, integer, number
+from .bounded import BURST_PERIODS, MLS_ORDER, SEED, integer, number
 
 from ..outputs import check_output_dirs
 
@@ -73,12 +74,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="scale of all noise: 1 = a real lab (default), 0 = none")
     p.add_argument("--temperature", type=number(-40, 60, " degC"), default=20.0,
                    help="air temperature, degC")
-    p.add_argument("--mls-order", type=integer(6, 18), default=14,
+    p.add_argument("--mls-order", type=MLS_ORDER, default=14,
                    help="MLS order of the bursts (14 = 171 ms at 96 kS/s)")
-    p.add_argument("--mls-periods", type=integer(1, 8), default=None,
+    p.add_argument("--mls-periods", type=BURST_PERIODS, default=None,
                    help="periods of the MLS per burst (default: 2, whose last, correlated "
                         "circularly, keeps a room's reflections off the direct sound; 1 for "
-                        "sequences shorter than 25 ms)")
+                        f"sequences shorter than {1e3 * MIN_STEADY_PERIOD_S:g} ms)")
     p.add_argument("--body-diffraction", action="store_true",
                    help="sound reaches microphones behind a sphere array around its surface")
     p.add_argument("--lab", choices=("ideal", "realistic"), default="ideal",

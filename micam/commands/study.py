@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from acquisition.contracts.errors import UserError
-from .bounded import SEED, integer
+from .bounded import MLS_ORDER, SEED, integer
 
 from ..cluster import cluster_map
 from ..outputs import check_output_dirs
@@ -39,7 +39,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--trials", type=integer(1, 1000), default=5, help="random subsets per number")
     p.add_argument("--array", default="sphere72",
                    help="simulated array: sphere72 (default), planar64 or scatter48")
-    p.add_argument("--mls-order", type=integer(6, 18), default=14,
+    p.add_argument("--mls-order", type=MLS_ORDER, default=14,
                    help="order of the MLS bursts, a period of 2**order - 1 samples (default 14)")
     p.add_argument("--seed", type=SEED, default=0,
                    help="seed of the simulated world and of the subsets drawn (default 0)")

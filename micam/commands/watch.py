@@ -28,7 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from acquisition.daemon.client import client_from_args
-    from acquisition.daemon.display import format_event, format_live, format_status
+    from micam.display import format_event, format_live, format_status
     from acquisition.contracts.protocol import LiveCalibrationEvent, StateEvent
     from acquisition.daemon.states import SESSION_STATES, State
 

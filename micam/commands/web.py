@@ -60,9 +60,9 @@ def _live_stream(args: argparse.Namespace):  # -> LiveStream | None
     if args.geometry is None:
         return None
     from acquisition.daemon.client import client_from_args
+    from imaging import load_geometry
+    from imaging.live import LiveSettings
     from micam.web.live_stream import LiveStream
-    from calibration.imaging import load_geometry
-    from calibration.imaging.live import LiveSettings
 
     settings = LiveSettings(band_hz=args.band, fraction=args.fraction, depth_m=args.depth,
                             clean_sc=args.clean_sc, dynamic_range_db=args.range_db,

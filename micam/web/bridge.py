@@ -36,7 +36,7 @@ import zmq.asyncio
 from pydantic import ValidationError
 
 from acquisition.daemon.client import DaemonClient, DaemonError
-from acquisition.daemon.display import format_event
+from micam.display import format_event
 from acquisition.contracts.protocol import (
     EVENT_ADAPTER,
     CalibrationEvent,

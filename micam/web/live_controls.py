@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 
 from calibration.errors import CalibrationInputError
-from calibration.imaging.csm import band_bins, octave_band_centres
-from calibration.imaging.live import FRACTIONS, LiveSettings
+from imaging.csm import band_bins, octave_band_centres
+from imaging.live import FRACTIONS, LiveSettings
 
 BAND_RANGE_HZ = (250.0, 16_000.0)
 """The lowest and highest band centre offered (both octave centres)."""

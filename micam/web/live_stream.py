@@ -24,10 +24,10 @@ from typing import Any
 
 import cv2
 
-from calibration.imaging.geometry import ArrayGeometry
-from calibration.imaging.live import LiveImager, LiveSettings
+from imaging.geometry import ArrayGeometry
+from imaging.live import LiveImager, LiveSettings
+from imaging.live_frames import MapFrames, caption_of
 from micam.live_feed import FedFrame, LiveFeed
-from calibration.imaging.live_frames import MapFrames, caption_of
 
 from acquisition.contracts.errors import UserError
 from acquisition.daemon.client import DaemonClient, DaemonError

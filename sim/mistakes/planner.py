@@ -28,7 +28,7 @@ import numpy as np
 
 from acquisition.contracts.capture_config import CaptureConfig
 from acquisition.contracts.step_ids import pose_step, reference_step
-from acquisition.contracts.stimulus import mls_length
+from kernel.stimulus import mls_length
 
 from ..arrays import ArrayLayout, ChannelRef
 from ..errors import SimulationInputError

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from acquisition.contracts.air import AirReading, speed_of_sound
+from kernel.air import AirReading, speed_of_sound
 
 
 def test_cramer_reference_values():

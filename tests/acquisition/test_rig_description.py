@@ -9,13 +9,13 @@ from typing import Any
 
 import pytest
 
-from acquisition.contracts.air import speed_of_sound
 from acquisition.contracts.config_model import models_within
 from acquisition.contracts.rig_description import (
     DescriptionError,
     RigArrayDescription,
     validate_description,
 )
+from kernel.air import speed_of_sound
 from sim.capture import SimulationOptions, build_simulated_capture
 
 

@@ -75,7 +75,7 @@ def test_the_import_template_describes_an_import(tmp_path: Path) -> None:
 @pytest.mark.parametrize("name", ["paper", "generic"])
 @pytest.mark.slow
 def test_a_daemon_template_drives_a_first_capture(tmp_path: Path, name: str) -> None:
-    from acquisition.contracts.capture_config import BurstConfig
+    from acquisition.contracts.burst import BurstConfig
     from acquisition.sequencer import CaptureSequencer
     from acquisition.contracts.session import SessionWriter
     from calibration.session_data import load_session

@@ -32,7 +32,7 @@ def same_world_natively(world: ForeignWorld, session: Path) -> dict:
     (the capture sequencer on simulated boards: 3 DT9836-6-2 driving the speakers and 5
     DT9816-A, 6 microphones each, and the reference microphone on a DT9816-A of its own,
     recorded on every burst, with its image on the stand). Returns its truth."""
-    from acquisition.contracts.capture_config import BurstConfig
+    from acquisition.contracts.burst import BurstConfig
     from acquisition.sequencer import CaptureSequencer
     from acquisition.contracts.session import SessionWriter
     from daq import SyncGroup

@@ -87,7 +87,7 @@ def test_import_reaches_the_accuracy_of_a_native_session(lab: dict[str, Path]) -
     # the thermometer's 0.1 K, the hygrometer's 2 %, and 2 kPa of unknown pressure
     c = foreign_lab.speed_of_sound
     t, rh = foreign_lab.TEMPERATURE_C, foreign_lab.HUMIDITY
-    from acquisition.contracts.air import speed_of_sound as cramer
+    from kernel.air import speed_of_sound as cramer
     expected = np.sqrt(((c(t + 0.01) - c(t - 0.01)) / 0.02 * 0.1) ** 2
                        + ((c(t, rh + 0.001) - c(t, rh - 0.001)) / 0.002 * 0.02) ** 2
                        + ((cramer(t, rh, 102_325.0) - cramer(t, rh, 100_325.0)) / 2) ** 2)
@@ -157,7 +157,7 @@ def test_known_quantities_from_the_command_line(lab: dict[str, Path], tmp_path: 
                                                 capsys: pytest.CaptureFixture) -> None:
     import cv2
 
-    from acquisition.contracts.air import speed_of_sound
+    from kernel.air import speed_of_sound
     from sim.geometry import pinhole
 
     camera = pinhole("cam0")

@@ -7,13 +7,13 @@ import pytest
 from scipy import fft as sfft
 from scipy.signal import max_len_seq
 
-from acquisition.contracts.air import piston_directivity
 from calibration.delay_estimation import (
     band_bins,
     delay_crlb_white,
     estimate_delays,
     tof_from_delay,
 )
+from kernel.air import piston_directivity
 
 FS = 96_000.0
 BAND = (300.0, 20_000.0)

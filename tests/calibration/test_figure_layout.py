@@ -18,10 +18,8 @@ from matplotlib.patches import Rectangle
 from matplotlib.text import Text
 from matplotlib.transforms import Bbox
 
-from acquisition.contracts.rigid import RigidTransform
 from calibration.figures.geometry import ArrayPicture, CameraMark, geometry_figure
 from calibration.figures.maps import MapPanel, ScaleBar, acoustic_map_figure
-from calibration.figures.recording_map import pixels_per_metre
 from calibration.figures.residuals import (
     CornerResiduals,
     TofResiduals,
@@ -29,8 +27,10 @@ from calibration.figures.residuals import (
     tof_residual_figure,
 )
 from calibration.figures.study import study_figure
-from calibration.imaging.geometry import CameraView
-from calibration.imaging.grid import PlaneGrid
+from imaging.figures.recording_map import pixels_per_metre
+from imaging.geometry import CameraView
+from imaging.grid import PlaneGrid
+from kernel.rigid import RigidTransform
 
 TOUCH_PX = 0.5
 """How far (figure pixels) a box may reach past another before it counts as overlapping."""

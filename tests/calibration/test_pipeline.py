@@ -287,7 +287,7 @@ def test_a_result_whose_times_of_flight_are_mostly_too_faint_reads_back(
     burst in a noisy room: a clean 3-pose realistic session with MLS order 10) made the
     median infinite, written to result.json as null, which the result's own model refused to
     read back (micam image and the page could not show that calibration)."""
-    from calibration.pipeline import _finite_median
+    from calibration.result_assembly import _finite_median
     from calibration.result import CalibrationResult
 
     assert _finite_median(np.array([np.inf, np.inf, 1e-8])) is None

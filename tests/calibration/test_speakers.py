@@ -16,7 +16,6 @@ import cv2
 import numpy as np
 import pytest
 
-from acquisition.contracts.rigid import RigidTransform
 from acquisition.contracts.session import SessionReader
 from calibration.camera_calibration import (
     CameraCalibration,
@@ -33,6 +32,7 @@ from calibration.speakers import (
     rig_pose_in_cam0,
     speaker_positions,
 )
+from kernel.rigid import RigidTransform
 
 pytestmark = pytest.mark.slow  # every test here: the twelve-pose session and its camera calibration
 

@@ -252,10 +252,10 @@ def test_the_folds_run_their_calibrations_on_the_cluster_with_the_serial_numbers
     from distributed import Client
 
     from calibration._blas import single_threaded_blas
-    from calibration.imaging import load_geometry
-    from calibration.imaging.csm import WelchOptions
-    from calibration.imaging.evaluate import ImagingSettings
-    from calibration.imaging.holdout import cross_validate
+    from imaging import load_geometry
+    from imaging.csm import WelchOptions
+    from imaging.evaluate import ImagingSettings
+    from imaging.holdout import cross_validate
     from micam.cluster import ClusterMap
 
     session = sessions[0]

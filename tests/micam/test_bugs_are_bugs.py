@@ -66,7 +66,7 @@ CATCHERS = [(path, None) for path in sorted((REPO / "micam" / "commands").glob("
 """The code that turns errors into exit statuses or job outcomes: every command, the
 worker's job thread (its message parsing may catch ValueError: that is reading input), and
 a batch's cell (its errors become the failed rows of the batch's table)."""
-LIBRARIES = ("acquisition", "calibration", "sim", "daq", "micam")
+LIBRARIES = ("acquisition", "calibration", "imaging", "sim", "daq", "kernel", "micam")
 
 
 def _library_names(tree: ast.Module) -> set[str]:

@@ -109,8 +109,8 @@ def test_again_with_the_same_content_is_fine(tmp_path: Path) -> None:
 
 
 REPO = Path(__file__).resolve().parents[2]
-BUILT_FROM = ("pyproject.toml", "setup.py", "README.md", "udev", "daq", "sim", "acquisition",
-              "calibration", "micam")
+BUILT_FROM = ("pyproject.toml", "setup.py", "README.md", "udev", "kernel", "daq", "sim",
+              "acquisition", "calibration", "imaging", "micam")
 """What the wheel is built from, copied (pip builds in the source tree, which a test leaves as
 it was)."""
 

@@ -5,7 +5,7 @@ here. An option counts as numeric when its type turns a number into a number (al
 POSE:SPEAKER pair, or as a size such as 1GiB); it must then refuse what no one means (1e300,
 -1e300, a 20-digit integer, nan, inf) with argparse's usage error, unless its choices bound it.
 Its default must lie within its range, and an option that fills a model field with a range
-of its own must take the same range.
+of its own must take the same range (the burst's options: tests/acquisition/test_burst.py).
 """
 
 from __future__ import annotations
@@ -94,10 +94,7 @@ def test_every_default_is_within_its_range(name: str) -> None:
 MIRRORED = [
     ("micam simulate --poses", SimulationOptions, "poses"),
     ("micam simulate --temperature", SimulationOptions, "temperature_c"),
-    ("micam simulate --mls-order", SimulationOptions, "mls_order"),
-    ("micam simulate --mls-periods", SimulationOptions, "mls_periods"),
     ("micam study --poses", SimulationOptions, "poses"),
-    ("micam study --mls-order", SimulationOptions, "mls_order"),
     ("micam session start --poses", SessionStartArgs, "poses"),
     ("micam live start --seconds", LiveStartArgs, "seconds"),
     ("micam live start --camera-fps", LiveStartArgs, "camera_fps"),

@@ -150,10 +150,10 @@ def test_the_option_file_loaders_raise_only_their_input_error(tmp_path: Path,
     import numpy as np
 
     from acquisition.intrinsics_file import IntrinsicsFileError, read_intrinsics
-    from calibration.imaging import load_geometry
-    from calibration.imaging.geometry import GeometryFileError
     from calibration.result import PriorFileError, load_prior_positions
     from calibration.truth import TruthError, load_truth
+    from imaging import load_geometry
+    from imaging.geometry import GeometryFileError
 
     path = tmp_path / "doc.json"
     path.write_text(json.dumps(document))

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from acquisition.contracts.air import piston_directivity, speed_of_sound
+from kernel.air import piston_directivity, speed_of_sound
 from sim.air_sensor import SimulatedAirSensor
 from sim.analog_bench import AcousticBench
 from sim.arrays import planar64, sphere72

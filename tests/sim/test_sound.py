@@ -7,7 +7,7 @@ import pytest
 from scipy.optimize import minimize_scalar
 
 from daq import InputChannel, volts_to_codes
-from acquisition.contracts.stimulus import mls_length
+from kernel.stimulus import mls_length
 from sim.arrays import scatter48, sphere72
 from sim.analog_bench import AcousticBench
 from sim.sound import creeping_path_length, mls_burst

@@ -9,12 +9,14 @@ from typing import Any
 
 import pytest
 
+from acquisition.contracts.burst import MAX_PERIODS
 from acquisition.contracts.config_model import models_within
 from acquisition.daemon.config import ConfigError, SocketsConfig
 from micam.hardware import load_daemon_config as load_config
 from micam.simulated_hardware import MicamDaemonConfig as DaemonConfig
 from acquisition.daemon.endpoints import is_local_endpoint
 from acquisition.daemon.security import check_exposure
+from kernel.stimulus import MAX_MLS_ORDER
 
 
 def _write(tmp_path: Path, text: str) -> Path:
@@ -175,6 +177,25 @@ def test_a_camera_s_pixel_format_is_one_micam_decodes(tmp_path: Path,
         load_config(_write(tmp_path, text.replace('"YUYV"', '"MJPEG"')))
     (line,) = [ln for ln in str(caught.value).splitlines() if "fourcc" in ln]
     assert line.startswith("  hardware.cameras[0].fourcc: Input should be 'MJPG' or 'YUYV'"), line
+
+
+@pytest.mark.parametrize(("good", "bad", "field", "bound"), [
+    ("mls_order = 9", "mls_order = 30", "hardware.capture.burst.mls_order", MAX_MLS_ORDER),
+    ("periods = 1", "periods = 9", "hardware.capture.burst.periods", MAX_PERIODS),
+    ("", "[simulation]\nmls_order = 30", "simulation.mls_order", MAX_MLS_ORDER),
+    ("", "[simulation]\nmls_periods = 9", "simulation.mls_periods", MAX_PERIODS),
+])
+def test_a_burst_beyond_its_bounds_is_one_line_naming_the_field(
+        tmp_path: Path, hardware_toml: str, good: str, bad: str, field: str, bound: int) -> None:
+    """The burst's bounds (acquisition/contracts/burst.py) reach a daemon's configuration,
+    hardware or simulated, as one line that names the key and the bound."""
+    text = hardware_toml.replace(good, bad, 1) if good else bad + "\n"
+    assert text != hardware_toml
+    with pytest.raises(ConfigError) as caught:
+        load_config(_write(tmp_path, text))
+    problems = [ln for ln in str(caught.value).splitlines() if ln.startswith("  ")]
+    assert len(problems) == 1, problems
+    assert problems[0].startswith(f"  {field}: Input should be less than or equal to {bound} ")
 
 
 def test_every_problem_on_its_own_line(tmp_path: Path, hardware_toml: str) -> None:

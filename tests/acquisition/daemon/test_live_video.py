@@ -14,18 +14,18 @@ import numpy as np
 import pytest
 
 from acquisition.contracts.errors import UserError
+from acquisition.live.record import ACOULAR_FILE, read_live_recording
+from imaging import load_geometry
+from imaging.beamform import beamform
+from imaging.csm import WelchOptions, band_bins, cross_spectra
+from imaging.geometry import ArrayGeometry, geometry_from_dict
+from imaging.live import LiveImager, LiveSettings
+from imaging.live_frames import MapFrames
+from imaging.steering import SteeringModel
+from imaging.view_plane import depth_plane_grid
 from micam.cli import main
 from micam.commands.live import _check_grid
-from acquisition.live.record import ACOULAR_FILE, read_live_recording
-from calibration.imaging import load_geometry
-from calibration.imaging.beamform import beamform
-from calibration.imaging.csm import WelchOptions, band_bins, cross_spectra
-from calibration.imaging.geometry import ArrayGeometry, geometry_from_dict
-from calibration.imaging.live import LiveImager, LiveSettings
 from micam.live_feed import LiveFeed, mic_columns
-from calibration.imaging.live_frames import MapFrames
-from calibration.imaging.steering import SteeringModel
-from calibration.imaging.view_plane import depth_plane_grid
 
 from .helpers import WAIT_S, ThreadDaemon, small_config
 

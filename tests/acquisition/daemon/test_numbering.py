@@ -12,7 +12,7 @@ import pytest
 
 from acquisition.contracts.protocol import CaptureEvent, InstructionEvent, ProgressEvent
 from acquisition.contracts.session import SessionReader
-from acquisition.daemon.display import format_event
+from micam.display import format_event
 
 from .helpers import ThreadDaemon, capture
 

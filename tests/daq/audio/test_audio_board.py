@@ -14,7 +14,6 @@ import numpy as np
 import pytest
 
 from acquisition.contracts.instructions import Instruction, InstructionKind
-from acquisition.contracts.stimulus import mls_burst
 from daq import (
     ConfigurationError,
     DeviceDisconnectedError,
@@ -35,6 +34,7 @@ from daq.audio import (
     open_audio_boards,
 )
 from daq.audio._stream import Fault, refused
+from kernel.stimulus import mls_burst
 from micam.cli import main
 from sim.capture import SimulationOptions
 from sim.jack_world import WorldProcess

@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calibration.imaging import load_geometry
-from calibration.imaging.live import LiveImager, LiveSettings
-from calibration.imaging.live_frames import MapFrames
+from imaging import load_geometry
+from imaging.live import LiveImager, LiveSettings
+from imaging.live_frames import MapFrames
 from micam.cli import main
 from micam.live_feed import LiveFeed
 from sim.capture import SimulationOptions, world_for

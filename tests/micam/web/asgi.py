@@ -12,7 +12,7 @@ from typing import Any
 from starlette.types import ASGIApp, Message
 
 from acquisition.daemon.client import DaemonError
-from calibration.imaging.live import LiveSettings
+from imaging.live import LiveSettings
 from micam.web.bridge import Bridge, Browser
 from micam.web.live_stream import LiveStream
 

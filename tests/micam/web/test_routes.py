@@ -9,7 +9,7 @@ import json
 import pytest
 from starlette.testclient import TestClient
 
-from calibration.imaging.live import LiveSettings
+from imaging.live import LiveSettings
 from micam.web.app import create_app
 from micam.web.hosts import ServedHosts
 
