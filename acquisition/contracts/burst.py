@@ -7,7 +7,7 @@ it is played at), the rig and array description that calibration reads (`BurstLa
 [burst] of an import: silence_before_samples, silence_after_samples, and what a foreign
 recorder kept after that), and the simulation's options (mls_order, mls_periods). Their keys
 stay as the files already written spell them; what each means and which values it takes are
-the field types below, which all three models use, and `BurstConfig.layout` is the one way
+the field types below, which all three models use, and `BurstConfig.as_recorded` is the one way
 from a capture's burst to its description's. The command line's options take the same bounds
 (micam/commands/bounded.py), and tests/acquisition/test_burst.py fails if any of them drifts.
 
@@ -134,7 +134,7 @@ class BurstConfig(ConfigModel):
     post_samples: SilenceAfter = 2048
     periods: Periods = 1
 
-    def layout(self) -> BurstLayout:
+    def as_recorded(self) -> BurstLayout:
         """What each recording of this burst holds, as calibration reads it (the description's
         burst): a micam recording keeps nothing after `post_samples`."""
         return BurstLayout(silence_before_samples=self.pre_samples, mls_order=self.mls_order,
@@ -143,4 +143,4 @@ class BurstConfig(ConfigModel):
     @property
     def n_samples(self) -> int:
         """Length of one recording, samples per channel."""
-        return self.layout().n_samples
+        return self.as_recorded().n_samples

@@ -158,7 +158,7 @@ class CaptureConfig(ConfigModel):
             if c.role == "mic" and c.mic_id is None:
                 problems.append(f"columns[{j}].mic_id: missing for a 'mic' column; write the "
                                 "microphone's id, e.g. mic_id = 0")
-        period = self.burst.layout().period_problem(self.sample_rate_hz, "burst")
+        period = self.burst.as_recorded().period_problem(self.sample_rate_hz, "burst")
         if period is not None:
             problems.append(period)
         if self.layout is not None:
@@ -200,7 +200,7 @@ class CaptureConfig(ConfigModel):
                 group=self.reference.board, reference_recordings_column=reference_column,
                 pose_recordings_column=reference_column,
                 distance_from_speaker_m=self.reference.distance_from_speaker_m),
-            burst=self.burst.layout(),
+            burst=self.burst.as_recorded(),
             cameras=tuple(CameraDescription(name=c.name, width=image_sizes[c.name][0],
                                             height=image_sizes[c.name][1])
                           for c in self.cameras if c.name in image_sizes),

@@ -67,7 +67,7 @@ def test_every_entry_point_of_a_burst_takes_the_bursts_bounds(name: str) -> None
 
 def test_the_descriptions_layout_is_the_captures_burst() -> None:
     burst = BurstConfig(mls_order=12, periods=3, pre_samples=100, post_samples=200)
-    layout = burst.layout()
+    layout = burst.as_recorded()
     assert layout == BurstLayout(silence_before_samples=100, mls_order=12, periods=3,
                                  silence_after_samples=200)
     assert burst.n_samples == layout.n_samples == 100 + 3 * mls_length(12) + 200
