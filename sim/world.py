@@ -8,7 +8,7 @@ where the reference microphone is). Levels and noise are those of a real lab by 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -72,7 +72,8 @@ class World:
     """The simulated lab.
 
     Attributes:
-        layout: the array, its cameras and wiring.
+        layout: the array, its cameras and wiring (with the lab's lens-distortion, its
+            cameras' distortion replaced by the lab's lens: sim.optics).
         rig: the calibration rig as stated (its description); the rig as built is
             `physical_rig` (the lab's print scale and speaker build errors).
         temperature_c: air temperature at the start of the session (the lab's air drift
@@ -105,6 +106,10 @@ class World:
     lab: LabEffects = field(default_factory=LabEffects)
 
     def __post_init__(self) -> None:
+        if self.lab.camera.has("lens-distortion"):  # the cameras' lenses as built
+            dist = np.array(self.lab.camera.lens.distortion, dtype=np.float64)
+            self.layout = replace(self.layout, cameras=tuple(
+                replace(c, dist=dist) for c in self.layout.cameras))
         rng = np.random.default_rng([self.seed, 1])
         self.lab_truth = LabTruth.draw(self.lab, self.rig.n_speakers, self.layout.n_mics,
                                        np.random.default_rng([self.seed, 7]))
