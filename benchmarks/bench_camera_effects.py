@@ -1,6 +1,7 @@
 """The realistic lab's cameras (issue 32): corner reprojection residuals per camera effect.
 
-For every row a world with only that lab effect (or none, or every camera effect) renders
+For every row a world with only that lab effect (or none, or every camera effect; "mjpeg":
+frames delivered as MJPEG at quality 80, the mjpeg mistake, alone or with every effect) renders
 camera 0's images of the same rig poses (the 48-microphone scatter's single 1280 x 960 camera,
 so that no acoustics are simulated), and the calibration's own camera calibration
 (calibration.camera_calibration.calibrate_images: its corner detectors and OpenCV's
@@ -27,19 +28,23 @@ from calibration.camera_calibration import calibrate_images
 from calibration.corners import Checkerboard
 from sim.cameras import SimulatedCamera
 from sim.capture import SimulationOptions, world_for
-from sim.lab import CAMERA_EFFECTS
+from sim.optics import CAMERA_EFFECTS
+from sim.mistakes.plan import NO_MISTAKES, Mistakes
 from sim.setups import Setups, pose_setup
 
-ROWS = ("none", *CAMERA_EFFECTS, "all")
+JPEG_QUALITY = 80
+ROWS = ("none", *CAMERA_EFFECTS, "mjpeg", "all", "all+mjpeg")
 
 
 def measure(row: str, poses: int, seed: int) -> dict:
     """Render camera 0's view of `poses` rig poses in the world of `row` and calibrate it."""
-    effects = {"none": (), "all": CAMERA_EFFECTS}.get(row, (row,))
+    effects = {"none": (), "mjpeg": (), "all": CAMERA_EFFECTS,
+               "all+mjpeg": CAMERA_EFFECTS}.get(row, (row,))
     options = SimulationOptions(array="scatter48", poses=poses, seed=seed, effects=effects)
     world, rig_poses = world_for(options)
     setups = Setups()
-    camera = SimulatedCamera(world.layout.cameras[0], world, 0, setups)
+    codec = Mistakes(jpeg_quality=JPEG_QUALITY) if row.endswith("mjpeg") else NO_MISTAKES
+    camera = SimulatedCamera(world.layout.cameras[0], world, 0, setups, codec)
     camera.grab()  # the camera's pixel rays, computed once
     images, render_s = {}, []
     for i, pose in enumerate(rig_poses):

@@ -13,7 +13,6 @@ from daq import ClosesOnExit
 from .geometry import CameraModel
 from .light import render_rig_image
 from .live_light import render_scene_image
-from .mistakes.images import mjpeg
 from .mistakes.plan import NO_MISTAKES, Mistakes
 from .setups import Setups
 from .world import World
@@ -76,17 +75,8 @@ class SimulatedCamera(ClosesOnExit):
             scene=self.mistakes.scene(key[:2], self.index),
             effects=w.lab.camera, camera_key=(w.seed, self.index), noise_scale=w.noise.scale,
         )
-        return Frame(image=self._delivered(image), timestamp_s=time.monotonic(),
+        return Frame(image=self.mistakes.delivered(image), timestamp_s=time.monotonic(),
                      camera=self.name)
-
-    def _delivered(self, image: np.ndarray) -> np.ndarray:
-        """The frame as the camera hands it over: MJPEG at the mjpeg mistake's quality (which
-        replaces the lab's codec), else at the lab's with its mjpeg effect, else YUYV (for a
-        grey image its luma: the 8-bit frame itself)."""
-        camera = self.world.lab.camera
-        if self.mistakes.jpeg_quality is None and camera.has("mjpeg"):
-            return mjpeg(image, camera.jpeg_quality)
-        return self.mistakes.delivered(image)
 
     def preview(self, max_width: int, timeout_s: float = 2.0) -> Frame:
         if self.fail_next_grabs > 0:

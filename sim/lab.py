@@ -30,7 +30,7 @@ Effects (names as `micam simulate --effect NAME` takes them):
 - air-sensor: the lab has a calibrated thermometer and hygrometer beside the array, read at
   every pose; each has a fixed calibration error drawn from its stated accuracy.
 - the cameras' effects (sim.optics.CAMERA_EFFECTS): sensor-noise, fixed-pattern, defocus,
-  lens-distortion, vignetting, lighting, board-bow, gamma, mjpeg.
+  lens-distortion, vignetting, lighting, board-bow, gamma.
 """
 
 from __future__ import annotations

@@ -299,19 +299,21 @@ def _front_face(rig: Rig, hits: _BoardHits) -> np.ndarray:
 def _lit_face(rig: Rig, hits: _BoardHits, rays: _PixelRays, rig_to_cam: RigidTransform,
               camera: CameraModel, effects: CameraEffects) -> np.ndarray:
     """The printed face under the lab's lamp (sim.optics.LightModel): its greys scaled by the
-    light at each point over the light at the pattern's centre (the auto exposure keeps the
-    centre at the stated greys), plus the glossy print's specular highlight, a Gaussian on the
-    board around where the camera sees the lamp's mirror image (the ray to the lamp mirrored
-    in the board's plane; none when that point is behind the camera)."""
+    light at each point over the plate's brightest light (the auto exposure keeps the
+    brightest white at the print's stated grey, below saturation), plus the glossy print's
+    specular highlight, a Gaussian on the board around where the camera sees the lamp's
+    mirror image (the ray to the lamp mirrored in the board's plane; none when that point is
+    behind the camera)."""
     light = effects.light
     normal, t = rig_to_cam.R[:, 2], rig_to_cam.t
     lamp = camera.cam0_to_cam.apply(np.asarray(light.lamp_m, dtype=np.float64)[None, :])[0]
     depth = np.where(hits.hit, hits.depth, np.float32(0.0))
-    centre = rig_to_cam.apply(rig.centre()[None, :])[0]
-    x_c, y_c, z_c = centre.astype(np.float32)[:, None]
-    relative = light.irradiance(rays.x * depth, rays.y * depth, depth, normal, lamp) / (
-        light.irradiance(x_c, y_c, z_c, normal, lamp))
-    face = _front_face(rig, hits) * relative
+    lit = light.irradiance(rays.x * depth, rays.y * depth, depth, normal, lamp)
+    x0, x1, y0, y1 = rig.plate_m
+    on_plate = hits.hit & (hits.X >= x0) & (hits.X <= x1) & (hits.Y >= y0) & (hits.Y <= y1)
+    if not on_plate.any():
+        return _front_face(rig, hits)
+    face = _front_face(rig, hits) * (lit / lit[on_plate].max())
     mirrored = lamp - 2.0 * float(normal @ (lamp - t)) * normal
     n_m = float(normal @ mirrored)
     if n_m * float(normal @ t) <= 0.0:  # the mirror image's ray does not meet the board

@@ -16,8 +16,11 @@ of sim.lab (`micam simulate --effect NAME`), with the magnitudes of docs/simulat
   reflects it as a soft specular highlight.
 - board-bow: the plate is bowed, a paraboloid sag (sim.geometry.Rig.sag_m).
 - gamma: the camera's 1 / 2.2 gamma curve before its 8-bit output.
-- mjpeg: frames delivered as MJPEG at a stated quality (without it: YUYV, whose luma is the
-  8-bit image itself).
+
+The camera delivers YUYV, whose luma for a grey image is the 8-bit frame itself; MJPEG at a
+stated quality is the mjpeg mistake's codec (`--mistake mjpeg=QUALITY`, sim.mistakes), not a
+second switch here: the design counts MJPEG-compressed frames among a capture's mistakes, and
+the calibration notes them as a finding.
 
 The grey levels sim.light renders (the print's 40 and 210) are the linear signal, in digital
 numbers of the 8-bit output, at the image centre for the stated exposure: sensor-noise turns
@@ -31,7 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 CAMERA_EFFECTS = ("sensor-noise", "fixed-pattern", "defocus", "lens-distortion", "vignetting",
-                  "lighting", "board-bow", "gamma", "mjpeg")
+                  "lighting", "board-bow", "gamma")
 """The camera effects' names, in the order of docs/simulation.md's table."""
 
 
@@ -104,16 +107,17 @@ class LightModel:
     Attributes:
         lamp_m: the lamp's position, camera-0 frame (above and to the right of the array).
         ambient: the room's diffuse light on the board, in units of the lamp's at 1 m head
-            on (the camera's auto exposure then scales the board's centre to the print's
-            stated greys).
-        specular_peak: the highlight's peak over the print's white (a semi-gloss print).
+            on (the camera's auto exposure then scales the plate's brightest point to the
+            print's stated greys).
+        specular_peak: the highlight's peak over the print's white (a semi-gloss print; with
+            the white at 210 of 255, it stays below saturation).
         specular_sigma_m: its Gaussian width on the board (the print's roughness spreads the
             lamp's mirror image).
     """
 
     lamp_m: tuple[float, float, float] = (0.6, -0.8, 0.2)
     ambient: float = 0.5
-    specular_peak: float = 0.3
+    specular_peak: float = 0.1
     specular_sigma_m: float = 0.04
 
     def irradiance(self, x: np.ndarray, y: np.ndarray, z: np.ndarray, normal: np.ndarray,
@@ -138,7 +142,6 @@ class CameraEffects:
             on).
         board_bow_m: the plate's sag at its centre with board-bow on (its sign is drawn).
         gamma: the camera's gamma (the output is linear ** (1 / gamma)).
-        jpeg_quality: MJPEG quality with mjpeg on.
     """
 
     on: frozenset[str] = frozenset()
@@ -147,7 +150,6 @@ class CameraEffects:
     light: LightModel = field(default_factory=LightModel)
     board_bow_m: float = 0.5e-3
     gamma: float = 2.2
-    jpeg_quality: int = 80
 
     def has(self, name: str) -> bool:
         """Whether effect `name` (one of CAMERA_EFFECTS) is on."""
@@ -170,8 +172,6 @@ class CameraEffects:
                             "specular_sigma_m": light.specular_sigma_m}
         if self.has("gamma"):
             out["gamma"] = self.gamma
-        if self.has("mjpeg"):
-            out["jpeg_quality"] = self.jpeg_quality
         return out
 
 

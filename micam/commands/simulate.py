@@ -91,7 +91,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "rig-tolerance, print-scale, mic-responses, air-drift, room, "
                         "ambient-noise, directivity, air-sensor; the cameras': sensor-noise, "
                         "fixed-pattern, defocus, lens-distortion, vignetting, lighting, "
-                        "board-bow, gamma, mjpeg")
+                        "board-bow, gamma")
     p.add_argument("--without", action="append", default=[], metavar="NAME",
                    help="remove one lab effect from the profile (repeatable)")
     p.add_argument("--mistake", action="append", default=[], metavar="NAME[=ARGS]",
