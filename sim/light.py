@@ -94,6 +94,11 @@ class _BoardHits:
     depth: np.ndarray
     hit: np.ndarray
 
+    def on_plate(self, rig: Rig) -> np.ndarray:
+        """Which pixels' rays meet the rig's plate (not merely its plane)."""
+        x0, x1, y0, y1 = (np.float32(v) for v in rig.plate_m)
+        return self.hit & (self.X >= x0) & (self.X <= x1) & (self.Y >= y0) & (self.Y <= y1)
+
 
 def render_rig_image(
     camera: CameraModel,
@@ -148,7 +153,7 @@ def render_rig_image(
             face = _front_face(rig, hits)
         image = background + plate * (face - background)
         if effects.has("defocus"):
-            blur = _defocus_sigma(hits, camera, effects, blur_sigma_px)
+            blur = _defocus_sigma(rig, hits, camera, effects, blur_sigma_px)
     if scene is not None:
         image = scene(np.asarray(image, dtype=np.float32))
     if effects.has("vignetting"):
@@ -309,8 +314,7 @@ def _lit_face(rig: Rig, hits: _BoardHits, rays: _PixelRays, rig_to_cam: RigidTra
     lamp = camera.cam0_to_cam.apply(np.asarray(light.lamp_m, dtype=np.float64)[None, :])[0]
     depth = np.where(hits.hit, hits.depth, np.float32(0.0))
     lit = light.irradiance(rays.x * depth, rays.y * depth, depth, normal, lamp)
-    x0, x1, y0, y1 = rig.plate_m
-    on_plate = hits.hit & (hits.X >= x0) & (hits.X <= x1) & (hits.Y >= y0) & (hits.Y <= y1)
+    on_plate = hits.on_plate(rig)
     if not on_plate.any():
         return _front_face(rig, hits)
     face = _front_face(rig, hits) * (lit / lit[on_plate].max())
@@ -324,14 +328,15 @@ def _lit_face(rig: Rig, hits: _BoardHits, rays: _PixelRays, rig_to_cam: RigidTra
     return face + peak * np.exp(-r2 / np.float32(2 * light.specular_sigma_m**2))
 
 
-def _defocus_sigma(hits: _BoardHits, camera: CameraModel, effects: CameraEffects,
+def _defocus_sigma(rig: Rig, hits: _BoardHits, camera: CameraModel, effects: CameraEffects,
                    lens_sigma_px: float) -> np.ndarray:
     """Each pixel's blur (pixels of sigma): the lens's own and its depth's defocus, added in
-    quadrature; pixels off the board take the board's median depth (they hold no corner)."""
-    depth = hits.depth
-    if not hits.hit.any():
+    quadrature; pixels off the plate take the plate's median depth (they hold no corner, and
+    the blur's range stays the plate's: sim.sensor.blurred interpolates across it)."""
+    on_plate = hits.on_plate(rig)
+    if not on_plate.any():
         return np.asarray(lens_sigma_px, dtype=np.float32)
-    depth = np.where(hits.hit, depth, np.float32(np.median(depth[hits.hit])))
+    depth = np.where(on_plate, hits.depth, np.float32(np.median(hits.depth[on_plate])))
     defocus = effects.lens.blur_sigma_px(depth, float(camera.K[0, 0]))
     return np.sqrt(np.float32(lens_sigma_px**2) + defocus * defocus)
 

@@ -141,6 +141,9 @@ def test_bowed_board_renders_its_stated_sag() -> None:
                                built.bow_height_m(*Rig().speakers_m[:, :2].T), atol=1e-12)
     centre = built.bow_height_m(np.array([0.075]), np.array([0.12]))  # the plate's centre
     assert centre[0] == pytest.approx(truth.board_sag_m)
+    written = truth.to_json()
+    assert written["board_bow"]["sag_m"] == truth.board_sag_m
+    assert written["camera"]["effects"] == ["board-bow"]
 
     camera = pinhole("cam", width=640, height=480, focal_px=700.0, dist=FLAT)
     rig = replace(Rig(), sag_m=0.01)  # exaggerated: pixels of displacement, not tenths
