@@ -17,6 +17,9 @@ import numpy as np
 
 from .optics import NO_CAMERA_EFFECTS, CameraEffects, SensorModel
 
+_FIXED_PATTERN_STREAM = 13
+"""The fixed pattern's generator is (seed, this, camera): a stream of its own among the
+world's (sim.world, sim.cameras, ...)."""
 _SIGMA_STEP_PX = 0.05
 """Defocus blurs closer than this (pixels of sigma) across an image are one blur."""
 
@@ -54,7 +57,7 @@ def fixed_pattern(sensor: SensorModel, shape: tuple[int, int],
                   key: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
     """(gain, offset in electrons) of every pixel of one camera's sensor: PRNU and DSNU,
     drawn once from `key` (the world's seed and the camera) and kept (read-only float32)."""
-    rng = np.random.default_rng([*key, 9])
+    rng = np.random.default_rng([key[0], _FIXED_PATTERN_STREAM, *key[1:]])
     gain = 1.0 + sensor.prnu * rng.standard_normal(shape, dtype=np.float32)
     offset = sensor.dsnu_e * rng.standard_normal(shape, dtype=np.float32)
     for a in (gain, offset):
