@@ -40,8 +40,10 @@ class NoiseModel:
         reference_snr_db: broadband SNR of the reference microphone there.
         gain_spread_db: standard deviation of the microphones' sensitivity, in dB.
         latency_range_s: each board's input latency is uniform in this range (seconds).
-        image_noise_grey: standard deviation of image sensor noise, in grey levels.
-        image_blur_px: Gaussian blur of the lens, standard deviation in pixels.
+        image_noise_grey: standard deviation of image sensor noise, in grey levels (the
+            realistic lab's sensor-noise counts electrons instead: sim.optics).
+        image_blur_px: Gaussian blur of the lens, standard deviation in pixels (its defocus
+            adds to it).
     """
 
     scale: float = 1.0
