@@ -32,7 +32,8 @@ class SimulatedCamera(ClosesOnExit):
 
     `mistakes` are the camera's (sim.mistakes): what is in front of it at a pose (an arm, a
     highlight, the board's motion) and its codec (MJPEG); they change the grabbed frames, not
-    the previews.
+    the previews. So do the lab's camera effects (sim.optics) but for the lens's distortion
+    (the camera model's) and the plate's bow (the rig's).
     """
 
     def __init__(self, model: CameraModel, world: World, index: int,
@@ -72,6 +73,7 @@ class SimulatedCamera(ClosesOnExit):
             noise_grey=w.noise.image_noise_grey * w.noise.scale,
             blur_sigma_px=w.noise.image_blur_px,
             scene=self.mistakes.scene(key[:2], self.index),
+            effects=w.lab.camera, camera_key=(w.seed, self.index), noise_scale=w.noise.scale,
         )
         return Frame(image=self.mistakes.delivered(image), timestamp_s=time.monotonic(),
                      camera=self.name)

@@ -117,6 +117,10 @@ class Rig:
         origin_square: colour of the printed square between the origin corner and its
             neighbours along +X and +Y ("dark", micam's own print, or "light", the opposite
             convention; see sim.light).
+        sag_m: the plate's bow (sim.optics' board-bow): the printed face is the paraboloid
+            Z = sag_m (1 - rho^2 / rho_c^2), rho the distance from the plate's centre and
+            rho_c the plate's half-diagonal (the plate's corners stay at Z = 0; its centre
+            is sag_m out of the printed face, towards the camera for sag_m > 0). 0: flat.
     """
 
     corners_x: int = 6
@@ -127,16 +131,25 @@ class Rig:
     plate_m: tuple[float, float, float, float] = (-0.090, 0.240, -0.060, 0.300)
     reference_mark_m: np.ndarray = field(default_factory=lambda: np.array([-0.090, -0.060, 0.0]))
     origin_square: Literal["dark", "light"] = "dark"
+    sag_m: float = 0.0
 
     @property
     def n_speakers(self) -> int:
         return int(self.speakers_m.shape[0])
 
+    def bow_height_m(self, X: np.ndarray, Y: np.ndarray) -> np.ndarray:
+        """Z of the bowed face (see `sag_m`) at rig coordinates (X, Y), metres."""
+        x0, x1, y0, y1 = self.plate_m
+        dx, dy = X - np.float32((x0 + x1) / 2), Y - np.float32((y0 + y1) / 2)
+        rho_c2 = np.float32(((x1 - x0) / 2) ** 2 + ((y1 - y0) / 2) ** 2)
+        return np.float32(self.sag_m) * (1.0 - (dx * dx + dy * dy) / rho_c2)
+
     def corner_points(self) -> np.ndarray:
-        """Inner corners (corners_x * corners_y, 3) in the rig frame, X varying fastest."""
+        """Inner corners (corners_x * corners_y, 3) in the rig frame, X varying fastest (on
+        the bowed face: Z = 0 for a flat plate)."""
         ix, iy = np.meshgrid(np.arange(self.corners_x), np.arange(self.corners_y))
-        pts = np.stack([ix.ravel(), iy.ravel(), np.zeros(ix.size)], axis=1)
-        return pts * np.array([self.square_m, self.square_m, 1.0])
+        X, Y = ix.ravel() * self.square_m, iy.ravel() * self.square_m
+        return np.stack([X, Y, self.bow_height_m(X, Y).astype(np.float64)], axis=1)
 
     def turned(self) -> Rig:
         """The rig described from the pattern's opposite inner corner: its speakers turned by

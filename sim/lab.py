@@ -29,6 +29,8 @@ Effects (names as `micam simulate --effect NAME` takes them):
   roll-off at high frequencies).
 - air-sensor: the lab has a calibrated thermometer and hygrometer beside the array, read at
   every pose; each has a fixed calibration error drawn from its stated accuracy.
+- the cameras' effects (sim.optics.CAMERA_EFFECTS): sensor-noise, fixed-pattern, defocus,
+  lens-distortion, vignetting, lighting, board-bow, gamma.
 """
 
 from __future__ import annotations
@@ -39,11 +41,13 @@ import numpy as np
 
 from .errors import SimulationInputError
 from .geometry import Rig
+from .optics import CAMERA_EFFECTS, CameraEffects
 
 EFFECTS = ("acoustic-centres", "rig-tolerance", "print-scale", "mic-responses", "air-drift",
-           "room", "ambient-noise", "directivity", "air-sensor")
-"""Every effect's name, in the order of docs/simulation.md's table ("air-sensor" is not an
-error but the lab's instrument: a thermometer and hygrometer beside the array)."""
+           "room", "ambient-noise", "directivity", "air-sensor", *CAMERA_EFFECTS)
+"""Every effect's name, in the order of docs/simulation.md's tables ("air-sensor" is not an
+error but the lab's instrument: a thermometer and hygrometer beside the array; the cameras'
+effects last)."""
 
 
 @dataclass(frozen=True)
@@ -175,6 +179,7 @@ class LabEffects:
         ambient_noise: low-frequency ambient noise (None: none).
         directivity: speakers radiate as baffled pistons (False: omnidirectional).
         air_sensor: the lab's air sensor (None: none, the speed of sound is not measured).
+        camera: the cameras' effects (sim.optics; default: none, the ideal camera).
     """
 
     acoustic_centres: AcousticCentreModel | None = None
@@ -186,6 +191,7 @@ class LabEffects:
     ambient_noise: AmbientNoiseModel | None = None
     directivity: bool = False
     air_sensor: AirSensorModel | None = None
+    camera: CameraEffects = field(default_factory=CameraEffects)
 
     @classmethod
     def ideal(cls) -> LabEffects:
@@ -214,6 +220,7 @@ class LabEffects:
             ambient_noise=AmbientNoiseModel() if "ambient-noise" in on else None,
             directivity="directivity" in on,
             air_sensor=AirSensorModel() if "air-sensor" in on else None,
+            camera=CameraEffects(on=frozenset(on & set(CAMERA_EFFECTS))),
         )
 
     @property
@@ -229,7 +236,7 @@ class LabEffects:
             "ambient-noise": self.ambient_noise is not None,
             "directivity": self.directivity,
             "air-sensor": self.air_sensor is not None,
-        }
+        } | {name: self.camera.has(name) for name in CAMERA_EFFECTS}
         return tuple(n for n in EFFECTS if on[n])
 
 
@@ -250,6 +257,8 @@ class LabTruth:
         temperature_drift_k: signed total drift over the session.
         wander_phase: phase of the slow temperature wander.
         sensor_errors: (3,) the air sensor's fixed errors: kelvin, relative humidity, pascal.
+        board_sag_m: the plate's bow (sim.geometry.Rig.sag_m; its sign drawn: towards the
+            printed face's side or away; 0 without the board-bow effect).
     """
 
     effects: LabEffects
@@ -264,6 +273,7 @@ class LabTruth:
     wander_phase: float
     ambient_directions: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     sensor_errors: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    board_sag_m: float = 0.0
 
     @classmethod
     def draw(cls, effects: LabEffects, n_speakers: int, n_mics: int,
@@ -278,6 +288,7 @@ class LabTruth:
         sign_drift, phase = rng.choice([-1.0, 1.0]), rng.uniform(0, 2 * np.pi)
         directions = rng.normal(size=(8, 3))
         z_sensor = rng.normal(size=3)
+        sign_sag = rng.choice([-1.0, 1.0])
         ac = effects.acoustic_centres
         offsets = (np.zeros(n_speakers) if ac is None
                    else ac.offset_range_m[0] + u_centre * np.subtract(*ac.offset_range_m[::-1]))
@@ -305,13 +316,20 @@ class LabTruth:
             sensor_errors=(np.zeros(3) if effects.air_sensor is None else z_sensor * np.array(
                 [effects.air_sensor.temperature_std_k, effects.air_sensor.relative_humidity_std,
                  effects.air_sensor.pressure_std_pa])),
+            board_sag_m=(float(sign_sag * effects.camera.board_bow_m)
+                         if effects.camera.has("board-bow") else 0.0),
         )
 
     def physical_rig(self, stated: Rig) -> Rig:
         """The rig as built: the pattern printed at `print_scale`, the diaphragms off their
-        stated positions (the rig frame stays the print's: origin at its extreme corner)."""
-        return replace(stated, square_m=stated.square_m * self.print_scale,
-                       speakers_m=stated.speakers_m + self.diaphragm_offsets_m)
+        stated positions, the plate bowed by `board_sag_m` with the speakers in it (each
+        moved along Z by the bow's height at its place; the rig frame stays the print's:
+        origin at its extreme corner)."""
+        bowed = replace(stated, square_m=stated.square_m * self.print_scale,
+                        sag_m=self.board_sag_m)
+        speakers = stated.speakers_m + self.diaphragm_offsets_m
+        speakers[:, 2] += bowed.bow_height_m(stated.speakers_m[:, 0], stated.speakers_m[:, 1])
+        return replace(bowed, speakers_m=speakers)
 
     def acoustic_offset_m(self, freqs_hz: np.ndarray) -> np.ndarray:
         """(n_speakers, n_freq) offset of each acoustic centre in front of its diaphragm."""
@@ -362,6 +380,10 @@ class LabTruth:
             "air_sensor_errors": {"temperature_k": float(self.sensor_errors[0]),
                                   "relative_humidity": float(self.sensor_errors[1]),
                                   "pressure_pa": float(self.sensor_errors[2])},
+            "board_bow": {"sag_m": self.board_sag_m,
+                          "shape": "Z = sag_m (1 - rho^2 / rho_c^2), rho from the plate's "
+                                   "centre, rho_c its half-diagonal (sim.geometry.Rig.sag_m)"},
+            "camera": self.effects.camera.to_json(),
         }
 
 

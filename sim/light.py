@@ -7,7 +7,10 @@ the rig coordinates (X, Y) it hits. Every edge is box-filtered analytically over
 footprint on the board (its extent along X and along Y, from the Jacobian of (X, Y) with
 respect to the pixel coordinates), so edges are anti-aliased like a sensor integrating light
 over a pixel and the 50 % level of every edge lies exactly on the projected edge. The image is
-then blurred (lens and defocus), made noisy (sensor) and quantized to 8 bits.
+then blurred (lens and defocus), made noisy (sensor) and quantized to 8 bits (sim.sensor).
+The realistic lab's camera effects (sim.optics) act here where they act in a camera: the
+plate's bow on where each ray meets the board, the lamp and the print's gloss on the light the
+face sends back, vignetting on the light reaching each pixel, defocus by each pixel's depth.
 
 Printed pattern, rig frame (see sim.geometry): (corners_x + 1) x (corners_y + 1) squares of
 side s spanning X in [-s, corners_x s] and Y in [-s, corners_y s]. Square (i, j), covering
@@ -31,6 +34,8 @@ import cv2
 import numpy as np
 
 from sim.geometry import CameraModel, Rig, RigidTransform
+from sim.optics import NO_CAMERA_EFFECTS, CameraEffects
+from sim.sensor import blurred, cos4_falloff, exposed
 
 DARK_GREY = 40.0
 """Grey level of the printed dark squares (0..255)."""
@@ -77,14 +82,22 @@ class _BoardHits:
 
     X, Y: hit point; w_x, w_y: the pixel's footprint along X and along Y (the root sum of
     squares of the change of X, resp. Y, across one pixel in u and in v: the width of a box
-    with the same spread as the pixel's footprint on that axis). Pixels whose ray misses the
-    plane get X = Y = _FAR_M.
+    with the same spread as the pixel's footprint on that axis); depth: the hit point's z in
+    the camera frame; hit: whether the ray meets the plane in front of the camera. Pixels
+    whose ray misses the plane get X = Y = _FAR_M.
     """
 
     X: np.ndarray
     Y: np.ndarray
     w_x: np.ndarray
     w_y: np.ndarray
+    depth: np.ndarray
+    hit: np.ndarray
+
+    def on_plate(self, rig: Rig) -> np.ndarray:
+        """Which pixels' rays meet the rig's plate (not merely its plane)."""
+        x0, x1, y0, y1 = (np.float32(v) for v in rig.plate_m)
+        return self.hit & (self.X >= x0) & (self.X <= x1) & (self.Y >= y0) & (self.Y <= y1)
 
 
 def render_rig_image(
@@ -95,6 +108,9 @@ def render_rig_image(
     noise_grey: float = 2.0,
     blur_sigma_px: float = 0.6,
     scene: Callable[[np.ndarray], np.ndarray] | None = None,
+    effects: CameraEffects = NO_CAMERA_EFFECTS,
+    camera_key: tuple[int, ...] = (0,),
+    noise_scale: float = 1.0,
 ) -> np.ndarray:
     """Grey image (uint8, camera.height x camera.width) of the rig seen by `camera`.
 
@@ -108,24 +124,41 @@ def render_rig_image(
         scene: what else changes the light reaching the lens (an arm in front of the board,
             a highlight on it, its motion during the exposure: sim.mistakes), applied to the
             ideal float image (grey levels, unclipped) before the blur and the sensor.
+        effects: the realistic lab's camera effects (sim.optics; the plate's bow is the
+            rig's own, `rig.sag_m`).
+        camera_key: which sensor's fixed pattern (the world's seed and the camera's index).
+        noise_scale: multiplies the sensor-noise effect's shot and read noise (`noise_grey`
+            is already scaled).
 
     Only the printed face (+Z side of the rig) shows the pattern; a camera behind the plate
     sees a uniform grey back. The first image of a camera also computes its pixel rays (about
     0.5 s at 1280 x 960, then cached); each image after that takes about 0.1 s.
     """
     background = _background(camera.width, camera.height)
+    rays = _pixel_rays(camera)
+    blur: np.ndarray | float = blur_sigma_px
     if rig_to_cam0 is None:
         image = background
     else:
         rig_to_cam = camera.cam0_to_cam.compose(rig_to_cam0)
-        hits = _board_hits(_pixel_rays(camera), rig_to_cam)
+        hits = _board_hits(rays, rig_to_cam, rig)
         plate = _interval_coverage(hits.X, hits.w_x, rig.plate_m[0], rig.plate_m[1])
         plate *= _interval_coverage(hits.Y, hits.w_y, rig.plate_m[2], rig.plate_m[3])
-        face = _front_face(rig, hits) if _sees_front(rig_to_cam) else np.float32(BACK_GREY)
+        face: np.ndarray
+        if not _sees_front(rig_to_cam):
+            face = np.full_like(hits.X, BACK_GREY)
+        elif effects.has("lighting"):
+            face = _lit_face(rig, hits, rays, rig_to_cam, camera, effects)
+        else:
+            face = _front_face(rig, hits)
         image = background + plate * (face - background)
+        if effects.has("defocus"):
+            blur = _defocus_sigma(rig, hits, camera, effects, blur_sigma_px)
     if scene is not None:
         image = scene(np.asarray(image, dtype=np.float32))
-    return _sensor(image, rng, noise_grey, blur_sigma_px)
+    if effects.has("vignetting"):
+        image = image * _vignetting(camera)
+    return exposed(blurred(image, blur), rng, noise_grey, effects, noise_scale, camera_key)
 
 
 def _camera_key(camera: CameraModel) -> tuple:
@@ -159,6 +192,19 @@ def _cached_pixel_rays(key: tuple) -> _PixelRays:
     return _PixelRays(x, y, x_u, x_v, y_u, y_v, valid=valid)
 
 
+def _vignetting(camera: CameraModel) -> np.ndarray:
+    """The camera's cos^4 fall-off at every pixel (sim.sensor.cos4_falloff; cached)."""
+    return _cached_vignetting(_camera_key(camera))
+
+
+@lru_cache(maxsize=8)
+def _cached_vignetting(key: tuple) -> np.ndarray:
+    rays = _cached_pixel_rays(key)
+    falloff = cos4_falloff(rays.x, rays.y)
+    falloff.flags.writeable = False
+    return falloff
+
+
 def _distort_to_pixels(
     x: np.ndarray, y: np.ndarray, K: np.ndarray, dist: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -184,12 +230,15 @@ def _sees_front(rig_to_cam: RigidTransform) -> bool:
     return float(normal @ rig_to_cam.t) < 0.0
 
 
-def _board_hits(rays: _PixelRays, rig_to_cam: RigidTransform) -> _BoardHits:
-    """Intersect every pixel ray with the rig plane Z = 0 and measure the pixels' footprints.
+def _board_hits(rays: _PixelRays, rig_to_cam: RigidTransform, rig: Rig) -> _BoardHits:
+    """Intersect every pixel ray with the rig's face and measure the pixels' footprints.
 
     With n the rig's Z axis and t its origin in the camera frame, the ray d = (x, y, 1) meets
     the plane at depth lambda = (n . t) / (n . d), and X = lambda (e_X . d) - e_X . t, which is
     the homography X = (g_X . d) / (n . d) with g_X = (n . t) e_X - (e_X . t) n (same for Y).
+    A bowed face (rig.sag_m) at height h(X, Y) is met h / (n . d) further along the ray:
+    X + h (e_X . d) / (n . d); two fixed-point steps from the plane (the bow's slope, under
+    1 %, makes the second step's change micrometres). The footprints are the plane's.
     """
     e_x, e_y, normal = rig_to_cam.R.T
     n_t = float(normal @ rig_to_cam.t)
@@ -203,12 +252,22 @@ def _board_hits(rays: _PixelRays, rig_to_cam: RigidTransform) -> _BoardHits:
         w_y = _footprint(Y, g_y, normal, denom, rays)
         hit = rays.valid & (denom * np.float32(n_t) > 0.0)  # in front of the camera
         hit &= (np.abs(X) < _FAR_M) & (np.abs(Y) < _FAR_M) & (w_x < _FAR_M) & (w_y < _FAR_M)
+        height = np.zeros_like(X)
+        if rig.sag_m != 0.0:
+            X0, Y0 = X, Y
+            along_x, along_y = _dot_ray(e_x, rays) / denom, _dot_ray(e_y, rays) / denom
+            for _ in range(2):
+                height = np.where(hit, rig.bow_height_m(X, Y), np.float32(0.0))
+                X, Y = X0 + height * along_x, Y0 + height * along_y
+        depth = (np.float32(n_t) + height) / denom
     far = np.float32(_FAR_M)
     return _BoardHits(
         X=np.where(hit, X, far),
         Y=np.where(hit, Y, far),
         w_x=np.where(hit, np.maximum(w_x, np.float32(_MIN_FOOTPRINT_M)), np.float32(1.0)),
         w_y=np.where(hit, np.maximum(w_y, np.float32(_MIN_FOOTPRINT_M)), np.float32(1.0)),
+        depth=np.where(hit, depth, np.float32(_FAR_M)),
+        hit=hit,
     )
 
 
@@ -240,6 +299,46 @@ def _front_face(rig: Rig, hits: _BoardHits) -> np.ndarray:
     face = WHITE_GREY + dark * np.float32(DARK_GREY - WHITE_GREY)
     speakers = _speaker_coverage(rig, hits)
     return face + speakers * (np.float32(SPEAKER_GREY) - face)
+
+
+def _lit_face(rig: Rig, hits: _BoardHits, rays: _PixelRays, rig_to_cam: RigidTransform,
+              camera: CameraModel, effects: CameraEffects) -> np.ndarray:
+    """The printed face under the lab's lamp (sim.optics.LightModel): its greys scaled by the
+    light at each point over the plate's brightest light (the auto exposure keeps the
+    brightest white at the print's stated grey, below saturation), plus the glossy print's
+    specular highlight, a Gaussian on the board around where the camera sees the lamp's
+    mirror image (the ray to the lamp mirrored in the board's plane; none when that point is
+    behind the camera)."""
+    light = effects.light
+    normal, t = rig_to_cam.R[:, 2], rig_to_cam.t
+    lamp = camera.cam0_to_cam.apply(np.asarray(light.lamp_m, dtype=np.float64)[None, :])[0]
+    depth = np.where(hits.hit, hits.depth, np.float32(0.0))
+    lit = light.irradiance(rays.x * depth, rays.y * depth, depth, normal, lamp)
+    on_plate = hits.on_plate(rig)
+    if not on_plate.any():
+        return _front_face(rig, hits)
+    face = _front_face(rig, hits) * (lit / lit[on_plate].max())
+    mirrored = lamp - 2.0 * float(normal @ (lamp - t)) * normal
+    n_m = float(normal @ mirrored)
+    if n_m * float(normal @ t) <= 0.0:  # the mirror image's ray does not meet the board
+        return face
+    X_h, Y_h, _ = rig_to_cam.R.T @ (mirrored * float(normal @ t) / n_m - t)
+    r2 = (hits.X - np.float32(X_h)) ** 2 + (hits.Y - np.float32(Y_h)) ** 2
+    peak = np.float32(light.specular_peak * WHITE_GREY)
+    return face + peak * np.exp(-r2 / np.float32(2 * light.specular_sigma_m**2))
+
+
+def _defocus_sigma(rig: Rig, hits: _BoardHits, camera: CameraModel, effects: CameraEffects,
+                   lens_sigma_px: float) -> np.ndarray:
+    """Each pixel's blur (pixels of sigma): the lens's own and its depth's defocus, added in
+    quadrature; pixels off the plate take the plate's median depth (they hold no corner, and
+    the blur's range stays the plate's: sim.sensor.blurred interpolates across it)."""
+    on_plate = hits.on_plate(rig)
+    if not on_plate.any():
+        return np.asarray(lens_sigma_px, dtype=np.float32)
+    depth = np.where(on_plate, hits.depth, np.float32(np.median(hits.depth[on_plate])))
+    defocus = effects.lens.blur_sigma_px(depth, float(camera.K[0, 0]))
+    return np.sqrt(np.float32(lens_sigma_px**2) + defocus * defocus)
 
 
 def _dark_fraction(rig: Rig, hits: _BoardHits) -> np.ndarray:
@@ -310,15 +409,3 @@ def _background(width: int, height: int) -> np.ndarray:
     image = np.float32(darkest) + np.float32(brightest - darkest) * (ramp_v[:, None] + ramp_u)
     image.flags.writeable = False
     return image
-
-
-def _sensor(
-    image: np.ndarray, rng: np.random.Generator, noise_grey: float, blur_sigma_px: float
-) -> np.ndarray:
-    """Blur, add Gaussian noise, clip and quantize an ideal float image to uint8."""
-    out: np.ndarray = np.array(image, dtype=np.float32)
-    if blur_sigma_px > 0:
-        out = cv2.GaussianBlur(out, (0, 0), blur_sigma_px, borderType=cv2.BORDER_REFLECT)
-    if noise_grey > 0:
-        out += np.float32(noise_grey) * rng.standard_normal(out.shape, dtype=np.float32)
-    return np.clip(np.rint(out), 0, 255).astype(np.uint8)

@@ -8,7 +8,7 @@ where the reference microphone is). Levels and noise are those of a real lab by 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -40,8 +40,10 @@ class NoiseModel:
         reference_snr_db: broadband SNR of the reference microphone there.
         gain_spread_db: standard deviation of the microphones' sensitivity, in dB.
         latency_range_s: each board's input latency is uniform in this range (seconds).
-        image_noise_grey: standard deviation of image sensor noise, in grey levels.
-        image_blur_px: Gaussian blur of the lens, standard deviation in pixels.
+        image_noise_grey: standard deviation of image sensor noise, in grey levels (the
+            realistic lab's sensor-noise counts electrons instead: sim.optics).
+        image_blur_px: Gaussian blur of the lens, standard deviation in pixels (its defocus
+            adds to it).
     """
 
     scale: float = 1.0
@@ -72,7 +74,8 @@ class World:
     """The simulated lab.
 
     Attributes:
-        layout: the array, its cameras and wiring.
+        layout: the array, its cameras and wiring (with the lab's lens-distortion, its
+            cameras' distortion replaced by the lab's lens: sim.optics).
         rig: the calibration rig as stated (its description); the rig as built is
             `physical_rig` (the lab's print scale and speaker build errors).
         temperature_c: air temperature at the start of the session (the lab's air drift
@@ -105,6 +108,10 @@ class World:
     lab: LabEffects = field(default_factory=LabEffects)
 
     def __post_init__(self) -> None:
+        if self.lab.camera.has("lens-distortion"):  # the cameras' lenses as built
+            dist = np.array(self.lab.camera.lens.distortion, dtype=np.float64)
+            self.layout = replace(self.layout, cameras=tuple(
+                replace(c, dist=dist) for c in self.layout.cameras))
         rng = np.random.default_rng([self.seed, 1])
         self.lab_truth = LabTruth.draw(self.lab, self.rig.n_speakers, self.layout.n_mics,
                                        np.random.default_rng([self.seed, 7]))

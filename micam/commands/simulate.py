@@ -85,11 +85,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--lab", choices=("ideal", "realistic"), default="ideal",
                    help="the lab: 'ideal' (default) or 'realistic' (speaker acoustic centres, "
                         "rig tolerance, print scale, microphone responses, air drift, room, "
-                        "ambient noise, directivity; docs/simulation.md)")
+                        "ambient noise, directivity, air sensor, and the cameras' effects; "
+                        "docs/simulation.md)")
     p.add_argument("--effect", action="append", default=[], metavar="NAME",
                    help="add one lab effect to the profile (repeatable): acoustic-centres, "
                         "rig-tolerance, print-scale, mic-responses, air-drift, room, "
-                        "ambient-noise, directivity")
+                        "ambient-noise, directivity, air-sensor; the cameras': sensor-noise, "
+                        "fixed-pattern, defocus, lens-distortion, vignetting, lighting, "
+                        "board-bow, gamma")
     p.add_argument("--without", action="append", default=[], metavar="NAME",
                    help="remove one lab effect from the profile (repeatable)")
     p.add_argument("--mistake", action="append", default=[], metavar="NAME[=ARGS]",
