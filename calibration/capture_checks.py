@@ -1,6 +1,6 @@
 """Mistakes of the wiring and of the playback, found in the recordings before any geometry
 is fitted: dead, intermittent and inverted microphones, clipped bursts, speakers that did
-not play.
+not play or played distorted.
 
 Each is a fact of the signals alone, so it is judged against the rest of the same session
 (a microphone against the array, a burst against the session's bursts), never against a
@@ -16,6 +16,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .distortion import distorted_speakers, reference_floors
 from .errors import CalibrationInputError
 from .levels import CLIPPED_SAMPLES, DROPOUT_BLOCK, DROPOUT_DB
 from .result import Finding, FindingAction, FindingKind
@@ -100,7 +101,7 @@ def check_capture(data: SessionData, tofs: SessionTofs,
     """The mistakes of the wiring and the playback in `tofs` (every array over all M
     microphones of `data`), measured with the polarity that `inverted_microphones` found in
     `uncorrected` (None: nothing was inverted)."""
-    wiring = _Wiring(data)
+    wiring = Wiring(data)
     findings: list[Finding] = []
     n_pose, n_speaker, n_mic = tofs.tof_s.shape
     left_out = np.zeros((n_pose, n_speaker, n_mic), dtype=bool)
@@ -143,6 +144,20 @@ def check_capture(data: SessionData, tofs: SessionTofs,
                          f"there (more than {SILENT_DB:g} dB below the session's others)",
                 advice="those bursts were left out; check the speaker's cable and its "
                        "amplifier channel"))
+
+    floors = reference_floors(data.references(), data.description.burst, data.fs)
+    typical_db = floors.typical_floor_db()
+    for k in distorted_speakers(floors):
+        findings.append(Finding(
+            kind="distorted-speaker", action="noted", speakers=[int(k)],
+            evidence=f"speaker {k} is driven into distortion: its reference recording "
+                     f"correlated with the MLS it played has spurious peaks all over, a floor "
+                     f"{-floors.floor_db[k]:.0f} dB below its peak where the session's "
+                     f"median speaker's lies {-typical_db:.0f} dB below",
+            advice="kept: its pose recordings are correlated with its own reference "
+                   "recording, which holds the same distortion, so its times of flight are "
+                   "the direct sound's (were they not, the geometry's checks would leave it "
+                   "out); lower its amplifier's gain or the burst's amplitude"))
 
     clipped = tofs.rail_samples >= CLIPPED_SAMPLES
     clipped[:, :, dead] = False
@@ -202,7 +217,7 @@ def _silent_bursts(tofs: SessionTofs, live: np.ndarray) -> np.ndarray:
     return per_burst < float(np.median(per_burst)) - SILENT_DB
 
 
-class _Wiring:
+class Wiring:
     """Where a session's microphones are wired, for the findings' words."""
 
     def __init__(self, data: SessionData) -> None:

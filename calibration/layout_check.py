@@ -25,7 +25,7 @@ from scipy.optimize import linear_sum_assignment
 
 from acquisition.contracts.rigid import RigidTransform, kabsch
 
-from .capture_checks import KEPT_SHARE, _Wiring
+from .capture_checks import KEPT_SHARE, Wiring
 from .errors import CalibrationInputError
 from .result import Finding
 from .session_data import SessionData
@@ -122,7 +122,7 @@ def check_layout(data: SessionData, measured_m: np.ndarray,
     far = np.flatnonzero(best.distance_m > tol)
     ids = _exchanged(best.ids, far, measured_m, layout, solved)
     final = _placed(ids, measured_m, solved, layout)
-    wiring = _Wiring(replace(data, mic_ids=final.ids))
+    wiring = Wiring(replace(data, mic_ids=final.ids))
     findings = []
     if shift:
         findings.append(_shift_finding(data, shift, own, final))
@@ -232,7 +232,7 @@ def _shift_finding(data: SessionData, shift: int, own: _Placement,
                "correct the channel map of the description")
 
 
-def _exchange_finding(wiring: _Wiring, moved: np.ndarray, before: _Placement,
+def _exchange_finding(wiring: Wiring, moved: np.ndarray, before: _Placement,
                       after: _Placement) -> Finding:
     swapped = moved.size == 2
     how = "look swapped" if swapped else "look exchanged among their cables"
@@ -247,7 +247,7 @@ def _exchange_finding(wiring: _Wiring, moved: np.ndarray, before: _Placement,
         "advice": finding.advice + f"; check the cables at {', '.join(finding.channels)}"})
 
 
-def _misplaced_finding(wiring: _Wiring, far: np.ndarray, placement: _Placement,
+def _misplaced_finding(wiring: Wiring, far: np.ndarray, placement: _Placement,
                        tol: float) -> Finding:
     return wiring.finding(
         "misplaced-microphones", "noted", far,

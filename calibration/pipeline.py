@@ -62,11 +62,17 @@ from .camera_calibration import (
     DetectionMemo,
     calibrate_session,
 )
-from .capture_checks import CaptureVerdict, apply_verdict, check_capture, inverted_microphones
+from .capture_checks import (
+    CaptureVerdict,
+    Wiring,
+    apply_verdict,
+    check_capture,
+    inverted_microphones,
+)
 from .choices import DEFAULT_LATENCY, LatencyModel, Stage
 from .delay_estimation import Weighting
 from .errors import CalibrationInputError
-from .fit_checks import SourceResiduals, moved_poses, speaker_findings
+from .fit_checks import SourceResiduals, moved_poses, reference_offset, speaker_findings
 from .image_checks import ImageCheckMemo
 from .layout_check import NominalLayout, check_layout, relabelled
 from .multilateration import multilaterate
@@ -79,6 +85,7 @@ from .plausibility import (
     raise_if_implausible,
     turned_rig,
 )
+from .response_checks import close_reflections
 from .responses import (
     THIRD_OCTAVE_CENTRES_HZ,
     Flights,
@@ -475,6 +482,8 @@ def calibrate_measured(m: Measurements, options: CalibrationOptions,
         "microphone_responses": responses,
         "notes": [*result.notes, JOINT_NOTE],
     })
+    result = result.model_copy(update={
+        "findings": [*result.findings, *close_reflections(result, Wiring(m.data))]})
     return CalibrationRun(result, joint_m, joint_solution, solution, bundle)
 
 
@@ -522,7 +531,8 @@ def _without_misfits(m: Measurements, options: CalibrationOptions, poses: np.nda
                      solution: MicrophoneSolution) -> tuple[Measurements, MicrophoneSolution]:
     """The measurements and the camera-frozen solution without the speakers and poses whose
     times of flight do not fit the geometry of the others (calibration.fit_checks: swapped
-    speaker cables, a rig moved after its images), with findings that name them."""
+    speaker cables, a reference microphone at another distance than stated, a rig moved
+    after its images), with findings that name them."""
     rows = np.asarray(m.located)[np.arange(len(m.located)) if poses is None else poses]
     shape = (rows.size, m.data.n_speakers)
 
@@ -541,6 +551,15 @@ def _without_misfits(m: Measurements, options: CalibrationOptions, poses: np.nda
     if speakers.size:
         tof[:, speakers] = std[:, speakers] = np.nan
         residuals = residuals_of(tof, std)
+    used = np.ones(m.data.n_speakers, dtype=bool)
+    used[speakers] = False
+    while (offset := reference_offset(residuals, solution.speed_of_sound_m_s,
+                                      m.data.reference_distances_m, used)) is not None:
+        finding, k = offset
+        tof[:, k] = std[:, k] = np.nan
+        used[k] = False
+        findings.append(finding)
+        residuals = residuals_of(tof, std)
 
     def without_poses(moved: list[int]) -> SourceResiduals:
         t, s = tof.copy(), std.copy()
@@ -553,6 +572,11 @@ def _without_misfits(m: Measurements, options: CalibrationOptions, poses: np.nda
         return m, solution
     tof[moved] = std[moved] = np.nan
     checked = replace(with_tofs(tof, std), findings=[*m.findings, *findings, *pose_findings])
+    misplaced = [f.speakers[0] for f in findings if f.kind == "misplaced-reference-microphone"]
+    if misplaced:  # the stand's reference microphone was correlated with that template too
+        reference = checked.tofs.reference_tof_s.copy()
+        reference[:, misplaced] = np.nan
+        checked = replace(checked, tofs=replace(checked.tofs, reference_tof_s=reference))
     return checked, solve(checked, options, poses)
 
 
