@@ -56,8 +56,8 @@ class CaptureVerdict:
         findings: the mistakes, in the order found.
         kept: indices of the microphones the calibration keeps (the others are left out).
         left_out: (P, S, M) measurements not to use (clipped, dropped out, not played).
-        unplayed: (P, S) bursts that were not played (their reference microphone's times of
-            flight are not used either).
+        unplayed: (P, S) bursts that were not played, or played distorted (their reference
+            microphone's times of flight are not used either).
     """
 
     findings: list[Finding]
@@ -147,17 +147,19 @@ def check_capture(data: SessionData, tofs: SessionTofs,
 
     floors = reference_floors(data.references(), data.description.burst, data.fs)
     typical_db = floors.typical_floor_db()
+    unplayed = silent.copy()
     for k in distorted_speakers(floors):
+        unplayed[:, k] = True
+        left_out[:, k] = True
         findings.append(Finding(
-            kind="distorted-speaker", action="noted", speakers=[int(k)],
+            kind="distorted-speaker", action="left out", speakers=[int(k)],
             evidence=f"speaker {k} is driven into distortion: its reference recording "
                      f"correlated with the MLS it played has spurious peaks all over, a floor "
                      f"{-floors.floor_db[k]:.0f} dB below its peak where the session's "
                      f"median speaker's lies {-typical_db:.0f} dB below",
-            advice="kept: its pose recordings are correlated with its own reference "
-                   "recording, which holds the same distortion, so its times of flight are "
-                   "the direct sound's (were they not, the geometry's checks would leave it "
-                   "out); lower its amplifier's gain or the burst's amplitude"))
+            advice="its bursts were left out (correlated with its own distorted reference "
+                   "recording its times of flight stay near the direct sound's, but not "
+                   "quite); lower its amplifier's gain or the burst's amplitude"))
 
     clipped = tofs.rail_samples >= CLIPPED_SAMPLES
     clipped[:, :, dead] = False
@@ -186,7 +188,7 @@ def check_capture(data: SessionData, tofs: SessionTofs,
                      "the rest of the burst)",
             advice="those recordings were left out; check the connectors and cables of "
                    "those channels for a loose contact"))
-    return CaptureVerdict(findings, live, left_out, silent)
+    return CaptureVerdict(findings, live, left_out, unplayed)
 
 
 def apply_verdict(data: SessionData, tofs: SessionTofs, verdict: CaptureVerdict

@@ -310,13 +310,14 @@ def test_too_few_trustworthy_views_are_refused_with_the_reasons(images) -> None:
                           min_views=6)
 
 
-def test_a_distorted_speaker_is_named_and_kept(wiring) -> None:
+def test_a_distorted_speaker_is_named_and_left_out(wiring) -> None:
     _, run, _ = wiring
     distorted = [f for f in run.result.findings if f.kind == "distorted-speaker"]
     assert len(distorted) == 1 and distorted[0].speakers == [1]
-    assert distorted[0].action == "noted" and "kept" in distorted[0].advice
-    rows = run.measurements.located
-    assert np.isfinite(run.measurements.tofs.tof_s[rows][:, 1]).mean() > 0.9
+    assert distorted[0].action == "left out" and "48 dB below its peak" in distorted[0].evidence
+    tofs = run.measurements.tofs
+    assert np.isnan(tofs.tof_s[:, 1]).all() and np.isnan(tofs.reference_tof_s[:, 1]).all()
+    assert np.isfinite(tofs.tof_s[:, 0]).mean() > 0.9  # the others are kept
 
 
 def test_a_misplaced_reference_microphone_is_named_and_its_speaker_left_out(playback,
