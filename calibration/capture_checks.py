@@ -16,7 +16,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .distortion import distorted_speakers, reference_floors
+from .distortion import ReferenceFloors, distorted_speakers, reference_floors
 from .errors import CalibrationInputError
 from .levels import CLIPPED_SAMPLES, DROPOUT_BLOCK, DROPOUT_DB
 from .result import Finding, FindingAction, FindingKind
@@ -97,10 +97,12 @@ def inverted_microphones(tofs: SessionTofs) -> np.ndarray:
 
 
 def check_capture(data: SessionData, tofs: SessionTofs,
-                  uncorrected: SessionTofs | None = None) -> CaptureVerdict:
+                  uncorrected: SessionTofs | None = None,
+                  floors: ReferenceFloors | None = None) -> CaptureVerdict:
     """The mistakes of the wiring and the playback in `tofs` (every array over all M
     microphones of `data`), measured with the polarity that `inverted_microphones` found in
-    `uncorrected` (None: nothing was inverted)."""
+    `uncorrected` (None: nothing was inverted); `floors`: the reference recordings' (None:
+    read from `data`)."""
     wiring = Wiring(data)
     findings: list[Finding] = []
     n_pose, n_speaker, n_mic = tofs.tof_s.shape
@@ -145,7 +147,8 @@ def check_capture(data: SessionData, tofs: SessionTofs,
                 advice="those bursts were left out; check the speaker's cable and its "
                        "amplifier channel"))
 
-    floors = reference_floors(data.references(), data.description.burst, data.fs)
+    if floors is None:
+        floors = reference_floors(data.references(), data.description.burst, data.fs)
     typical_db = floors.typical_floor_db()
     unplayed = silent.copy()
     for k in distorted_speakers(floors):

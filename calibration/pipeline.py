@@ -39,7 +39,7 @@ import numpy as np
 from acquisition.contracts.air import NOMINAL_SPEED_OF_SOUND_M_S, SpeedOfSoundPrior
 from acquisition.contracts.rig_description import KnownIntrinsics
 from acquisition.contracts.rigid import RigidTransform
-from acquisition.contracts.step_ids import REFMIC_STEP
+from acquisition.contracts.step_ids import REFMIC_STEP, reference_step
 
 from .bundle import (
     FIXED,
@@ -71,10 +71,12 @@ from .capture_checks import (
 )
 from .choices import DEFAULT_LATENCY, LatencyModel, Stage
 from .delay_estimation import Weighting
+from .distortion import ReferenceFloors, reference_floors
 from .errors import CalibrationInputError
 from .fit_checks import SourceResiduals, moved_poses, reference_offset, speaker_findings
 from .image_checks import ImageCheckMemo
 from .layout_check import NominalLayout, check_layout, relabelled
+from .memo import LruMemo
 from .multilateration import multilaterate
 from .paper_method import solve_paper_method
 from .plausibility import (
@@ -130,7 +132,13 @@ from .speakers import (
     speaker_positions,
 )
 from .speed_of_sound import SpeedOfSoundFit, fit_speed_of_sound_robust
-from .times_of_flight import TOF_CACHE_POSES, SessionTofs, TofMemo, measure_session_tofs
+from .times_of_flight import (
+    TOF_CACHE_POSES,
+    SessionTofs,
+    TofMemo,
+    measure_session_tofs,
+    recording_hashes,
+)
 
 FREE_FIELD_ECHO_RATIO = 1.02
 """The largest echo ratio (`SessionTofs.echo_ratio`: the correlations' energy in the 20 ms
@@ -166,11 +174,16 @@ CONFOUND_NOTE = (
 )
 
 
+REFERENCE_FLOORS_SESSIONS = 64
+"""Sets of reference recordings whose distortion floors a `WorkMemo` remembers (12 numbers
+each)."""
+
+
 @dataclass(frozen=True)
 class WorkMemo:
     """The work a long-running caller remembers between calibrations, by the content of the
     files it was done on: checkerboard detections and image checks per image, delays per
-    pose.
+    pose, the reference recordings' distortion floors per session.
 
     Its owner answers for the files it remembers, which are not read again: the worker
     verifies every file of its session copies against the journal when it fetches it. A
@@ -180,6 +193,8 @@ class WorkMemo:
     tofs: TofMemo = field(default_factory=lambda: TofMemo(TOF_CACHE_POSES))
     image_checks: ImageCheckMemo = field(
         default_factory=lambda: ImageCheckMemo(DETECTION_CACHE_SIZE))
+    reference_floors: LruMemo[tuple[str, ...], ReferenceFloors] = field(
+        default_factory=lambda: LruMemo(REFERENCE_FLOORS_SESSIONS))
 
 
 @dataclass(frozen=True)
@@ -393,8 +408,21 @@ def _times_of_flight(data: SessionData, options: CalibrationOptions
     if options.weighting == "auto" and tofs.echo_ratio() <= FREE_FIELD_ECHO_RATIO:
         # (a NaN ratio, nothing to judge by, keeps compact too)
         tofs, weighting = correlated("matched", tofs.polarity), "matched"
-    verdict = check_capture(data, tofs, uncorrected if inverted.size else None)
+    verdict = check_capture(data, tofs, uncorrected if inverted.size else None,
+                            _reference_floors(data, options.memo))
     return tofs, weighting, verdict
+
+
+def _reference_floors(data: SessionData, memo: WorkMemo | None) -> ReferenceFloors:
+    """The distortion floors of the session's reference recordings, remembered by their
+    SHA-256 in `memo` (a worker's live jobs see the same references with every pose)."""
+    key = recording_hashes(data, reference_step)
+    if memo is not None and (known := memo.reference_floors.get(key)) is not None:
+        return known
+    floors = reference_floors(data.references(), data.description.burst, data.fs)
+    if memo is not None:
+        memo.reference_floors.put(key, floors)
+    return floors
 
 
 def _reference_fit(speakers: SpeakerPositions, reference: ReferenceMicrophonePosition | None,
