@@ -21,6 +21,7 @@ from acquisition.daemon.result_check import ResultRejected, SessionFacts, check_
 from calibration.capture_checks import (
     CaptureVerdict,
     UntrustworthyCaptureError,
+    Wiring,
     apply_verdict,
     check_capture,
 )
@@ -35,9 +36,16 @@ from calibration.distortion import (
     reference_floors,
 )
 from calibration.fit_checks import REFERENCE_OFFSET_US, SourceResiduals, reference_offset
+from calibration.response_checks import CLOSE_REFLECTION_SCORE, close_reflections
 from calibration.levels import CLIPPED_SAMPLES, DROPOUT_BLOCK, channel_levels, full_scale_of
 from calibration.pipeline import CalibrationOptions, CalibrationRun, calibrate, measure
-from calibration.result import compare_with_truth
+from calibration.result import (
+    CalibrationResult,
+    MicrophoneResponse,
+    MicrophoneResponsesResult,
+    MicrophoneResult,
+    compare_with_truth,
+)
 from tests.conftest import simulated_session
 
 pytestmark = pytest.mark.slow  # every test reads a calibrated simulated session (seconds each)
@@ -405,3 +413,37 @@ def test_speakers_off_every_which_way_are_no_one_speakers_mistake() -> None:
     cameras are wrong as a whole (the plausibility checks' to say), nothing is left out."""
     assert reference_offset(_offsets([0.0, 10.0, 20.0, -10.0, -20.0, 30.0]), 343.0,
                             np.full(6, 0.002), np.ones(6, dtype=bool)) is None
+
+
+def test_a_microphone_that_lags_and_falls_at_the_top_has_a_reflector_beside_it() -> None:
+    """24 capsules whose lag and top-band rise go together (a lower resonance); microphone 7
+    lags 3 us and falls 15 % at the top (an echo); 9 lags as much but rises (a capsule);
+    11 falls as much but lags 0.8 us (too little for an echo)."""
+    rng = np.random.default_rng(7)
+    n = 24
+    spread = rng.standard_normal(n)
+    lag_us = 0.7 * spread + 0.1 * rng.standard_normal(n)
+    fall = -0.02 * spread + 0.005 * rng.standard_normal(n)
+    lag_us[[7, 9, 11]] = 3.0, 3.0, 0.8
+    fall[[7, 9, 11]] = 0.15, -0.1, 0.15
+    f = 10.0 ** (np.arange(30, 43) / 10.0)
+    gains = np.ones((n, f.size))
+    gains[:, -1] = np.exp(-fall)
+    result = CalibrationResult.model_construct(
+        microphones=[MicrophoneResult.model_construct(id=100 + i, delay_s=1e-6 * lag_us[i])
+                     for i in range(n)],
+        microphone_responses=MicrophoneResponsesResult.model_construct(
+            frequencies_hz=f.tolist(), n_sources=60,
+            microphones=[MicrophoneResponse.model_construct(id=100 + i, gain=gains[i].tolist())
+                         for i in range(n)]))
+    wiring = Wiring.__new__(Wiring)
+    wiring.ids = np.arange(100, 100 + n)
+    wiring.inputs = [("36001", i) for i in range(n)]
+    found = close_reflections(result, wiring)
+    assert [f.microphones for f in found] == [[107]] and found[0].channels == ["36001 input 7"]
+    assert found[0].action == "noted" and "14 % below its mid-band gain" in found[0].evidence
+    score = float(found[0].evidence.split("together ")[1].split(" robust")[0])
+    assert score > CLOSE_REFLECTION_SCORE
+    # without its responses (the joint fit off) nothing is judged
+    assert close_reflections(result.model_copy(update={"microphone_responses": None}),
+                             wiring) == []
