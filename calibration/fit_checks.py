@@ -4,9 +4,9 @@ reference microphone placed at another distance from it than the description sta
 poses whose bursts were played with the rig somewhere else than the cameras saw it (the rig
 nudged between its images and its bursts).
 
-Both are judged on the camera-frozen solution (calibration.solver), whose residuals say how
-far each measurement lies from the geometry of all the others, and always relative to the
-session's other speakers and poses. What is found is left out and the solution computed
+All three are judged on the camera-frozen solution (calibration.solver), whose residuals
+say how far each measurement lies from the geometry of all the others, and always relative
+to the session's other speakers and poses. What is found is left out and the solution computed
 again without it; a swap is named, but not undone: the reference recordings were swapped
 with the pose recordings, so each speaker's times of flight carry the reference
 microphone's distance from the other speaker, which no relabelling takes out. A speaker
