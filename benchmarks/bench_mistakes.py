@@ -47,9 +47,9 @@ EXPECTED = {
     "motion-blur": "motion-blur",
     "glare": "glare",
     "mjpeg": "mjpeg",
-    "distorted-speaker": None,
-    "refmic-far": None,
-    "close-reflector": None,
+    "distorted-speaker": "distorted-speaker",
+    "refmic-far": "misplaced-reference-microphone",
+    "close-reflector": "close-reflection",
 }
 """Each mistake and the finding kind that names it (None: not looked for yet)."""
 

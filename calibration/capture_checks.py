@@ -1,6 +1,6 @@
 """Mistakes of the wiring and of the playback, found in the recordings before any geometry
 is fitted: dead, intermittent and inverted microphones, clipped bursts, speakers that did
-not play.
+not play or played distorted.
 
 Each is a fact of the signals alone, so it is judged against the rest of the same session
 (a microphone against the array, a burst against the session's bursts), never against a
@@ -16,6 +16,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .distortion import ReferenceFloors, distorted_speakers, reference_floors
 from .errors import CalibrationInputError
 from .levels import CLIPPED_SAMPLES, DROPOUT_BLOCK, DROPOUT_DB
 from .result import Finding, FindingAction, FindingKind
@@ -55,8 +56,8 @@ class CaptureVerdict:
         findings: the mistakes, in the order found.
         kept: indices of the microphones the calibration keeps (the others are left out).
         left_out: (P, S, M) measurements not to use (clipped, dropped out, not played).
-        unplayed: (P, S) bursts that were not played (their reference microphone's times of
-            flight are not used either).
+        unplayed: (P, S) bursts that were not played, or played distorted (their reference
+            microphone's times of flight are not used either).
     """
 
     findings: list[Finding]
@@ -96,11 +97,13 @@ def inverted_microphones(tofs: SessionTofs) -> np.ndarray:
 
 
 def check_capture(data: SessionData, tofs: SessionTofs,
-                  uncorrected: SessionTofs | None = None) -> CaptureVerdict:
+                  uncorrected: SessionTofs | None = None,
+                  floors: ReferenceFloors | None = None) -> CaptureVerdict:
     """The mistakes of the wiring and the playback in `tofs` (every array over all M
     microphones of `data`), measured with the polarity that `inverted_microphones` found in
-    `uncorrected` (None: nothing was inverted)."""
-    wiring = _Wiring(data)
+    `uncorrected` (None: nothing was inverted); `floors`: the reference recordings' (None:
+    read from `data`)."""
+    wiring = Wiring(data)
     findings: list[Finding] = []
     n_pose, n_speaker, n_mic = tofs.tof_s.shape
     left_out = np.zeros((n_pose, n_speaker, n_mic), dtype=bool)
@@ -144,6 +147,23 @@ def check_capture(data: SessionData, tofs: SessionTofs,
                 advice="those bursts were left out; check the speaker's cable and its "
                        "amplifier channel"))
 
+    if floors is None:
+        floors = reference_floors(data.references(), data.description.burst, data.fs)
+    typical_db = floors.typical_floor_db()
+    unplayed = silent.copy()
+    for k in distorted_speakers(floors):
+        unplayed[:, k] = True
+        left_out[:, k] = True
+        findings.append(Finding(
+            kind="distorted-speaker", action="left out", speakers=[int(k)],
+            evidence=f"speaker {k} is driven into distortion: its reference recording "
+                     f"correlated with the MLS it played has spurious peaks all over, a floor "
+                     f"{-floors.floor_db[k]:.0f} dB below its peak where the session's "
+                     f"median speaker's lies {-typical_db:.0f} dB below",
+            advice="its bursts were left out (correlated with its own distorted reference "
+                   "recording its times of flight stay near the direct sound's, but not "
+                   "quite); lower its amplifier's gain or the burst's amplitude"))
+
     clipped = tofs.rail_samples >= CLIPPED_SAMPLES
     clipped[:, :, dead] = False
     if clipped.any():
@@ -171,7 +191,7 @@ def check_capture(data: SessionData, tofs: SessionTofs,
                      "the rest of the burst)",
             advice="those recordings were left out; check the connectors and cables of "
                    "those channels for a loose contact"))
-    return CaptureVerdict(findings, live, left_out, silent)
+    return CaptureVerdict(findings, live, left_out, unplayed)
 
 
 def apply_verdict(data: SessionData, tofs: SessionTofs, verdict: CaptureVerdict
@@ -202,7 +222,7 @@ def _silent_bursts(tofs: SessionTofs, live: np.ndarray) -> np.ndarray:
     return per_burst < float(np.median(per_burst)) - SILENT_DB
 
 
-class _Wiring:
+class Wiring:
     """Where a session's microphones are wired, for the findings' words."""
 
     def __init__(self, data: SessionData) -> None:

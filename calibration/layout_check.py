@@ -26,7 +26,7 @@ from scipy.optimize import linear_sum_assignment
 from acquisition.contracts.rig_description import KnownLayout
 from kernel.rigid import RigidTransform, kabsch
 
-from .capture_checks import KEPT_SHARE, _Wiring
+from .capture_checks import KEPT_SHARE, Wiring
 from .errors import CalibrationInputError
 from .result import Finding
 from .session_data import SessionData
@@ -132,7 +132,7 @@ def check_layout(data: SessionData, measured_m: np.ndarray,
     far = np.flatnonzero(best.distance_m > tol)
     ids = _exchanged(best.ids, far, measured_m, layout, solved)
     final = _placed(ids, measured_m, solved, layout)
-    wiring = _Wiring(replace(data, mic_ids=final.ids))
+    wiring = Wiring(replace(data, mic_ids=final.ids))
     findings = []
     if shift:
         findings.append(_shift_finding(data, shift, own, final))
@@ -242,7 +242,7 @@ def _shift_finding(data: SessionData, shift: int, own: _Placement,
                "correct the channel map of the description")
 
 
-def _exchange_finding(wiring: _Wiring, moved: np.ndarray, before: _Placement,
+def _exchange_finding(wiring: Wiring, moved: np.ndarray, before: _Placement,
                       after: _Placement) -> Finding:
     swapped = moved.size == 2
     how = "look swapped" if swapped else "look exchanged among their cables"
@@ -257,7 +257,7 @@ def _exchange_finding(wiring: _Wiring, moved: np.ndarray, before: _Placement,
         "advice": finding.advice + f"; check the cables at {', '.join(finding.channels)}"})
 
 
-def _misplaced_finding(wiring: _Wiring, far: np.ndarray, placement: _Placement,
+def _misplaced_finding(wiring: Wiring, far: np.ndarray, placement: _Placement,
                        tol: float) -> Finding:
     return wiring.finding(
         "misplaced-microphones", "noted", far,

@@ -37,7 +37,7 @@ from typing import Literal
 import numpy as np
 
 from acquisition.contracts.rig_description import KnownIntrinsics
-from acquisition.contracts.step_ids import REFMIC_STEP
+from acquisition.contracts.step_ids import REFMIC_STEP, reference_step
 from kernel.air import NOMINAL_SPEED_OF_SOUND_M_S, SpeedOfSoundPrior
 from kernel.rigid import RigidTransform
 
@@ -62,13 +62,21 @@ from .camera_calibration import (
     DetectionMemo,
     calibrate_session,
 )
-from .capture_checks import CaptureVerdict, apply_verdict, check_capture, inverted_microphones
+from .capture_checks import (
+    CaptureVerdict,
+    Wiring,
+    apply_verdict,
+    check_capture,
+    inverted_microphones,
+)
 from .choices import DEFAULT_LATENCY, LatencyModel, Stage
 from .delay_estimation import Weighting
+from .distortion import ReferenceFloors, reference_floors
 from .errors import CalibrationInputError
-from .fit_checks import SourceResiduals, moved_poses, speaker_findings
+from .fit_checks import SourceResiduals, moved_poses, reference_offset, speaker_findings
 from .image_checks import ImageCheckMemo
 from .layout_check import NominalLayout, check_layout, relabelled
+from .memo import LruMemo
 from .multilateration import multilaterate
 from .paper_method import solve_paper_method
 from .plan import (
@@ -86,6 +94,7 @@ from .plausibility import (
     raise_if_implausible,
     turned_rig,
 )
+from .response_checks import close_reflections
 from .responses import (
     THIRD_OCTAVE_CENTRES_HZ,
     Flights,
@@ -122,7 +131,13 @@ from .speakers import (
     speaker_positions,
 )
 from .speed_of_sound import SpeedOfSoundFit, fit_speed_of_sound_robust
-from .times_of_flight import TOF_CACHE_POSES, SessionTofs, TofMemo, measure_session_tofs
+from .times_of_flight import (
+    TOF_CACHE_POSES,
+    SessionTofs,
+    TofMemo,
+    measure_session_tofs,
+    recording_hashes,
+)
 
 FREE_FIELD_ECHO_RATIO = 1.02
 """The largest echo ratio (`SessionTofs.echo_ratio`: the correlations' energy in the 20 ms
@@ -151,11 +166,16 @@ JOINT_NOTE = (
 )
 
 
+REFERENCE_FLOORS_SESSIONS = 64
+"""Sets of reference recordings whose distortion floors a `WorkMemo` remembers (12 numbers
+each)."""
+
+
 @dataclass(frozen=True)
 class WorkMemo:
     """The work a long-running caller remembers between calibrations, by the content of the
     files it was done on: checkerboard detections and image checks per image, delays per
-    pose.
+    pose, the reference recordings' distortion floors per session.
 
     Its owner answers for the files it remembers, which are not read again: the worker
     verifies every file of its session copies against the journal when it fetches it. A
@@ -165,6 +185,8 @@ class WorkMemo:
     tofs: TofMemo = field(default_factory=lambda: TofMemo(TOF_CACHE_POSES))
     image_checks: ImageCheckMemo = field(
         default_factory=lambda: ImageCheckMemo(DETECTION_CACHE_SIZE))
+    reference_floors: LruMemo[tuple[str, ...], ReferenceFloors] = field(
+        default_factory=lambda: LruMemo(REFERENCE_FLOORS_SESSIONS))
 
 
 @dataclass(frozen=True)
@@ -385,8 +407,21 @@ def _times_of_flight(data: SessionData, options: CalibrationOptions
     if options.weighting == "auto" and tofs.echo_ratio() <= FREE_FIELD_ECHO_RATIO:
         # (a NaN ratio, nothing to judge by, keeps compact too)
         tofs, weighting = correlated("matched", tofs.polarity), "matched"
-    verdict = check_capture(data, tofs, uncorrected if inverted.size else None)
+    verdict = check_capture(data, tofs, uncorrected if inverted.size else None,
+                            _reference_floors(data, options.memo))
     return tofs, weighting, verdict
+
+
+def _reference_floors(data: SessionData, memo: WorkMemo | None) -> ReferenceFloors:
+    """The distortion floors of the session's reference recordings, remembered by their
+    SHA-256 in `memo` (a worker's live jobs see the same references with every pose)."""
+    key = recording_hashes(data, reference_step)
+    if memo is not None and (known := memo.reference_floors.get(key)) is not None:
+        return known
+    floors = reference_floors(data.references(), data.description.burst, data.fs)
+    if memo is not None:
+        memo.reference_floors.put(key, floors)
+    return floors
 
 
 def _reference_fit(speakers: SpeakerPositions, reference: ReferenceMicrophonePosition | None,
@@ -475,6 +510,8 @@ def calibrate_measured(m: Measurements, options: CalibrationOptions,
         "microphone_responses": responses,
         "notes": [*result.notes, JOINT_NOTE],
     })
+    result = result.model_copy(update={
+        "findings": [*result.findings, *close_reflections(result, Wiring(m.data))]})
     return CalibrationRun(result, joint_m, joint_solution, solution, bundle)
 
 
@@ -550,7 +587,8 @@ def _without_misfits(m: Measurements, options: CalibrationOptions, poses: np.nda
                      solution: MicrophoneSolution) -> tuple[Measurements, MicrophoneSolution]:
     """The measurements and the camera-frozen solution without the speakers and poses whose
     times of flight do not fit the geometry of the others (calibration.fit_checks: swapped
-    speaker cables, a rig moved after its images), with findings that name them."""
+    speaker cables, a reference microphone at another distance than stated, a rig moved
+    after its images), with findings that name them."""
     rows = np.asarray(m.located)[np.arange(len(m.located)) if poses is None else poses]
     shape = (rows.size, m.data.n_speakers)
 
@@ -569,6 +607,15 @@ def _without_misfits(m: Measurements, options: CalibrationOptions, poses: np.nda
     if speakers.size:
         tof[:, speakers] = std[:, speakers] = np.nan
         residuals = residuals_of(tof, std)
+    used = np.ones(m.data.n_speakers, dtype=bool)
+    used[speakers] = False
+    while (offset := reference_offset(residuals, solution.speed_of_sound_m_s,
+                                      m.data.reference_distances_m, used)) is not None:
+        finding, k = offset
+        tof[:, k] = std[:, k] = np.nan
+        used[k] = False
+        findings.append(finding)
+        residuals = residuals_of(tof, std)
 
     def without_poses(moved: list[int]) -> SourceResiduals:
         t, s = tof.copy(), std.copy()
@@ -581,6 +628,11 @@ def _without_misfits(m: Measurements, options: CalibrationOptions, poses: np.nda
         return m, solution
     tof[moved] = std[moved] = np.nan
     checked = replace(with_tofs(tof, std), findings=[*m.findings, *findings, *pose_findings])
+    misplaced = [f.speakers[0] for f in findings if f.kind == "misplaced-reference-microphone"]
+    if misplaced:  # the stand's reference microphone was correlated with that template too
+        reference = checked.tofs.reference_tof_s.copy()
+        reference[:, misplaced] = np.nan
+        checked = replace(checked, tofs=replace(checked.tofs, reference_tof_s=reference))
     return checked, solve(checked, options, poses)
 
 

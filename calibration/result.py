@@ -191,7 +191,8 @@ FindingKind = Literal["dead-microphone", "intermittent-microphone", "inverted-mi
                       "swapped-microphones", "shifted-boards", "misplaced-microphones",
                       "clipped-bursts", "silent-speaker", "swapped-speakers",
                       "misplaced-speaker", "moved-pose", "hidden-board", "motion-blur",
-                      "glare", "mjpeg"]
+                      "glare", "mjpeg", "distorted-speaker", "misplaced-reference-microphone",
+                      "close-reflection"]
 FindingAction = Literal["corrected", "left out", "noted"]
 
 

@@ -38,7 +38,7 @@ TofMemo = LruMemo[tuple, PoseTofs]
 settings): `TofMemo(TOF_CACHE_POSES)`."""
 
 
-def _recording_hashes(data: SessionData, step_of: Callable[[int], str]) -> tuple[str, ...]:
+def recording_hashes(data: SessionData, step_of: Callable[[int], str]) -> tuple[str, ...]:
     """SHA-256 of every speaker's recording, speaker k's in step `step_of(k)` (a pose's step
     for all, or each speaker's reference step)."""
     steps = data.reader.steps()
@@ -170,8 +170,8 @@ def measure_session_tofs(
         n_fft = stop - first
         burst_samples = None
     settings = (band_hz, weighting, window, first, n_fft, tuple(columns.tolist()),
-                tuple(signs.tolist()), _recording_hashes(data, reference_step))
-    keys = [(_recording_hashes(data, _every_speaker_in(step)), settings)
+                tuple(signs.tolist()), recording_hashes(data, reference_step))
+    keys = [(recording_hashes(data, _every_speaker_in(step)), settings)
             for step in data.pose_steps]
     remembered: dict[int, PoseTofs] = {}
     for i, key in enumerate(keys):

@@ -1,6 +1,7 @@
 """The capture's mistakes of wiring and playback, found in the recordings, and of the images,
 found in the images, named, and corrected or left out (calibration.capture_checks,
-calibration.levels, calibration.image_checks).
+calibration.levels, calibration.distortion, calibration.fit_checks,
+calibration.response_checks, calibration.image_checks).
 
 Each session is a small realistic-lab capture (48 microphones, 5 poses, short bursts) with two
 or three mistakes made by the simulated world where a lab makes them (`micam simulate --mistake`), so
@@ -21,14 +22,31 @@ from acquisition.daemon.result_check import ResultRejected, SessionFacts, check_
 from calibration.capture_checks import (
     CaptureVerdict,
     UntrustworthyCaptureError,
+    Wiring,
     apply_verdict,
     check_capture,
 )
+from acquisition.contracts.rig_description import BurstLayout
+from acquisition.contracts.stimulus import mls_burst
 from calibration.camera_calibration import CameraCalibrationError, calibrate_session
 from calibration.corners import Checkerboard
+from calibration.distortion import (
+    CLOSE_LEVEL_DB,
+    DISTORTED_DB,
+    distorted_speakers,
+    reference_floors,
+)
+from calibration.fit_checks import REFERENCE_OFFSET_US, SourceResiduals, reference_offset
+from calibration.response_checks import CLOSE_REFLECTION_SCORE, close_reflections
 from calibration.levels import CLIPPED_SAMPLES, DROPOUT_BLOCK, channel_levels, full_scale_of
 from calibration.pipeline import CalibrationOptions, CalibrationRun, calibrate, measure
-from calibration.result import compare_with_truth
+from calibration.result import (
+    CalibrationResult,
+    MicrophoneResponse,
+    MicrophoneResponsesResult,
+    MicrophoneResult,
+    compare_with_truth,
+)
 from tests.conftest import simulated_session
 
 pytestmark = pytest.mark.slow  # every test reads a calibrated simulated session (seconds each)
@@ -53,20 +71,25 @@ def clean(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, CalibrationRu
 
 @pytest.fixture(scope="module")
 def wiring(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, CalibrationRun, dict]:
-    """A dead microphone and an inverted one."""
+    """A dead microphone, an inverted one, a reflector beside a third (15 us, 0.4) and a
+    speaker in saturation (drive 3)."""
     path = simulated_session(tmp_path_factory, "wiring", *SMALL_LAB,
-                             "--mistake", "dead-mic=5", "--mistake", "inverted-mic=30")
+                             "--mistake", "dead-mic=5", "--mistake", "inverted-mic=30",
+                             "--mistake", "close-reflector=20,15,0.4",
+                             "--mistake", "distorted-speaker=1")
     return (path, *_calibrated(path))
 
 
 @pytest.fixture(scope="module")
 def playback(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, CalibrationRun, dict]:
-    """A speaker silent at two poses, bursts clipped on the nearest microphones, and a
-    microphone that drops out in half its recordings."""
+    """A speaker silent at two poses, bursts clipped on the nearest microphones, a
+    microphone that drops out in half its recordings, and the reference microphone 8 mm from
+    another speaker (2 mm stated)."""
     path = simulated_session(tmp_path_factory, "playback", *SMALL_LAB,
                              "--mistake", "silent-speaker=2,1,3",
                              "--mistake", "clipped-bursts=0.35,3",
-                             "--mistake", "intermittent-mic=42,0.5")
+                             "--mistake", "intermittent-mic=42,0.5",
+                             "--mistake", "refmic-far=3,8")
     return (path, *_calibrated(path))
 
 
@@ -127,9 +150,11 @@ def test_an_inverted_microphone_is_corrected(wiring, clean) -> None:
 
 def test_every_finding_is_about_the_mistakes_made(wiring, playback) -> None:
     kinds = {f.kind for f in wiring[1].result.findings}
-    assert kinds == {"dead-microphone", "inverted-microphone"}
+    assert kinds == {"dead-microphone", "inverted-microphone", "distorted-speaker",
+                     "close-reflection"}
     kinds = {f.kind for f in playback[1].result.findings}
-    assert kinds == {"silent-speaker", "clipped-bursts", "intermittent-microphone"}
+    assert kinds == {"silent-speaker", "clipped-bursts", "intermittent-microphone",
+                     "misplaced-reference-microphone"}
 
 
 def test_a_silent_speaker_is_left_out_where_it_did_not_play(playback) -> None:
@@ -192,7 +217,8 @@ def test_findings_reach_stderr_and_the_report(wiring, tmp_path: Path,
     report = (tmp_path / "report" / "report.md").read_text()
     assert "## Mistakes of the capture" in report and "**dead-microphone** (left out)" in report
     stored = json.loads((tmp_path / "r.json").read_text())
-    assert [f["kind"] for f in stored["findings"]] == ["inverted-microphone", "dead-microphone"]
+    assert [f["kind"] for f in stored["findings"]] == [
+        "inverted-microphone", "dead-microphone", "distorted-speaker", "close-reflection"]
 
 
 def test_a_capture_spoiled_beyond_half_is_refused(clean) -> None:
@@ -306,3 +332,134 @@ def test_too_few_trustworthy_views_are_refused_with_the_reasons(images) -> None:
     with pytest.raises(CameraCalibrationError, match="found in 5 of its images.*half hidden"):
         calibrate_session(data.reader, Checkerboard.of_rig(data.rig), list(data.camera_names),
                           min_views=6)
+
+
+def test_a_distorted_speaker_is_named_and_left_out(wiring) -> None:
+    _, run, _ = wiring
+    distorted = [f for f in run.result.findings if f.kind == "distorted-speaker"]
+    assert len(distorted) == 1 and distorted[0].speakers == [1]
+    assert distorted[0].action == "left out" and "48 dB below its peak" in distorted[0].evidence
+    tofs = run.measurements.tofs
+    assert np.isnan(tofs.tof_s[:, 1]).all() and np.isnan(tofs.reference_tof_s[:, 1]).all()
+    assert np.isfinite(tofs.tof_s[:, 0]).mean() > 0.9  # the others are kept
+
+
+def test_a_misplaced_reference_microphone_is_named_and_its_speaker_left_out(playback,
+                                                                           clean) -> None:
+    _, run, truth = playback
+    misplaced = [f for f in run.result.findings if f.kind == "misplaced-reference-microphone"]
+    assert len(misplaced) == 1 and misplaced[0].speakers == [3]
+    assert misplaced[0].action == "left out"
+    # the distance it says, from the offset alone: 6 mm more than stated, to 1.5 mm
+    said_mm = float(misplaced[0].evidence.split("about ")[1].split(" mm")[0])
+    assert abs(said_mm - 6.0) < 1.5 and "further from" in misplaced[0].evidence
+    tofs = run.measurements.tofs
+    assert np.isnan(tofs.tof_s[run.measurements.located][:, 3]).all()
+    assert np.isnan(tofs.reference_tof_s[:, 3]).all()
+    assert _error_mm(run, truth) <= 1.5 * _error_mm(clean[1], clean[2])
+
+
+def test_a_close_reflector_is_named_and_its_microphone_kept(wiring, clean) -> None:
+    _, run, truth = wiring
+    reflected = [f for f in run.result.findings if f.kind == "close-reflection"]
+    assert len(reflected) == 1 and reflected[0].microphones == [20]
+    assert reflected[0].action == "noted"
+    made = next(m for m in truth["mistakes"] if m["kind"] == "close-reflector")
+    assert reflected[0].channels == [f"{made['boards'][0]} input {made['channels'][0]}"]
+    true_position = next(m["position_m"] for m in truth["microphones"] if m["id"] == 20)
+    found = next(m for m in run.result.microphones if m.id == 20)
+    error = np.linalg.norm(np.subtract(found.position_m, true_position))
+    assert error < 4 * np.linalg.norm(found.std_m) + 1e-4
+
+
+def test_a_speaker_in_saturation_shows_a_distortion_floor() -> None:
+    """An MLS through a short linear response has nothing but noise away from its impulse
+    response; through tanh saturation its harmonics spread over the whole period. A
+    reference recording made far from the speaker that played (a swapped cable) has the
+    room's floor, and is not judged."""
+    rng = np.random.default_rng(3)
+    burst = BurstLayout(silence_before_samples=64, mls_order=10, periods=2,
+                        silence_after_samples=256)
+    drive = np.concatenate([np.zeros(64), mls_burst(10), mls_burst(10), np.zeros(256)])
+    linear = np.convolve(drive, [0.0, 1.0, 0.5, -0.3, 0.1])[:drive.size]
+    level = np.max(np.abs(linear)) / 2.0  # peak twice the limit
+    far = 3e-3 * np.roll(linear, 40) + 3e-3 * rng.standard_normal(linear.size)
+    rows = np.stack([linear, 0.8 * linear, level * np.tanh(linear / level), far])
+    rows += 1e-4 * rng.standard_normal(rows.shape)
+    floors = reference_floors(rows, burst, 96_000.0)
+    assert floors.floor_db[0] < -80 and floors.floor_db[1] < -80  # noise alone, at any level
+    assert floors.floor_db[2] > floors.floor_db[0] + DISTORTED_DB
+    assert floors.level_db[3] < -CLOSE_LEVEL_DB < floors.level_db[2]
+    assert floors.floor_db[3] > floors.floor_db[2]  # the far one's floor is higher still
+    assert distorted_speakers(floors).tolist() == [2]
+    with pytest.raises(ValueError, match="no whole MLS period"):
+        reference_floors(rows[:, :1500], burst, 96_000.0)
+
+
+def _offsets(per_speaker_us: list[float]) -> SourceResiduals:
+    """Residuals of 6 poses and 20 microphones with 0.5 us of noise around each speaker's
+    constant offset."""
+    rng = np.random.default_rng(5)
+    residual = 1e-6 * (rng.normal(0.0, 0.5, (6, len(per_speaker_us), 20))
+                       + np.array(per_speaker_us)[None, :, None])
+    return SourceResiduals(residual, np.zeros(residual.shape, dtype=bool))
+
+
+def test_a_speaker_off_by_a_constant_is_named_one_at_a_time() -> None:
+    stated = np.full(6, 0.002)
+    everyone = np.ones(6, dtype=bool)
+    found = reference_offset(_offsets([1.0, -2.0, 0.5, -14.6, 2.0, 0.0]), 343.0, stated,
+                             everyone)
+    assert found is not None
+    finding, k = found
+    assert k == 3 and finding.speakers == [3] and finding.action == "left out"
+    # 14.6 us less than the true geometry, 15.2 us less than the others' median: 5.2 mm
+    assert "15.2 us shorter" in finding.evidence and "about 5.2 mm further" in finding.evidence
+    # within the threshold, or left out already: nothing
+    assert reference_offset(_offsets([1.0, -2.0, 0.5, -0.8 * REFERENCE_OFFSET_US, 2.0, 0.0]),
+                            343.0, stated, everyone) is None
+    without = everyone.copy()
+    without[3] = False
+    assert reference_offset(_offsets([1.0, -2.0, 0.5, -14.6, 2.0, 0.0]), 343.0, stated,
+                            without) is None
+
+
+def test_speakers_off_every_which_way_are_no_one_speakers_mistake() -> None:
+    """More than half of the speakers far from the others' median: the geometry or the
+    cameras are wrong as a whole (the plausibility checks' to say), nothing is left out."""
+    assert reference_offset(_offsets([0.0, 10.0, 20.0, -10.0, -20.0, 30.0]), 343.0,
+                            np.full(6, 0.002), np.ones(6, dtype=bool)) is None
+
+
+def test_a_microphone_that_lags_and_falls_at_the_top_has_a_reflector_beside_it() -> None:
+    """24 capsules whose lag and top-band rise go together (a lower resonance); microphone 7
+    lags 3 us and falls 15 % at the top (an echo); 9 lags as much but rises (a capsule);
+    11 falls as much but lags 0.8 us (too little for an echo)."""
+    rng = np.random.default_rng(7)
+    n = 24
+    spread = rng.standard_normal(n)
+    lag_us = 0.7 * spread + 0.1 * rng.standard_normal(n)
+    fall = -0.02 * spread + 0.005 * rng.standard_normal(n)
+    lag_us[[7, 9, 11]] = 3.0, 3.0, 0.8
+    fall[[7, 9, 11]] = 0.15, -0.1, 0.15
+    f = 10.0 ** (np.arange(30, 43) / 10.0)
+    gains = np.ones((n, f.size))
+    gains[:, -1] = np.exp(-fall)
+    result = CalibrationResult.model_construct(
+        microphones=[MicrophoneResult.model_construct(id=100 + i, delay_s=1e-6 * lag_us[i])
+                     for i in range(n)],
+        microphone_responses=MicrophoneResponsesResult.model_construct(
+            frequencies_hz=f.tolist(), n_sources=60,
+            microphones=[MicrophoneResponse.model_construct(id=100 + i, gain=gains[i].tolist())
+                         for i in range(n)]))
+    wiring = Wiring.__new__(Wiring)
+    wiring.ids = np.arange(100, 100 + n)
+    wiring.inputs = [("36001", i) for i in range(n)]
+    found = close_reflections(result, wiring)
+    assert [f.microphones for f in found] == [[107]] and found[0].channels == ["36001 input 7"]
+    assert found[0].action == "noted" and "14 % below its mid-band gain" in found[0].evidence
+    score = float(found[0].evidence.split("together ")[1].split(" robust")[0])
+    assert score > CLOSE_REFLECTION_SCORE
+    # without its responses (the joint fit off) nothing is judged
+    assert close_reflections(result.model_copy(update={"microphone_responses": None}),
+                             wiring) == []
