@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from acquisition.contracts.rig_description import BurstLayout
-from acquisition.contracts.stimulus import mls_burst
+from kernel.stimulus import mls_burst
 
 DISTORTED_DB = 15.0
 """A speaker whose distortion floor lies this far (dB) above the median speaker's is driven

@@ -27,7 +27,7 @@ from calibration.capture_checks import (
     check_capture,
 )
 from acquisition.contracts.rig_description import BurstLayout
-from acquisition.contracts.stimulus import mls_burst
+from kernel.stimulus import mls_burst
 from calibration.camera_calibration import CameraCalibrationError, calibrate_session
 from calibration.corners import Checkerboard
 from calibration.distortion import (
