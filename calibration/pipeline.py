@@ -55,7 +55,7 @@ from .bundle import (
     pose_estimate,
     refined_cameras,
 )
-from .camera_calibration import (
+from .camera.camera_calibration import (
     DETECTION_CACHE_SIZE,
     CameraCalibration,
     Checkerboard,
@@ -67,7 +67,7 @@ from .choices import DEFAULT_LATENCY, LatencyModel, Stage
 from .delay_estimation import Weighting
 from .errors import CalibrationInputError
 from .fit_checks import SourceResiduals, moved_poses, speaker_findings
-from .image_checks import ImageCheckMemo
+from .camera.image_checks import ImageCheckMemo
 from .layout_check import NominalLayout, check_layout, relabelled
 from .multilateration import multilaterate
 from .paper_method import solve_paper_method
@@ -113,7 +113,7 @@ from .solver import (
     latency_columns,
     solve_microphones,
 )
-from .speakers import (
+from .camera.speakers import (
     ReferenceMicrophonePosition,
     RigPoseInCam0,
     SpeakerLocationError,

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .bundle import BundleSolution, board_views
-from .camera_calibration import CameraCalibration
+from .camera.camera_calibration import CameraCalibration
 from .plan import (
     _bundle_steps,
     board_indices,
@@ -40,7 +40,7 @@ from .result import (
 )
 from .session_data import SessionData
 from .solver import MicrophoneSolution
-from .speakers import SpeakerPositions
+from .camera.speakers import SpeakerPositions
 
 if TYPE_CHECKING:
     from .pipeline import CalibrationOptions, Measurements

@@ -1,6 +1,6 @@
 """The capture's mistakes of wiring and playback, found in the recordings, and of the images,
 found in the images, named, and corrected or left out (calibration.capture_checks,
-calibration.levels, calibration.image_checks).
+calibration.levels, calibration.camera.image_checks).
 
 Each session is a small realistic-lab capture (48 microphones, 5 poses, short bursts) with two
 or three mistakes made by the simulated world where a lab makes them (`micam simulate --mistake`), so
@@ -23,8 +23,8 @@ from calibration.capture_checks import (
     apply_verdict,
     check_capture,
 )
-from calibration.camera_calibration import CameraCalibrationError, calibrate_session
-from calibration.corners import Checkerboard
+from calibration.camera.camera_calibration import CameraCalibrationError, calibrate_session
+from calibration.camera.corners import Checkerboard
 from calibration.levels import CLIPPED_SAMPLES, DROPOUT_BLOCK, channel_levels, full_scale_of
 from calibration.pipeline import CalibrationOptions, CalibrationRun, calibrate, measure
 from calibration.result import compare_with_truth
