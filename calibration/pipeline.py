@@ -64,7 +64,7 @@ from .camera.camera_calibration import (
 )
 from .capture_checks import CaptureVerdict, apply_verdict, check_capture, inverted_microphones
 from .choices import DEFAULT_LATENCY, LatencyModel, Stage
-from .delay_estimation import Weighting
+from .acoustic.delay_estimation import Weighting
 from .errors import CalibrationInputError
 from .fit_checks import SourceResiduals, moved_poses, speaker_findings
 from .camera.image_checks import ImageCheckMemo
@@ -86,7 +86,7 @@ from .plausibility import (
     raise_if_implausible,
     turned_rig,
 )
-from .responses import (
+from .acoustic.responses import (
     THIRD_OCTAVE_CENTRES_HZ,
     Flights,
     MicrophoneResponses,
@@ -121,8 +121,8 @@ from .camera.speakers import (
     reference_microphone_position,
     speaker_positions,
 )
-from .speed_of_sound import SpeedOfSoundFit, fit_speed_of_sound_robust
-from .times_of_flight import TOF_CACHE_POSES, SessionTofs, TofMemo, measure_session_tofs
+from .acoustic.speed_of_sound import SpeedOfSoundFit, fit_speed_of_sound_robust
+from .acoustic.times_of_flight import TOF_CACHE_POSES, SessionTofs, TofMemo, measure_session_tofs
 
 FREE_FIELD_ECHO_RATIO = 1.02
 """The largest echo ratio (`SessionTofs.echo_ratio`: the correlations' energy in the 20 ms
@@ -181,7 +181,7 @@ class CalibrationOptions:
         refine_poses: fit a rigid correction per rig pose, weighted by the camera's pose
             covariance.
         band_hz: the band the times of flight are estimated in (the speaker band).
-        weighting: the correlations' spectral weighting (calibration.delay_estimation):
+        weighting: the correlations' spectral weighting (calibration.acoustic.delay_estimation):
             "compact" (robust to early reflections), "matched" (maximum likelihood in free
             field), "phat", or "auto" (the default): compact, unless the recordings hold
             nothing but the direct sound and noise (`FREE_FIELD_ECHO_RATIO`; an anechoic
@@ -218,11 +218,11 @@ class CalibrationOptions:
         intrinsics: camera calibrations known from elsewhere, by camera name ("fixed" or a
             "prior"); they replace the session description's.
         responses: estimate every microphone's complex response against frequency after the
-            joint fit (calibration.responses).
+            joint fit (calibration.acoustic.responses).
         air_sensor: use the session's air-sensor readings as the known speed of sound (when
             neither the options nor the description give one).
         dispersion: with `responses`, take every microphone's measured dispersion (its phase
-            less a delay) out of its times of flight and fit again (calibration.responses).
+            less a delay) out of its times of flight and fit again (calibration.acoustic.responses).
         memo: the caller's memo of the work done per file (a worker keeps one across its
             jobs, see `WorkMemo`); None: nothing is remembered, every file is read.
     """
@@ -358,7 +358,7 @@ def _times_of_flight(data: SessionData, options: CalibrationOptions
     shows free field (`FREE_FIELD_ECHO_RATIO`; a second pass over the recordings). The
     matched pass's impulses replace the compact ones too: the capsules' dispersion that the
     times of flight are corrected for must be weighted as the correlations that measured
-    them were (calibration.responses.dispersion_delays), and the responses relative to the
+    them were (calibration.acoustic.responses.dispersion_delays), and the responses relative to the
     array do not depend on the weighting. Microphones wired inverted are found in the first
     pass and correlated with the opposite sign from then on (one more pass)."""
     memo = None if options.memo is None else options.memo.tofs
@@ -884,8 +884,8 @@ def frozen_flights(m: Measurements, frozen: MicrophoneSolution,
 def _responses(m: Measurements, flights: Callable[[list[int]], Flights],
                speed_of_sound_m_s: float,
                centres_hz: np.ndarray = THIRD_OCTAVE_CENTRES_HZ) -> MicrophoneResponses:
-    """Every microphone's response (calibration.responses) from the flights of a geometry, in
-    the bands centred at `centres_hz`."""
+    """Every microphone's response (calibration.acoustic.responses) from the flights of a geometry,
+    in the bands centred at `centres_hz`."""
     data = m.data
     chosen = evenly_spread([p.step for p in m.speakers.poses])
     return estimate_responses(m.tofs, [m.located[k] for k in chosen], flights(chosen),
@@ -895,7 +895,7 @@ def _responses(m: Measurements, flights: Callable[[list[int]], Flights],
 
 def _without_dispersion(m: Measurements, responses: MicrophoneResponses) -> Measurements:
     """The measurements with every microphone's measured dispersion taken out of its times
-    of flight (calibration.responses.dispersion_delays)."""
+    of flight (calibration.acoustic.responses.dispersion_delays)."""
     shift = dispersion_delays(m.tofs, responses, m.data.fs)
     return replace(m, tofs=replace(m.tofs, tof_s=m.tofs.tof_s - shift))
 

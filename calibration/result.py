@@ -181,7 +181,7 @@ class MicrophoneResponse(_Model):
 
 class MicrophoneResponsesResult(_Model):
     """Every microphone's complex response against frequency, relative to the array's median
-    gain and mean phase, after the board latencies (calibration.responses). The phase holds
+    gain and mean phase, after the board latencies (calibration.acoustic.responses). The phase holds
     the microphone's own delay (`microphones[].delay_s`): apply one or the other."""
 
     frequencies_hz: list[float]

@@ -22,7 +22,7 @@ from .plan import (
     known_speed_of_sound,
     speed_of_sound_plan,
 )
-from .responses import MicrophoneResponses
+from .acoustic.responses import MicrophoneResponses
 from .result import (
     CalibrationResult,
     CameraFrozenResult,

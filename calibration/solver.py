@@ -98,7 +98,7 @@ class SolverOptions:
 
     Attributes:
         speed_of_sound_m_s: the start value of c, or its value when not fitted (e.g. from
-            `calibration.speed_of_sound.fit_speed_of_sound`).
+            `calibration.acoustic.speed_of_sound.fit_speed_of_sound`).
         fit_speed_of_sound: make c an unknown (shared by all microphones, it costs little).
         latency: "per_board" (the default, `calibration.choices.DEFAULT_LATENCY`), "common" (one delta for all
             channels) or "none".
