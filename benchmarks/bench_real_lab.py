@@ -50,7 +50,7 @@ from scipy.stats import chi2
 from micam.cluster import cluster_map
 from micam.simulated import record_simulated_session
 from calibration.coverage import coverage
-from calibration.crlb import expected_error_norm
+from calibration.solve.crlb import expected_error_norm
 from calibration.pipeline import CalibrationOptions, calibrate
 from sim.capture import SimulationOptions
 from sim.lab import EFFECTS

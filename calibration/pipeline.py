@@ -5,7 +5,7 @@ Stages (each timed): cameras (intrinsics, board poses, stereo), speaker position
 (eq. 10) and the reference microphone's position, times of flight, the speed of sound from the
 reference microphone (IV-G), the microphone solver (eq. 15; or the paper's own search as a
 baseline with `method="paper"`) with the cameras frozen, and last the joint fit
-(calibration.bundle): cameras, board poses, microphones, c and latencies refined together,
+(calibration.solve.bundle): cameras, board poses, microphones, c and latencies refined together,
 started from the camera-frozen solution, which is kept and reported beside it.
 
 Choices made here, and why (see docs/calibration.md for the figures behind them):
@@ -41,7 +41,7 @@ from acquisition.contracts.step_ids import REFMIC_STEP
 from kernel.air import NOMINAL_SPEED_OF_SOUND_M_S, SpeedOfSoundPrior
 from kernel.rigid import RigidTransform
 
-from .bundle import (
+from .solve.bundle import (
     FIXED,
     GROUP_TOF,
     N_INTRINSICS,
@@ -69,8 +69,8 @@ from .errors import CalibrationInputError
 from .fit_checks import SourceResiduals, moved_poses, speaker_findings
 from .camera.image_checks import ImageCheckMemo
 from .layout_check import NominalLayout, check_layout, relabelled
-from .multilateration import multilaterate
-from .paper_method import solve_paper_method
+from .solve.multilateration import multilaterate
+from .solve.paper_method import solve_paper_method
 from .plan import (
     _bundle_steps,
     board_indices,
@@ -105,7 +105,7 @@ from .result_assembly import (
     _with_delays,
 )
 from .session_data import SessionData, load_session
-from .solver import (
+from .solve.solver import (
     MicrophoneSolution,
     PriorGeometry,
     RigSources,
@@ -138,7 +138,7 @@ A small session's ratio spreads more, and above 1.02 it falls back to compact, t
 side."""
 OFF_AXIS_STD_M = 1e-3
 """Prior standard deviation of b, how far the speakers' acoustic centre moves forward off
-axis (calibration.bundle): a small driver's centre moves with frequency by tenths of a
+axis (calibration.solve.bundle): a small driver's centre moves with frequency by tenths of a
 millimetre per octave, and what a correlation sees of it off axis by a fraction of that
 (85 um in the simulated lab); 1 mm leaves it to the data without letting it trade freely
 against the latencies when the poses are few."""

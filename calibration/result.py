@@ -148,7 +148,7 @@ class RigFitResult(_Model):
 
 
 class JointFitResult(_Model):
-    """Diagnostics of the optical-acoustic bundle adjustment (calibration.bundle)."""
+    """Diagnostics of the optical-acoustic bundle adjustment (calibration.solve.bundle)."""
 
     sigmas: dict[str, float] = Field(
         description="estimated noise: px per coordinate for a camera's corners, a factor on "

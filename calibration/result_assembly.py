@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .bundle import BundleSolution, board_views
+from .solve.bundle import BundleSolution, board_views
 from .camera.camera_calibration import CameraCalibration
 from .plan import (
     _bundle_steps,
@@ -39,7 +39,7 @@ from .result import (
     TransformResult,
 )
 from .session_data import SessionData
-from .solver import MicrophoneSolution
+from .solve.solver import MicrophoneSolution
 from .camera.speakers import SpeakerPositions
 
 if TYPE_CHECKING:

@@ -32,7 +32,7 @@ def _prior(args: argparse.Namespace):
         return None
     from calibration.result import PriorFileError, load_prior_positions
     from calibration.session_data import load_session
-    from calibration.solver import PriorGeometry
+    from calibration.solve.solver import PriorGeometry
 
     if args.method == "paper":
         raise UserError("--prior works with --method micam only (the paper's search has none)")

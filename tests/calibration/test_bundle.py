@@ -1,5 +1,5 @@
-"""The optical-acoustic bundle adjustment (calibration.bundle): its Jacobian, its recovery of a
-camera whose focal length is off, its outliers, and the whole pipeline on a simulated session
+"""The optical-acoustic bundle adjustment (calibration.solve.bundle): its Jacobian, its recovery of
+a camera whose focal length is off, its outliers, and the whole pipeline on a simulated session
 against the truth, frozen beside joint."""
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from scipy import sparse
 from scipy.spatial.transform import Rotation
 
 from micam.cli import main
-from calibration.bundle import (
+from calibration.solve.bundle import (
     BundleProblem,
     BundleSolution,
     BundleState,

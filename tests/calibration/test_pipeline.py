@@ -163,7 +163,7 @@ def test_prior_geometry_in_its_own_frame_is_placed_by_one_pose(measurements, tru
     from scipy.spatial.transform import Rotation
 
     from calibration.pipeline import solve
-    from calibration.solver import PriorGeometry
+    from calibration.solve.solver import PriorGeometry
 
     true = {m["id"]: m["position_m"] for m in truth["microphones"]}
     mics = np.array([true[int(i)] for i in measurements.data.mic_ids])

@@ -68,9 +68,9 @@ from scipy.spatial.transform import Rotation
 from kernel.air import NOMINAL_SPEED_OF_SOUND_M_S, SpeedOfSoundPrior
 from kernel.rigid import RigidTransform, rotated_point_jacobian, rotation_from_rotvec
 
-from ._blas import single_threaded_blas
-from ._cores import default_workers
-from .camera.camera_calibration import CameraCalibration, CameraIntrinsics, Extrinsics, Pose
+from .._blas import single_threaded_blas
+from .._cores import default_workers
+from ..camera.camera_calibration import CameraCalibration, CameraIntrinsics, Extrinsics, Pose
 from .robust import inverse_normal, robust_sigma
 
 FIXED = 0.0
