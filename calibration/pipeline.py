@@ -62,13 +62,18 @@ from .camera.camera_calibration import (
     DetectionMemo,
     calibrate_session,
 )
-from .capture_checks import CaptureVerdict, apply_verdict, check_capture, inverted_microphones
+from .checks.capture_checks import (
+    CaptureVerdict,
+    apply_verdict,
+    check_capture,
+    inverted_microphones,
+)
 from .choices import DEFAULT_LATENCY, LatencyModel, Stage
 from .acoustic.delay_estimation import Weighting
 from .errors import CalibrationInputError
-from .fit_checks import SourceResiduals, moved_poses, speaker_findings
+from .checks.fit_checks import SourceResiduals, moved_poses, speaker_findings
 from .camera.image_checks import ImageCheckMemo
-from .layout_check import NominalLayout, check_layout, relabelled
+from .checks.layout_check import NominalLayout, check_layout, relabelled
 from .solve.multilateration import multilaterate
 from .solve.paper_method import solve_paper_method
 from .plan import (
@@ -78,7 +83,7 @@ from .plan import (
     known_speed_of_sound,
     speed_of_sound_plan,
 )
-from .plausibility import (
+from .checks.plausibility import (
     AIR_RANGE_M_S,
     FitFigures,
     acoustic_problems,
@@ -197,7 +202,7 @@ class CalibrationOptions:
             also the layout the geometry is checked against, unless `layout` is given.
         layout: the array's nominal layout, by microphone id: the geometry, solved free of
             any prior, is compared with it, and swapped microphone cables or a column map
-            off by whole boards are relabelled (calibration.layout_check); None (and no
+            off by whole boards are relabelled (calibration.checks.layout_check); None (and no
             prior): no such check.
         speaker_offsets: the joint fit estimates where each speaker's sound comes from on the
             rig (its offset from the stated position, held to the rig's stated tolerance in
@@ -416,7 +421,7 @@ def calibrate(path: Path, options: CalibrationOptions | None = None,
     Raises CalibrationInputError (or the cameras' and speakers' own errors, all ValueError)
     with a message that says what is missing; ImplausibleCalibrationError (a
     CalibrationInputError) when the result's own figures say its model is wrong
-    (calibration.plausibility), naming the likely cause.
+    (calibration.checks.plausibility), naming the likely cause.
     """
     options = options or CalibrationOptions()
     return calibrate_measured(measure(path, options, on_stage), options, on_stage=on_stage)
@@ -513,7 +518,7 @@ def _solve_checked(m: Measurements, options: CalibrationOptions, poses: np.ndarr
 def _without_misfits(m: Measurements, options: CalibrationOptions, poses: np.ndarray | None,
                      solution: MicrophoneSolution) -> tuple[Measurements, MicrophoneSolution]:
     """The measurements and the camera-frozen solution without the speakers and poses whose
-    times of flight do not fit the geometry of the others (calibration.fit_checks: swapped
+    times of flight do not fit the geometry of the others (calibration.checks.fit_checks: swapped
     speaker cables, a rig moved after its images), with findings that name them."""
     rows = np.asarray(m.located)[np.arange(len(m.located)) if poses is None else poses]
     shape = (rows.size, m.data.n_speakers)

@@ -50,7 +50,7 @@ def _prior(args: argparse.Namespace):
 def _layout(args: argparse.Namespace, data):
     """The nominal layout the wiring is checked against: --layout, else --prior (None: no
     check), with --layout-tolerance-mm; by the session's microphone ids."""
-    from calibration.layout_check import LAYOUT_TOLERANCE_M, NominalLayout
+    from calibration.checks.layout_check import LAYOUT_TOLERANCE_M, NominalLayout
     from calibration.result import PriorFileError, load_prior_positions
 
     flag, path = ("--layout", args.layout) if args.layout is not None else ("--prior", args.prior)

@@ -1,5 +1,5 @@
 """The capture's mistakes of wiring and playback, found in the recordings, and of the images,
-found in the images, named, and corrected or left out (calibration.capture_checks,
+found in the images, named, and corrected or left out (calibration.checks.capture_checks,
 calibration.levels, calibration.camera.image_checks).
 
 Each session is a small realistic-lab capture (48 microphones, 5 poses, short bursts) with two
@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from acquisition.daemon.result_check import ResultRejected, SessionFacts, check_result
-from calibration.capture_checks import (
+from calibration.checks.capture_checks import (
     CaptureVerdict,
     UntrustworthyCaptureError,
     apply_verdict,

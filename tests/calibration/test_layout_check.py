@@ -1,5 +1,5 @@
 """Swapped microphone cables and a column map off by a board, found against the array's
-nominal layout (calibration.layout_check).
+nominal layout (calibration.checks.layout_check).
 
 The detector is tried on the small simulated session's wiring with measured positions made
 from its truth (a calibration's 0.1 mm of noise, cables permuted as a lab does), against a
@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from acquisition.daemon.result_check import ResultRejected, SessionFacts, check_result
-from calibration.layout_check import (
+from calibration.checks.layout_check import (
     LayoutMismatchError,
     NominalLayout,
     check_layout,

@@ -18,8 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .result import Finding
-from .solve.solver import MicrophoneSolution
+from ..result import Finding
+from ..solve.solver import MicrophoneSolution
 
 GROSS_SHARE = 0.5
 """A speaker with more than this share of its times of flight left out as outliers does not
