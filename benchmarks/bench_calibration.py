@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from micam.simulated import record_simulated_session
-from calibration.crlb import expected_error_norm, joint_crlb
+from calibration.solve.crlb import expected_error_norm, joint_crlb
 from calibration.pipeline import (
     CalibrationOptions,
     _rig_sources,

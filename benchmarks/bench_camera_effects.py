@@ -4,7 +4,7 @@ For every row a world with only that lab effect (or none, or every camera effect
 frames delivered as MJPEG at quality 80, the mjpeg mistake, alone or with every effect) renders
 camera 0's images of the same rig poses (the 48-microphone scatter's single 1280 x 960 camera,
 so that no acoustics are simulated), and the calibration's own camera calibration
-(calibration.camera_calibration.calibrate_images: its corner detectors and OpenCV's
+(calibration.camera.camera_calibration.calibrate_images: its corner detectors and OpenCV's
 5-coefficient fit) reports its RMS reprojection residual, the figure `micam calibrate` puts in
 result.json. Also: the corners' own error, the RMS distance of the found corners from the
 true corners' projections (the bowed face's, by the true camera: the simulated corner noise a
@@ -28,8 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from calibration.camera_calibration import calibrate_images
-from calibration.corners import Checkerboard
+from calibration.camera.camera_calibration import calibrate_images
+from calibration.camera.corners import Checkerboard
 from sim.cameras import SimulatedCamera
 from sim.capture import SimulationOptions, world_for
 from sim.optics import CAMERA_EFFECTS

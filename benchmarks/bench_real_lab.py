@@ -12,9 +12,9 @@ second run only calibrates), then calibrated twice:
 Columns: mean and max microphone error against the true capsule positions, the error of the
 session's mean c, the share of microphones within 2 sigma (3-D, 95.4 %) of their reported
 covariance, the same for their errors relative to the array's common motion and that motion's
-chi-square (7 degrees of freedom; calibration.coverage says why the plain share is a poor judge
-of one session), the joint fit's own bound (E|e| of its covariance: the Cramer-Rao bound of the
-model with the added unknowns, at the noise levels it estimated) and the run time of the
+chi-square (7 degrees of freedom; calibration.checks.coverage says why the plain share is a poor
+judge of one session), the joint fit's own bound (E|e| of its covariance: the Cramer-Rao bound of
+the model with the added unknowns, at the noise levels it estimated) and the run time of the
 whole calibration with the model on, and the weighting its times of flight took (with the
 echo ratio that chose it, calibration.pipeline.FREE_FIELD_ECHO_RATIO).
 
@@ -49,8 +49,8 @@ from scipy.stats import chi2
 
 from micam.cluster import cluster_map
 from micam.simulated import record_simulated_session
-from calibration.coverage import coverage
-from calibration.crlb import expected_error_norm
+from calibration.checks.coverage import coverage
+from calibration.solve.crlb import expected_error_norm
 from calibration.pipeline import CalibrationOptions, calibrate
 from sim.capture import SimulationOptions
 from sim.lab import EFFECTS

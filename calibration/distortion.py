@@ -11,7 +11,7 @@ The times of flight correlate the pose recordings with that same reference recor
 holds the same distortion, so a distorted speaker's times of flight stay near those of the
 direct sound, but not quite: 20-pose realistic sessions with one speaker at drive 3 gave
 0.043 and 0.033 mm kept, 0.043 and 0.029 mm with its bursts left out (0.039 and 0.024 mm
-without the mistake). Its bursts are left out (calibration.capture_checks).
+without the mistake). Its bursts are left out (calibration.checks.capture_checks).
 """
 
 from __future__ import annotations

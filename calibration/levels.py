@@ -2,8 +2,8 @@
 and dropouts.
 
 Both are read from the same samples the correlation reads (a pose's recordings are read
-once, `calibration.times_of_flight`), and both are facts of the waveform that no correlation
-shows: a clipped burst still correlates, its peak a little off; a burst with a gap still
+once, `calibration.acoustic.times_of_flight`), and both are facts of the waveform that no
+correlation shows: a clipped burst still correlates, its peak a little off; a burst with a gap still
 correlates, on less signal than its predicted precision assumes.
 """
 

@@ -5,7 +5,7 @@ Stages (each timed): cameras (intrinsics, board poses, stereo), speaker position
 (eq. 10) and the reference microphone's position, times of flight, the speed of sound from the
 reference microphone (IV-G), the microphone solver (eq. 15; or the paper's own search as a
 baseline with `method="paper"`) with the cameras frozen, and last the joint fit
-(calibration.bundle): cameras, board poses, microphones, c and latencies refined together,
+(calibration.solve.bundle): cameras, board poses, microphones, c and latencies refined together,
 started from the camera-frozen solution, which is kept and reported beside it.
 
 Choices made here, and why (see docs/calibration.md for the figures behind them):
@@ -41,7 +41,7 @@ from acquisition.contracts.step_ids import REFMIC_STEP, reference_step
 from kernel.air import NOMINAL_SPEED_OF_SOUND_M_S, SpeedOfSoundPrior
 from kernel.rigid import RigidTransform
 
-from .bundle import (
+from .solve.bundle import (
     FIXED,
     GROUP_TOF,
     N_INTRINSICS,
@@ -55,14 +55,14 @@ from .bundle import (
     pose_estimate,
     refined_cameras,
 )
-from .camera_calibration import (
+from .camera.camera_calibration import (
     DETECTION_CACHE_SIZE,
     CameraCalibration,
     Checkerboard,
     DetectionMemo,
     calibrate_session,
 )
-from .capture_checks import (
+from .checks.capture_checks import (
     CaptureVerdict,
     Wiring,
     apply_verdict,
@@ -70,15 +70,15 @@ from .capture_checks import (
     inverted_microphones,
 )
 from .choices import DEFAULT_LATENCY, LatencyModel, Stage
-from .delay_estimation import Weighting
+from .acoustic.delay_estimation import Weighting
 from .distortion import ReferenceFloors, reference_floors
 from .errors import CalibrationInputError
-from .fit_checks import SourceResiduals, moved_poses, reference_offset, speaker_findings
-from .image_checks import ImageCheckMemo
-from .layout_check import NominalLayout, check_layout, relabelled
+from .checks.fit_checks import SourceResiduals, moved_poses, reference_offset, speaker_findings
+from .camera.image_checks import ImageCheckMemo
+from .checks.layout_check import NominalLayout, check_layout, relabelled
 from .memo import LruMemo
-from .multilateration import multilaterate
-from .paper_method import solve_paper_method
+from .solve.multilateration import multilaterate
+from .solve.paper_method import solve_paper_method
 from .plan import (
     _bundle_steps,
     board_indices,
@@ -86,7 +86,7 @@ from .plan import (
     known_speed_of_sound,
     speed_of_sound_plan,
 )
-from .plausibility import (
+from .checks.plausibility import (
     AIR_RANGE_M_S,
     FitFigures,
     acoustic_problems,
@@ -95,7 +95,7 @@ from .plausibility import (
     turned_rig,
 )
 from .response_checks import close_reflections
-from .responses import (
+from .acoustic.responses import (
     THIRD_OCTAVE_CENTRES_HZ,
     Flights,
     MicrophoneResponses,
@@ -114,7 +114,7 @@ from .result_assembly import (
     _with_delays,
 )
 from .session_data import SessionData, load_session
-from .solver import (
+from .solve.solver import (
     MicrophoneSolution,
     PriorGeometry,
     RigSources,
@@ -122,7 +122,7 @@ from .solver import (
     latency_columns,
     solve_microphones,
 )
-from .speakers import (
+from .camera.speakers import (
     ReferenceMicrophonePosition,
     RigPoseInCam0,
     SpeakerLocationError,
@@ -130,8 +130,8 @@ from .speakers import (
     reference_microphone_position,
     speaker_positions,
 )
-from .speed_of_sound import SpeedOfSoundFit, fit_speed_of_sound_robust
-from .times_of_flight import (
+from .acoustic.speed_of_sound import SpeedOfSoundFit, fit_speed_of_sound_robust
+from .acoustic.times_of_flight import (
     TOF_CACHE_POSES,
     SessionTofs,
     TofMemo,
@@ -153,7 +153,7 @@ A small session's ratio spreads more, and above 1.02 it falls back to compact, t
 side."""
 OFF_AXIS_STD_M = 1e-3
 """Prior standard deviation of b, how far the speakers' acoustic centre moves forward off
-axis (calibration.bundle): a small driver's centre moves with frequency by tenths of a
+axis (calibration.solve.bundle): a small driver's centre moves with frequency by tenths of a
 millimetre per octave, and what a correlation sees of it off axis by a fraction of that
 (85 um in the simulated lab); 1 mm leaves it to the data without letting it trade freely
 against the latencies when the poses are few."""
@@ -203,7 +203,7 @@ class CalibrationOptions:
         refine_poses: fit a rigid correction per rig pose, weighted by the camera's pose
             covariance.
         band_hz: the band the times of flight are estimated in (the speaker band).
-        weighting: the correlations' spectral weighting (calibration.delay_estimation):
+        weighting: the correlations' spectral weighting (calibration.acoustic.delay_estimation):
             "compact" (robust to early reflections), "matched" (maximum likelihood in free
             field), "phat", or "auto" (the default): compact, unless the recordings hold
             nothing but the direct sound and noise (`FREE_FIELD_ECHO_RATIO`; an anechoic
@@ -219,7 +219,7 @@ class CalibrationOptions:
             also the layout the geometry is checked against, unless `layout` is given.
         layout: the array's nominal layout, by microphone id: the geometry, solved free of
             any prior, is compared with it, and swapped microphone cables or a column map
-            off by whole boards are relabelled (calibration.layout_check); None (and no
+            off by whole boards are relabelled (calibration.checks.layout_check); None (and no
             prior): the layout of the session's description, if it has one (the options'
             replace it, and the result's notes say so).
         layout_tolerance_m: how far (m) a microphone may lie from its nominal place, for
@@ -245,11 +245,11 @@ class CalibrationOptions:
         intrinsics: camera calibrations known from elsewhere, by camera name ("fixed" or a
             "prior"); they replace the session description's.
         responses: estimate every microphone's complex response against frequency after the
-            joint fit (calibration.responses).
+            joint fit (calibration.acoustic.responses).
         air_sensor: use the session's air-sensor readings as the known speed of sound (when
             neither the options nor the description give one).
         dispersion: with `responses`, take every microphone's measured dispersion (its phase
-            less a delay) out of its times of flight and fit again (calibration.responses).
+            less a delay) out of its times of flight and fit again (calibration.acoustic.responses).
         memo: the caller's memo of the work done per file (a worker keeps one across its
             jobs, see `WorkMemo`); None: nothing is remembered, every file is read.
     """
@@ -387,7 +387,7 @@ def _times_of_flight(data: SessionData, options: CalibrationOptions
     shows free field (`FREE_FIELD_ECHO_RATIO`; a second pass over the recordings). The
     matched pass's impulses replace the compact ones too: the capsules' dispersion that the
     times of flight are corrected for must be weighted as the correlations that measured
-    them were (calibration.responses.dispersion_delays), and the responses relative to the
+    them were (calibration.acoustic.responses.dispersion_delays), and the responses relative to the
     array do not depend on the weighting. Microphones wired inverted are found in the first
     pass and correlated with the opposite sign from then on (one more pass)."""
     memo = None if options.memo is None else options.memo.tofs
@@ -458,7 +458,7 @@ def calibrate(path: Path, options: CalibrationOptions | None = None,
     Raises CalibrationInputError (or the cameras' and speakers' own errors, all ValueError)
     with a message that says what is missing; ImplausibleCalibrationError (a
     CalibrationInputError) when the result's own figures say its model is wrong
-    (calibration.plausibility), naming the likely cause.
+    (calibration.checks.plausibility), naming the likely cause.
     """
     options = options or CalibrationOptions()
     return calibrate_measured(measure(path, options, on_stage), options, on_stage=on_stage)
@@ -586,7 +586,7 @@ def _solve_checked(m: Measurements, options: CalibrationOptions, poses: np.ndarr
 def _without_misfits(m: Measurements, options: CalibrationOptions, poses: np.ndarray | None,
                      solution: MicrophoneSolution) -> tuple[Measurements, MicrophoneSolution]:
     """The measurements and the camera-frozen solution without the speakers and poses whose
-    times of flight do not fit the geometry of the others (calibration.fit_checks: swapped
+    times of flight do not fit the geometry of the others (calibration.checks.fit_checks: swapped
     speaker cables, a reference microphone at another distance than stated, a rig moved
     after its images), with findings that name them."""
     rows = np.asarray(m.located)[np.arange(len(m.located)) if poses is None else poses]
@@ -972,8 +972,8 @@ def frozen_flights(m: Measurements, frozen: MicrophoneSolution,
 def _responses(m: Measurements, flights: Callable[[list[int]], Flights],
                speed_of_sound_m_s: float,
                centres_hz: np.ndarray = THIRD_OCTAVE_CENTRES_HZ) -> MicrophoneResponses:
-    """Every microphone's response (calibration.responses) from the flights of a geometry, in
-    the bands centred at `centres_hz`."""
+    """Every microphone's response (calibration.acoustic.responses) from the flights of a geometry,
+    in the bands centred at `centres_hz`."""
     data = m.data
     chosen = evenly_spread([p.step for p in m.speakers.poses])
     return estimate_responses(m.tofs, [m.located[k] for k in chosen], flights(chosen),
@@ -983,7 +983,7 @@ def _responses(m: Measurements, flights: Callable[[list[int]], Flights],
 
 def _without_dispersion(m: Measurements, responses: MicrophoneResponses) -> Measurements:
     """The measurements with every microphone's measured dispersion taken out of its times
-    of flight (calibration.responses.dispersion_delays)."""
+    of flight (calibration.acoustic.responses.dispersion_delays)."""
     shift = dispersion_delays(m.tofs, responses, m.data.fs)
     return replace(m, tofs=replace(m.tofs, tof_s=m.tofs.tof_s - shift))
 

@@ -18,7 +18,7 @@ from kernel.air import NOMINAL_SPEED_OF_SOUND_M_S, SpeedOfSoundPrior
 
 from .result import SpeedOfSoundFrom
 from .session_data import SessionData
-from .speakers import RigPoseInCam0
+from .camera.speakers import RigPoseInCam0
 
 if TYPE_CHECKING:
     from .pipeline import CalibrationOptions, Measurements

@@ -145,7 +145,7 @@ def tof_residuals(run: CalibrationRun) -> TofResiduals:
 def corner_residuals(run: CalibrationRun) -> list[CornerResiduals]:
     """Every calibrated camera's corner residuals: the joint fit's when it ran (outliers
     left out), else each view's reprojection with its own board pose."""
-    from .bundle import board_views
+    from .solve.bundle import board_views
 
     cams = run.measurements.cameras
     names = list(cams.intrinsics)

@@ -146,7 +146,7 @@ class RigFitResult(_Model):
 
 
 class JointFitResult(_Model):
-    """Diagnostics of the optical-acoustic bundle adjustment (calibration.bundle)."""
+    """Diagnostics of the optical-acoustic bundle adjustment (calibration.solve.bundle)."""
 
     sigmas: dict[str, float] = Field(
         description="estimated noise: px per coordinate for a camera's corners, a factor on "
@@ -179,7 +179,7 @@ class MicrophoneResponse(_Model):
 
 class MicrophoneResponsesResult(_Model):
     """Every microphone's complex response against frequency, relative to the array's median
-    gain and mean phase, after the board latencies (calibration.responses). The phase holds
+    gain and mean phase, after the board latencies (calibration.acoustic.responses). The phase holds
     the microphone's own delay (`microphones[].delay_s`): apply one or the other."""
 
     frequencies_hz: list[float]

@@ -13,8 +13,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .bundle import BundleSolution, board_views
-from .camera_calibration import CameraCalibration
+from .solve.bundle import BundleSolution, board_views
+from .camera.camera_calibration import CameraCalibration
 from .plan import (
     _bundle_steps,
     board_indices,
@@ -22,7 +22,7 @@ from .plan import (
     known_speed_of_sound,
     speed_of_sound_plan,
 )
-from .responses import MicrophoneResponses
+from .acoustic.responses import MicrophoneResponses
 from .result import (
     CalibrationResult,
     CameraFrozenResult,
@@ -39,8 +39,8 @@ from .result import (
     TransformResult,
 )
 from .session_data import SessionData
-from .solver import MicrophoneSolution
-from .speakers import SpeakerPositions
+from .solve.solver import MicrophoneSolution
+from .camera.speakers import SpeakerPositions
 
 if TYPE_CHECKING:
     from .pipeline import CalibrationOptions, Measurements

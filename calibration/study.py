@@ -3,7 +3,7 @@
 For a measured session and its truth, `source_count_study` solves for the microphones from
 random subsets of N sources (one pose with N speakers for N <= 6, else N / 6 whole poses) and
 reports the mean microphone error against the truth beside the Cramer-Rao bound for the same
-sources, timing noise and camera pose covariances (`calibration.crlb.joint_crlb`).
+sources, timing noise and camera pose covariances (`calibration.solve.crlb.joint_crlb`).
 
 Below `PER_BOARD_FROM_SOURCES` (a single pose with fewer than six speakers) the estimator is
 the paper's model, c fixed and no latency: there are too few equations per microphone for the
@@ -27,7 +27,7 @@ from typing import Literal
 
 import numpy as np
 
-from .crlb import expected_error_norm, joint_crlb
+from .solve.crlb import expected_error_norm, joint_crlb
 from .errors import CalibrationInputError
 from .pipeline import (
     CalibrationOptions,
@@ -37,7 +37,7 @@ from .pipeline import (
     solve,
 )
 from .plan import board_indices
-from .solver import MicrophoneSolution
+from .solve.solver import MicrophoneSolution
 
 PER_BOARD_FROM_SOURCES = 6
 JOINT_FROM_SOURCES = 12

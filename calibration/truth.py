@@ -25,7 +25,7 @@ from acquisition.contracts.config_model import dotted
 from kernel.rigid import RigidTransform
 
 from .errors import CalibrationInputError
-from .layout_check import NominalLayout
+from .checks.layout_check import NominalLayout
 
 SHAPE = ("a micam truth file has microphones = [{id, position_m}], speed_of_sound_m_s, "
          "cameras = [{name, K}] and optionally board_latencies_s, as `micam simulate` writes "

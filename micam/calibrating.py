@@ -33,7 +33,7 @@ def _prior(args: argparse.Namespace):
         return None
     from calibration.result import PriorFileError, load_prior_positions
     from calibration.session_data import load_session
-    from calibration.solver import PriorGeometry
+    from calibration.solve.solver import PriorGeometry
 
     if args.method == "paper":
         raise UserError("--prior works with --method micam only (the paper's search has none)")
@@ -53,7 +53,7 @@ def _layout(args: argparse.Namespace, data):
     else --prior (None: neither; the calibration then takes the session description's, if it
     has one), by the session's microphone ids. Says on stderr when it replaces the
     description's."""
-    from calibration.layout_check import NominalLayout
+    from calibration.checks.layout_check import NominalLayout
     from calibration.result import PriorFileError, load_prior_positions
 
     flag, path = ("--layout", args.layout) if args.layout is not None else ("--prior", args.prior)

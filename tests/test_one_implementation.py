@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from acquisition.contracts.session import partial_path, sha256_file, write_atomic
-from calibration.robust import inverse_normal, robust_sigma
+from calibration.solve.robust import inverse_normal, robust_sigma
 from kernel.rigid import (
     RigidTransform,
     kabsch,
@@ -71,7 +71,7 @@ TRANSLATION_FIELDS = {"t", "tvec", "t_m", "translation", "translation_m"}
 NOT_A_TRANSFORM_TYPE = {
     ("kernel/rigid.py", "RigidTransform"): "the one type",
     ("calibration/result.py", "TransformResult"): "result.json's form of one (the schema)",
-    ("calibration/solver.py", "RigSources"): "the solver's batched (n_pose, 3) unknowns",
+    ("calibration/solve/solver.py", "RigSources"): "the solver's batched (n_pose, 3) unknowns",
 }
 
 

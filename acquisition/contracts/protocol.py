@@ -29,8 +29,8 @@ from .job_messages import LiveUpdate, job_schemas
 
 PROTOCOL_VERSION: Final = 2
 CAMERA_MIN_VIEWS = 4
-"""Board views a camera needs to be calibrated (calibration.camera_calibration.MIN_VIEWS; a test keeps
-the two equal): a camera with fewer is left out of the calibration."""
+"""Board views a camera needs to be calibrated (calibration.camera.camera_calibration.MIN_VIEWS;
+a test keeps the two equal): a camera with fewer is left out of the calibration."""
 
 ErrorCode = Literal[
     "bad_request",  # not JSON, not an object, a field missing or of the wrong type

@@ -323,7 +323,7 @@ class KnownLayout(ConfigModel):
 
     A swapped microphone cable, or a column map off by a board, leaves every recording as good
     as the others: only the layout the array was built to shows which id belongs where. The
-    calibration compares its measured geometry with this one (calibration.layout_check) and
+    calibration compares its measured geometry with this one (calibration.checks.layout_check) and
     relabels the columns a permutation of cables explains. Stored in the description itself
     (an import reads its file into these values), so that a session carries it wherever it
     is moved.

@@ -121,7 +121,7 @@ def check_live(update: LiveUpdate, facts: SessionFacts) -> None:
 
 
 RELABELLING = ("swapped-microphones", "shifted-boards")
-"""Findings whose microphones the calibration relabelled (calibration.layout_check): each is
+"""Findings whose microphones the calibration relabelled (calibration.checks.layout_check): each is
 recorded on the board its cable is really plugged into, which may be another board than the
 session's channel map gives its id."""
 

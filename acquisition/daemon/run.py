@@ -123,7 +123,7 @@ class _Stillness:
 
 def _is_view_step(step: str) -> bool:
     """Whether `step`'s camera images are board views for the camera calibration (see
-    calibration.camera_calibration.calibrate_session: the poses' and the refmic image)."""
+    calibration.camera.camera_calibration.calibrate_session: the poses' and the refmic image)."""
     return step == REFMIC_STEP or is_pose_step(step)
 
 

@@ -4,7 +4,7 @@ what accuracy the poses taken predict, and where one more pose would help most.
 - mean uncertainty: the mean over microphones of E|error| from the solver's covariance (the
   camera-frozen fit of the poses so far, scaled by its residuals);
 - predicted accuracy: the mean E|error| of the per-microphone Cramer-Rao bound
-  (calibration.crlb.mic_position_crlb) for these sources, with the measured timing noise and
+  (calibration.solve.crlb.mic_position_crlb) for these sources, with the measured timing noise and
   the cameras' source-position noise. It ignores the errors the microphones share (c, the
   camera's scale), so it is what the joint final fit approaches, not a guarantee;
 - suggestion: of a grid of rig positions in camera 0's view (azimuth, elevation, distance
@@ -33,9 +33,9 @@ from acquisition.contracts.job_messages import (
 )
 from kernel.rigid import RigidTransform
 
-from ..crlb import expected_error_norm, mic_position_crlb
+from ..solve.crlb import expected_error_norm, mic_position_crlb
 from ..pipeline import Measurements
-from ..solver import MicrophoneSolution
+from ..solve.solver import MicrophoneSolution
 
 AZIMUTHS_DEG = (-30.0, -15.0, 0.0, 15.0, 30.0)
 ELEVATIONS_DEG = (-20.0, 0.0, 20.0)

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from calibration.solver import RigSources
+from calibration.solve.solver import RigSources
 
 C_TRUE = 343.2
 PAPER_SPEAKERS_M = 1e-3 * np.array(

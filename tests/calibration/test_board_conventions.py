@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from acquisition.contracts.rig_description import KnownIntrinsics
-from calibration.camera_calibration import calibrate_images
-from calibration.corners import Checkerboard, detect_corners
+from calibration.camera.camera_calibration import calibrate_images
+from calibration.camera.corners import Checkerboard, detect_corners
 from sim.geometry import Rig, RigidTransform, pinhole
 from sim.light import DARK_GREY, WHITE_GREY, render_rig_image
 from sim.poses import FACING_CAMERA
@@ -115,8 +115,8 @@ def test_the_robust_detector_skips_a_board_that_another_camera_shows_running_off
     the robust one would spend 0.1-0.4 s failing on it. Where another camera saw the whole
     board at the same step, the cut is predicted and the robust detector is not run; where
     no other camera saw it, it still is."""
-    import calibration.camera_calibration as stage
-    from calibration.corners import Unsure, detect_corners_quickly
+    import calibration.camera.camera_calibration as stage
+    from calibration.camera.corners import Unsure, detect_corners_quickly
 
     rig, board = Rig(), Checkerboard(6, 9, 0.03)
     cam1 = pinhole("cam1", cam0_to_cam=RigidTransform(  # turned: the board sits further left
@@ -157,7 +157,7 @@ def test_a_grid_shifted_onto_the_boards_outer_edge_is_refused() -> None:
     pattern's outer edge against the white plate, 300 px from the true corners. The squares
     beyond that column are plate, not the print's outer ring, so the grid is refused (no
     board found) instead of entering the calibration with every corner wrong."""
-    from calibration.corners import UNSURE, _ring_is_printed, detect_corners_quickly
+    from calibration.camera.corners import UNSURE, _ring_is_printed, detect_corners_quickly
 
     rig, board = Rig(), Checkerboard(6, 9, 0.03)
     cam1 = pinhole("cam1", cam0_to_cam=RigidTransform(

@@ -1,5 +1,5 @@
-"""The optical-acoustic bundle adjustment (calibration.bundle): its Jacobian, its recovery of a
-camera whose focal length is off, its outliers, and the whole pipeline on a simulated session
+"""The optical-acoustic bundle adjustment (calibration.solve.bundle): its Jacobian, its recovery of
+a camera whose focal length is off, its outliers, and the whole pipeline on a simulated session
 against the truth, frozen beside joint."""
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from scipy import sparse
 from scipy.spatial.transform import Rotation
 
 from micam.cli import main
-from calibration.bundle import (
+from calibration.solve.bundle import (
     BundleProblem,
     BundleSolution,
     BundleState,
@@ -25,7 +25,7 @@ from calibration.bundle import (
     _quadratic_forms,
     fit_bundle,
 )
-from calibration.coverage import similarity_basis
+from calibration.checks.coverage import similarity_basis
 from calibration.pipeline import CalibrationOptions, calibrate
 from calibration.result import compare_with_truth
 
@@ -214,7 +214,7 @@ def test_covariance_counts_errors_shared_by_a_poses_speakers(scene: Scene) -> No
 @pytest.mark.slow
 def test_microphones_relative_geometry_is_covered_where_the_noise_model_is_right() -> None:
     """Four scenes with independent Gaussian noise: each microphone's error relative to the
-    array's common motion (calibration.coverage) has a squared Mahalanobis distance of 3 on
+    array's common motion (calibration.checks.coverage) has a squared Mahalanobis distance of 3 on
     average under its covariance. Each microphone's 3 unknowns come from 10 poses' clusters,
     so the sandwich needs its residuals' leverage taken out: without that the mean was 5.1."""
     d2 = []

@@ -1,4 +1,5 @@
-"""calibration.camera_calibration against the truth of a small simulated session (12 poses, 3 cameras).
+"""calibration.camera.camera_calibration against the truth of a small simulated session (12 poses,
+3 cameras).
 
 Tolerances, and why: the simulated corners are found to about 0.04 px RMS, and with 13 views
 calibrateCamera's own standard deviation of the focal length is about 0.03-0.04 % and of the
@@ -18,14 +19,14 @@ import numpy as np
 import pytest
 
 from acquisition.contracts.session import SessionReader
-from calibration.camera_calibration import (
+from calibration.camera.camera_calibration import (
     CameraCalibration,
     CameraCalibrationError,
     Checkerboard,
     calibrate_images,
     calibrate_session,
 )
-from calibration.corners import detect_corners
+from calibration.camera.corners import detect_corners
 from calibration.session_data import load_session
 
 pytestmark = pytest.mark.slow  # every test here: the twelve-pose session and its camera calibration

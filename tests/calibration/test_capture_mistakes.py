@@ -1,7 +1,7 @@
 """The capture's mistakes of wiring and playback, found in the recordings, and of the images,
-found in the images, named, and corrected or left out (calibration.capture_checks,
-calibration.levels, calibration.distortion, calibration.fit_checks,
-calibration.response_checks, calibration.image_checks).
+found in the images, named, and corrected or left out (calibration.checks.capture_checks,
+calibration.levels, calibration.distortion, calibration.checks.fit_checks,
+calibration.response_checks, calibration.camera.image_checks).
 
 Each session is a small realistic-lab capture (48 microphones, 5 poses, short bursts) with two
 or three mistakes made by the simulated world where a lab makes them (`micam simulate --mistake`), so
@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from acquisition.daemon.result_check import ResultRejected, SessionFacts, check_result
-from calibration.capture_checks import (
+from calibration.checks.capture_checks import (
     CaptureVerdict,
     UntrustworthyCaptureError,
     Wiring,
@@ -28,15 +28,15 @@ from calibration.capture_checks import (
 )
 from acquisition.contracts.rig_description import BurstLayout
 from kernel.stimulus import mls_burst
-from calibration.camera_calibration import CameraCalibrationError, calibrate_session
-from calibration.corners import Checkerboard
+from calibration.camera.camera_calibration import CameraCalibrationError, calibrate_session
+from calibration.camera.corners import Checkerboard
 from calibration.distortion import (
     CLOSE_LEVEL_DB,
     DISTORTED_DB,
     distorted_speakers,
     reference_floors,
 )
-from calibration.fit_checks import REFERENCE_OFFSET_US, SourceResiduals, reference_offset
+from calibration.checks.fit_checks import REFERENCE_OFFSET_US, SourceResiduals, reference_offset
 from calibration.response_checks import CLOSE_REFLECTION_SCORE, close_reflections
 from calibration.levels import CLIPPED_SAMPLES, DROPOUT_BLOCK, channel_levels, full_scale_of
 from calibration.pipeline import CalibrationOptions, CalibrationRun, calibrate, measure
@@ -304,7 +304,7 @@ def test_the_image_mistakes_are_named_by_camera_and_pose(images) -> None:
 
 
 @pytest.mark.xfail(strict=True, reason=(
-    "the realistic lab's camera (issue 32): calibration.image_checks counts 47 X-corners "
+    "the realistic lab's camera (issue 32): calibration.camera.image_checks counts 47 X-corners "
     "visible on a board with 32 of 54 in view (spurious peaks where noise, vignetting, the "
     "lamp and gamma lower the corners' contrast); the calibration's side of issue 32"))
 def test_a_hidden_boards_visible_corners_are_counted(images) -> None:

@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 import pytest
 
-from calibration.corners import (
+from calibration.camera.corners import (
     Checkerboard,
     _fit_corners,
     _refine,

@@ -1,12 +1,12 @@
-"""calibration.coverage: errors drawn from a known covariance with a large common motion of the
-array, as a session's cameras and scale give it."""
+"""calibration.checks.coverage: errors drawn from a known covariance with a large common motion of
+the array, as a session's cameras and scale give it."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from calibration.coverage import COMMON_DOF, coverage, similarity_basis
+from calibration.checks.coverage import COMMON_DOF, coverage, similarity_basis
 
 
 def _world(seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

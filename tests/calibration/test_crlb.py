@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from calibration.crlb import expected_error_norm, joint_crlb, mic_position_crlb
+from calibration.solve.crlb import expected_error_norm, joint_crlb, mic_position_crlb
 from tests.calibration.synthetic import C_TRUE, make_scene
 
 

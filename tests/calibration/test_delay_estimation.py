@@ -7,7 +7,7 @@ import pytest
 from scipy import fft as sfft
 from scipy.signal import max_len_seq
 
-from calibration.delay_estimation import (
+from calibration.acoustic.delay_estimation import (
     band_bins,
     delay_crlb_white,
     estimate_delays,

@@ -1,5 +1,5 @@
 """Swapped microphone cables and a column map off by a board, found against the array's
-nominal layout (calibration.layout_check).
+nominal layout (calibration.checks.layout_check).
 
 The detector is tried on the small simulated session's wiring with measured positions made
 from its truth (a calibration's 0.1 mm of noise, cables permuted as a lab does), against a
@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from acquisition.daemon.result_check import ResultRejected, SessionFacts, check_result
-from calibration.layout_check import (
+from calibration.checks.layout_check import (
     LAYOUT_TOLERANCE_M,
     LayoutMismatchError,
     NominalLayout,
@@ -166,7 +166,7 @@ def test_the_options_layout_replaces_the_description_s_and_says_so(small_session
     """The layout of the options (--layout, else --prior), else the description's; the
     tolerance option applies to whichever is used; the notes say which."""
     from calibration.pipeline import CalibrationOptions, _layout_notes, _nominal_layout
-    from calibration.solver import PriorGeometry
+    from calibration.solve.solver import PriorGeometry
 
     m = SimpleNamespace(data=load_session(small_session))
     described = m.data.description.layout

@@ -67,8 +67,8 @@ def test_a_memo_never_remembers_a_board_predicted_to_run_off_its_image(monkeypat
     may search an image robustly that the final job predicts cut. The final job must then
     find what `micam calibrate` finds (no board there), not what the live job remembered;
     else the worker's result depended on which live jobs it had run."""
-    from calibration import camera_calibration as cc
-    from calibration.corners import UNSURE
+    from calibration.camera import camera_calibration as cc
+    from calibration.camera.corners import UNSURE
 
     corners = np.zeros((4, 2))
     monkeypatch.setattr(cc, "detect_corners_quickly", lambda image, board: UNSURE)

@@ -163,7 +163,7 @@ def test_prior_geometry_in_its_own_frame_is_placed_by_one_pose(measurements, tru
     from scipy.spatial.transform import Rotation
 
     from calibration.pipeline import solve
-    from calibration.solver import PriorGeometry
+    from calibration.solve.solver import PriorGeometry
 
     true = {m["id"]: m["position_m"] for m in truth["microphones"]}
     mics = np.array([true[int(i)] for i in measurements.data.mic_ids])
@@ -249,7 +249,7 @@ def test_the_matched_weighting_is_taken_only_where_the_recordings_show_free_fiel
 def test_the_echo_ratio_skips_dead_channels_and_is_nan_without_noise() -> None:
     """A dead channel's NaN energies leave the pooled ratio to the others; recordings with no
     noise before their direct peaks give NaN (which "auto" reads as no free field)."""
-    from calibration.times_of_flight import SessionTofs
+    from calibration.acoustic.times_of_flight import SessionTofs
 
     shape = (2, 3, 4)
     echo, lead = np.full(shape, 3.0), np.full(shape, 2.0)

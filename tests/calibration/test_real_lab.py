@@ -13,7 +13,7 @@ import pytest
 from micam.cli import main
 from micam.simulated import record_simulated_session
 from calibration.pipeline import CalibrationRun, calibrate
-from calibration.plausibility import ImplausibleCalibrationError
+from calibration.checks.plausibility import ImplausibleCalibrationError
 from calibration.result import compare_with_truth
 from sim.capture import SimulationOptions
 

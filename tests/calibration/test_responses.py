@@ -1,18 +1,19 @@
-"""calibration.responses on synthetic impulses: the constant-Q gate and the dispersion's bands."""
+"""calibration.acoustic.responses on synthetic impulses: the constant-Q gate and the dispersion's
+bands."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from calibration import responses
-from calibration.responses import (
+from calibration.acoustic import responses
+from calibration.acoustic.responses import (
     THIRD_OCTAVE_CENTRES_HZ,
     Flights,
     dispersion_centres_hz,
     estimate_responses,
 )
-from calibration.times_of_flight import SessionTofs
+from calibration.acoustic.times_of_flight import SessionTofs
 
 FS = 96_000.0
 STEP = 2  # full-rate samples between the impulses' values

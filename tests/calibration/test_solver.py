@@ -18,8 +18,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from calibration.crlb import expected_error_norm, joint_crlb
-from calibration.solver import (
+from calibration.solve.crlb import expected_error_norm, joint_crlb
+from calibration.solve.solver import (
     PriorGeometry,
     RigSources,
     SolverOptions,
@@ -28,8 +28,8 @@ from calibration.solver import (
     rotated_point_jacobian,
     solve_microphones,
 )
-from calibration.multilateration import multilaterate
-from calibration.paper_method import solve_paper_method
+from calibration.solve.multilateration import multilaterate
+from calibration.solve.paper_method import solve_paper_method
 from tests.calibration.synthetic import C_TRUE, make_scene, mean_error
 
 COMMON = SolverOptions(latency="common")

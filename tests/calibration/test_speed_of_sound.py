@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from calibration.speed_of_sound import fit_speed_of_sound
+from calibration.acoustic.speed_of_sound import fit_speed_of_sound
 
 
 def synthetic(n: int, latency_s: float, seed: int) -> tuple[np.ndarray, np.ndarray]:

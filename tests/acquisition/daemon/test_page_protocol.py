@@ -19,7 +19,7 @@ from acquisition.contracts.protocol import (
     PreviewEvent,
     ProgressEvent,
 )
-from calibration.camera_calibration import MIN_VIEWS
+from calibration.camera.camera_calibration import MIN_VIEWS
 
 from .helpers import ThreadDaemon, capture
 

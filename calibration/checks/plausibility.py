@@ -24,8 +24,8 @@ import numpy as np
 
 from kernel.air import SpeedOfSoundPrior, speed_of_sound
 
-from .errors import CalibrationInputError
-from .robust import robust_sigma
+from ..errors import CalibrationInputError
+from ..solve.robust import robust_sigma
 
 AIR_RANGE_M_S = (float(speed_of_sound(-20.0, 0.0)), float(speed_of_sound(50.0, 1.0)))
 """The speed of sound of air between -20 and 50 degC at any humidity (Cramer's formula)."""

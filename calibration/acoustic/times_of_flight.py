@@ -2,7 +2,7 @@
 microphone on its stand (paper IV-F, IV-G).
 
 Each pose's six recordings are correlated against the speakers' reference recordings in one
-batched call of `calibration.delay_estimation.estimate_delays`; a thread per core takes one
+batched call of `calibration.acoustic.delay_estimation.estimate_delays`; a thread per core takes one
 pose at a time, so that a 140-pose session never sits in memory whole.
 """
 
@@ -17,12 +17,12 @@ from scipy import fft as sfft
 
 from acquisition.contracts.step_ids import reference_step
 
-from ._blas import single_threaded_blas
-from ._cores import default_workers
-from .memo import LruMemo
-from .session_data import SessionData
+from .._blas import single_threaded_blas
+from .._cores import default_workers
+from ..memo import LruMemo
+from ..session_data import SessionData
 from .delay_estimation import TofEstimate, Weighting, estimate_delays, tof_from_delay
-from .levels import ChannelLevels, channel_levels
+from ..levels import ChannelLevels, channel_levels
 
 MAX_RANGE_M = 6.0
 """Longest path searched for a correlation peak; later peaks are reflections."""
@@ -75,11 +75,11 @@ class SessionTofs:
             (NaN when the pose recordings do not hold it).
         reference_std_s: (P, S) its predicted standard deviation (NaN likewise).
         impulses: (P, S, M, n_lag) float32, every array channel's weighted correlation
-            around its direct peak (`calibration.delay_estimation.TofEstimate.impulses`).
+            around its direct peak (`calibration.acoustic.delay_estimation.TofEstimate.impulses`).
         impulse_first_lag: (P, S, M) full-rate lag (samples) of impulses[..., 0].
         impulse_step: full-rate samples between the impulses' values.
         echo_energy, lead_energy: (P, S, M) every array channel's correlation energy after
-            and before its direct peak (`calibration.delay_estimation.TofEstimate`).
+            and before its direct peak (`calibration.acoustic.delay_estimation.TofEstimate`).
         rail_samples, dropout_share: (P, S, M) every array channel's samples at the rail and
             share of dropped-out blocks (`calibration.levels.ChannelLevels`).
         polarity: (M,) +1, or -1 for a microphone whose recordings were inverted before the

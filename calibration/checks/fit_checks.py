@@ -4,7 +4,7 @@ reference microphone placed at another distance from it than the description sta
 poses whose bursts were played with the rig somewhere else than the cameras saw it (the rig
 nudged between its images and its bursts).
 
-All three are judged on the camera-frozen solution (calibration.solver), whose residuals
+All three are judged on the camera-frozen solution (calibration.solve.solver), whose residuals
 say how far each measurement lies from the geometry of all the others, and always relative
 to the session's other speakers and poses. What is found is left out and the solution computed
 again without it; a swap is named, but not undone: the reference recordings were swapped
@@ -21,8 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .result import Finding
-from .solver import MicrophoneSolution
+from ..result import Finding
+from ..solve.solver import MicrophoneSolution
 
 GROSS_SHARE = 0.5
 """A speaker with more than this share of its times of flight left out as outliers does not

@@ -9,7 +9,7 @@ left out of the camera calibration, which is then computed without it; an image 
 board was not found is named when the reason shows (a hidden part, a highlight); MJPEG,
 which moves every corner of a camera a little, is noted.
 
-The thresholds come from the measures (calibration.image_measures) on clean and mistaken
+The thresholds come from the measures (calibration.camera.image_measures) on clean and mistaken
 realistic sessions; each says its figures (also in docs/calibration.md, "Mistakes of the
 capture").
 """
@@ -23,9 +23,9 @@ from typing import Any
 
 import numpy as np
 
-from ._cores import default_workers
+from .._cores import default_workers
 from .corners import Checkerboard
-from .memo import LruMemo
+from ..memo import LruMemo
 from .image_measures import (
     blockiness,
     edge_sharpness,
@@ -33,7 +33,7 @@ from .image_measures import (
     x_corner_response,
     x_corners,
 )
-from .result import Finding
+from ..result import Finding
 
 BLUR_RATIO = 0.6
 """A view whose edge sharpness (`edge_sharpness`) is below this share of its camera's median

@@ -25,7 +25,7 @@ from acquisition.contracts.step_ids import REFMIC_STEP, is_pose_step
 from kernel.rigid import RigidTransform
 
 from .camera_calibration import CameraCalibration, Pose
-from .errors import CalibrationInputError
+from ..errors import CalibrationInputError
 
 _STEP_RAD_OR_M = 1e-6
 """Central-difference step for the pose parameters (radians and metres): small against the

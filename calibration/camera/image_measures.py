@@ -4,7 +4,7 @@ sharpness of the board's edges (motion blur), saturated pixels on the board (gla
 the board was not found (a board half hidden).
 
 Each measure is of the image alone, in pixels or grey levels; the thresholds that turn them
-into findings, and why, are calibration.image_checks'.
+into findings, and why, are calibration.camera.image_checks'.
 """
 
 from __future__ import annotations

@@ -5,10 +5,10 @@ order, fit each camera's intrinsics and distortion (OpenCV's 5 coefficients, the
 equation 4) with one board pose per image, give every pose a covariance, and find each
 camera's transform from the camera-0 frame from the views it shares with other cameras.
 The images' mistakes (a board hidden, blurred, in glare; MJPEG) are looked for in every
-image (calibration.image_checks); views whose corners cannot be trusted are left out and the
+image (calibration.camera.image_checks); views whose corners cannot be trusted are left out and the
 cameras calibrated again without them.
 
-The board and its corner detection (frames, orders, the detectors) are calibration.corners;
+The board and its corner detection (frames, orders, the detectors) are calibration.camera.corners;
 a board pose maps rig coordinates into the camera's: x_cam = R(rvec) x_rig + t.
 """
 
@@ -28,18 +28,18 @@ from acquisition.contracts.rig_description import KnownIntrinsics
 from acquisition.contracts.session import SessionReader
 from kernel.rigid import RigidTransform
 
-from ._blas import single_threaded_blas
-from ._cores import default_workers
+from .._blas import single_threaded_blas
+from .._cores import default_workers
 from .corners import (
     Checkerboard,
     Unsure,
     detect_corners_quickly,
     detect_corners_robustly,
 )
-from .errors import CalibrationInputError
+from ..errors import CalibrationInputError
 from .image_checks import ImageCheckMemo, ViewImage, check_images
-from .memo import LruMemo
-from .result import Finding
+from ..memo import LruMemo
+from ..result import Finding
 
 _CALIB_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 200, 1e-12)
 _OPENCV_THREADS_LOCK = threading.Lock()

@@ -47,7 +47,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 from scipy import fft as sfft
 from scipy.ndimage import uniform_filter1d
 
-from .errors import CalibrationInputError
+from ..errors import CalibrationInputError
 
 Weighting = Literal["compact", "matched", "phat"]
 
@@ -102,8 +102,8 @@ class TofEstimate:
         impulses: (n_rec, n_ch, n_lag) float32, the weighted correlation around the direct
             peak (+-`IMPULSE_HALF_WIDTH_S`): with the "compact" weighting, the relative impulse
             response seen through the band's window. What the microphones' responses are
-            estimated from once the geometry is known (calibration.responses), without reading
-            the recordings again.
+            estimated from once the geometry is known (calibration.acoustic.responses), without
+            reading the recordings again.
         impulse_first_lag: (n_rec, n_ch) the full-rate lag (samples, signed) of impulses[..., 0].
         impulse_step: full-rate samples between the impulses' values (about 2, or 1 for a
             band reaching above a quarter of the sample rate).

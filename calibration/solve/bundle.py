@@ -6,7 +6,7 @@ with 20-30 views) into the depth of every speaker, which c cannot absorb, and so
 depth offset of the whole array. The times of flight are precise to a fraction of a
 microsecond; fitted together with the corner pixels they correct the camera.
 
-Model (frames of `calibration.camera_calibration`; x_cam = R(rvec) x + t everywhere):
+Model (frames of `calibration.camera.camera_calibration`; x_cam = R(rvec) x + t everywhere):
 
 - corner j of the board in view (camera i, pose k):
   pixel = project_i(R_i (R_k (s B_j) + t_k) + t_i) with camera i's intrinsics (fx, fy, cx, cy)
@@ -68,9 +68,9 @@ from scipy.spatial.transform import Rotation
 from kernel.air import NOMINAL_SPEED_OF_SOUND_M_S, SpeedOfSoundPrior
 from kernel.rigid import RigidTransform, rotated_point_jacobian, rotation_from_rotvec
 
-from ._blas import single_threaded_blas
-from ._cores import default_workers
-from .camera_calibration import CameraCalibration, CameraIntrinsics, Extrinsics, Pose
+from .._blas import single_threaded_blas
+from .._cores import default_workers
+from ..camera.camera_calibration import CameraCalibration, CameraIntrinsics, Extrinsics, Pose
 from .robust import inverse_normal, robust_sigma
 
 FIXED = 0.0

@@ -16,13 +16,13 @@ Jacobian, robust loss) over the microphone positions, c, the latencies, and opti
 - a prior geometry (CAD, paper section IV-H): X_m = R(Omega) P_m + T (+ small deviations d_m
   with a prior sigma), which regularises the problem at small source counts.
 
-The start is a closed-form multilateration per microphone (calibration.multilateration), with
+The start is a closed-form multilateration per microphone (calibration.solve.multilateration), with
 the camera-side rule for coplanar sources, then a robust fit, outlier rejection and a final
 least-squares fit on the inliers whose Jacobian gives the covariance.
 
 The paper's own solver (section IV-I, after Dobler: a derivative-free coordinate search from
-zero coordinates) is calibration.paper_method, kept as a baseline; the SO(3) helpers are
-kernel.rigid's, the robust scale and normal-matrix inverse calibration.robust's.
+zero coordinates) is calibration.solve.paper_method, kept as a baseline; the SO(3) helpers are
+kernel.rigid's, the robust scale and normal-matrix inverse calibration.solve.robust's.
 """
 
 from __future__ import annotations
@@ -37,8 +37,8 @@ from scipy.spatial.transform import Rotation
 from kernel.air import NOMINAL_SPEED_OF_SOUND_M_S
 from kernel.rigid import RigidTransform, kabsch, rotated_point_jacobian
 
-from .choices import DEFAULT_LATENCY, LatencyModel
-from .errors import CalibrationInputError
+from ..choices import DEFAULT_LATENCY, LatencyModel
+from ..errors import CalibrationInputError
 from .multilateration import multilaterate
 from .robust import inverse_normal, robust_sigma
 
@@ -98,7 +98,7 @@ class SolverOptions:
 
     Attributes:
         speed_of_sound_m_s: the start value of c, or its value when not fitted (e.g. from
-            `calibration.speed_of_sound.fit_speed_of_sound`).
+            `calibration.acoustic.speed_of_sound.fit_speed_of_sound`).
         fit_speed_of_sound: make c an unknown (shared by all microphones, it costs little).
         latency: "per_board" (the default, `calibration.choices.DEFAULT_LATENCY`), "common" (one delta for all
             channels) or "none".

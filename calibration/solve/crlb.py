@@ -28,7 +28,7 @@ import numpy as np
 from scipy import sparse
 
 from calibration.choices import DEFAULT_LATENCY, LatencyModel
-from calibration.solver import RigSources, SolverOptions, latency_columns
+from calibration.solve.solver import RigSources, SolverOptions, latency_columns
 from kernel.rigid import rotated_point_jacobian
 
 
@@ -96,7 +96,7 @@ def joint_crlb(
         timing_std_s: scalar or (n_src, n_mic).
         valid: (n_src, n_mic) measurements that exist (default all).
         fit_speed_of_sound, latency, board_of_mic, reference_board: the unknowns, as in
-            `calibration.solver.SolverOptions`.
+            `calibration.solve.solver.SolverOptions`.
         source_std_m: if > 0, every source position is a nuisance 3-vector with this
             isotropic prior (per axis).
         pose_errors: if True (sources must be RigSources with pose_covariance), every rig

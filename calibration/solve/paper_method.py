@@ -1,5 +1,5 @@
 """The paper's microphone solver (Legg & Bradley, section IV-I), kept as the baseline that
-micam's own solver (calibration.solver) is measured against."""
+micam's own solver (calibration.solve.solver) is measured against."""
 
 from __future__ import annotations
 

@@ -27,9 +27,9 @@ from acquisition.contracts.rig_description import KnownLayout
 from kernel.rigid import RigidTransform, kabsch
 
 from .capture_checks import KEPT_SHARE, Wiring
-from .errors import CalibrationInputError
-from .result import Finding
-from .session_data import SessionData
+from ..errors import CalibrationInputError
+from ..result import Finding
+from ..session_data import SessionData
 
 LAYOUT_TOLERANCE_M = 0.005
 """How far (m) a microphone may lie from its nominal place, after the best rigid placement of

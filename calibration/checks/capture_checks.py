@@ -16,12 +16,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .distortion import ReferenceFloors, distorted_speakers, reference_floors
-from .errors import CalibrationInputError
-from .levels import CLIPPED_SAMPLES, DROPOUT_BLOCK, DROPOUT_DB
-from .result import Finding, FindingAction, FindingKind
-from .session_data import SessionData
-from .times_of_flight import SessionTofs
+from ..distortion import ReferenceFloors, distorted_speakers, reference_floors
+from ..errors import CalibrationInputError
+from ..levels import CLIPPED_SAMPLES, DROPOUT_BLOCK, DROPOUT_DB
+from ..result import Finding, FindingAction, FindingKind
+from ..session_data import SessionData
+from ..acoustic.times_of_flight import SessionTofs
 
 DEAD_DB = 15.0
 """A microphone whose median correlation SNR over the session is this far (dB) below the
