@@ -71,7 +71,7 @@ from .checks.capture_checks import (
 )
 from .choices import DEFAULT_LATENCY, LatencyModel, Stage
 from .acoustic.delay_estimation import Weighting
-from .distortion import ReferenceFloors, reference_floors
+from .checks.distortion import ReferenceFloors, reference_floors
 from .errors import CalibrationInputError
 from .checks.fit_checks import SourceResiduals, moved_poses, reference_offset, speaker_findings
 from .camera.image_checks import ImageCheckMemo
@@ -94,7 +94,7 @@ from .checks.plausibility import (
     raise_if_implausible,
     turned_rig,
 )
-from .response_checks import close_reflections
+from .checks.response_checks import close_reflections
 from .acoustic.responses import (
     THIRD_OCTAVE_CENTRES_HZ,
     Flights,

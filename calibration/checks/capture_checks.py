@@ -16,7 +16,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..distortion import ReferenceFloors, distorted_speakers, reference_floors
+from .distortion import ReferenceFloors, distorted_speakers, reference_floors
 from ..errors import CalibrationInputError
 from ..levels import CLIPPED_SAMPLES, DROPOUT_BLOCK, DROPOUT_DB
 from ..result import Finding, FindingAction, FindingKind

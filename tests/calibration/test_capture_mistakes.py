@@ -1,7 +1,7 @@
 """The capture's mistakes of wiring and playback, found in the recordings, and of the images,
 found in the images, named, and corrected or left out (calibration.checks.capture_checks,
-calibration.levels, calibration.distortion, calibration.checks.fit_checks,
-calibration.response_checks, calibration.camera.image_checks).
+calibration.levels, calibration.checks.distortion, calibration.checks.fit_checks,
+calibration.checks.response_checks, calibration.camera.image_checks).
 
 Each session is a small realistic-lab capture (48 microphones, 5 poses, short bursts) with two
 or three mistakes made by the simulated world where a lab makes them (`micam simulate --mistake`), so
@@ -30,14 +30,14 @@ from acquisition.contracts.rig_description import BurstLayout
 from kernel.stimulus import mls_burst
 from calibration.camera.camera_calibration import CameraCalibrationError, calibrate_session
 from calibration.camera.corners import Checkerboard
-from calibration.distortion import (
+from calibration.checks.distortion import (
     CLOSE_LEVEL_DB,
     DISTORTED_DB,
     distorted_speakers,
     reference_floors,
 )
 from calibration.checks.fit_checks import REFERENCE_OFFSET_US, SourceResiduals, reference_offset
-from calibration.response_checks import CLOSE_REFLECTION_SCORE, close_reflections
+from calibration.checks.response_checks import CLOSE_REFLECTION_SCORE, close_reflections
 from calibration.levels import CLIPPED_SAMPLES, DROPOUT_BLOCK, channel_levels, full_scale_of
 from calibration.pipeline import CalibrationOptions, CalibrationRun, calibrate, measure
 from calibration.result import (

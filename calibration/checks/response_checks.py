@@ -20,8 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .checks.capture_checks import Wiring
-from .result import CalibrationResult, Finding
+from .capture_checks import Wiring
+from ..result import CalibrationResult, Finding
 
 CLOSE_REFLECTION_SCORE = 5.0
 """A microphone is taken to have a reflector beside it where its own delay's robust z-score
