@@ -5,8 +5,8 @@ calibration.checks.response_checks, calibration.camera.image_checks).
 
 Each session is a small realistic-lab capture (48 microphones, 5 poses, short bursts) with two
 or three mistakes made by the simulated world where a lab makes them (`micam simulate
---mistake`), so that every detector is tried beside another mistake, as the issue asks, and against the same
-capture without any (no false findings).
+--mistake`), so that every detector is tried beside another mistake, as the issue asks, and
+against the same capture without any (no false findings).
 """
 
 from __future__ import annotations
