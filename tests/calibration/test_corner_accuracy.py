@@ -126,10 +126,11 @@ def test_the_robust_detector_returns_the_fitted_corners() -> None:
     assert _rms(found - truth) < NOISE_FREE_RMS_PX
 
 
-def test_a_corner_under_glare_keeps_the_corner_subpix_result() -> None:
+def test_a_corner_under_glare_is_refitted_from_its_neighbours() -> None:
     """A bright blot over one corner (glare, a reflection) is not what the model describes: the
-    fit's residuals there are ten times the others', so that corner keeps cornerSubPix's
-    position; every other corner is fitted."""
+    fit from cornerSubPix's corner (0.38 px off) has residuals ten times the others', so it is
+    not kept; every other corner is fitted, and the glared one, fitted again from where its
+    fitted neighbours put it, lands within the noise of the truth."""
     clean, truth = _render("distorted", "rolled 17 degrees, 20 px squares", 2.0, 1)
     glared = 20
     v, u = np.mgrid[: clean.shape[0], : clean.shape[1]]
@@ -138,5 +139,20 @@ def test_a_corner_under_glare_keeps_the_corner_subpix_result() -> None:
     start = _subpix(image, truth + 0.3, BOARD)
     fitted, ok = _fit_corners(image, start, BOARD)
     assert not ok[glared] and ok.sum() == BOARD.n_corners - 1
-    assert np.array_equal(_refine(image, truth + 0.3, BOARD)[glared], start[glared])
+    assert np.linalg.norm(start[glared] - truth[glared]) > 0.2
+    assert np.linalg.norm(_refine(image, truth + 0.3, BOARD)[glared] - truth[glared]) < 0.03
     assert _rms(np.delete(fitted - truth, glared, axis=0)) < NOISY_RMS_PX
+
+
+@pytest.mark.parametrize("seed", [1, 3])
+def test_no_corner_of_a_noisy_image_is_far_off(seed: int) -> None:
+    """30 grey levels of sensor noise (corners fitted to 0.09 px RMS per coordinate, a noisy
+    real camera's): cornerSubPix's corners are off by 0.3 px RMS, and where the fit from them
+    failed they stood, 0.7 and 8 px off at single corners of these two images; fitted again
+    from their neighbours' prediction, no corner is off by more than 5.5 sigmas."""
+    image, truth = _render("distorted", "tilted 60 degrees, rolled 40", 30.0, seed)
+    found = detect_corners(image, BOARD)
+    assert found is not None
+    error = found - truth
+    assert np.abs(error).max() < 0.5
+    assert _rms(error) < 0.15
