@@ -54,6 +54,7 @@ from .bundle import (
     fit_bundle,
     pose_estimate,
     refined_cameras,
+    view_sigmas,
 )
 from .camera_calibration import (
     DETECTION_CACHE_SIZE,
@@ -818,7 +819,7 @@ def fit_joint(m: Measurements, frozen: MicrophoneSolution, options: CalibrationO
         reference_distance_m=data.reference_distances_m[np.tile(speaker_idx, pose_idx.size)],
         tof_speed_of_sound_m_s=NOMINAL_SPEED_OF_SOUND_M_S,
         speed_of_sound_of_pose=c_of_pose,
-        priors=priors,
+        priors=priors, corner_sigma_px=view_sigmas(m.cameras, steps),
     )  # fmt: skip
     sources = _rig_sources(data, m.speakers, pose_idx, speaker_idx).positions()
     if data.reference_column is not None:
@@ -1161,7 +1162,11 @@ def _camera_result(cams: CameraCalibration, name: str) -> CameraResult:
         from_cam0=TransformResult(rotvec=_vec(ext.cam0_to_cam.rotvec),
                                   t_m=_vec(ext.cam0_to_cam.t)),
         reprojection_rms_px=float(intr.rms_px), images_used=int(intr.n_views),
-        images_without_board=missed, intrinsics_std=intr.std.tolist())
+        images_without_board=missed, intrinsics_std=intr.std.tolist(),
+        corner_noise_px=intr.noise.sigma_px, corner_noise_std_px=intr.noise.std_px,
+        corner_noise_corners=intr.noise.n_corners,
+        view_corner_noise_px={v.step: v.sigma_px for (c, _), v in cams.views.items()
+                              if c == name and v.sigma_px != intr.noise.sigma_px})
 
 
 def _pose_result(data: SessionData, speakers: SpeakerPositions, i: int) -> PoseResult:

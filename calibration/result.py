@@ -68,6 +68,16 @@ class CameraResult(_Model):
     images_without_board: list[str]
     intrinsics_std: list[float] | None = Field(
         default=None, description="std of fx, fy, cx, cy (px), k1, k2, p1, p2, k3")
+    corner_noise_px: float | None = Field(
+        default=None, description="the camera's corner noise per pixel coordinate, estimated "
+        "from the camera calibration's residuals with the degrees of freedom its fit absorbs "
+        "(calibration.corner_noise); the joint fit weights the corners by it")
+    corner_noise_std_px: float | None = None
+    corner_noise_corners: int | None = Field(
+        default=None, description="corners it was estimated from (the views of the pool)")
+    view_corner_noise_px: dict[str, float] = Field(
+        default_factory=dict, description="the views whose noise differs from the camera's "
+        "(a blurred or distant pose), by step: their own, px per coordinate")
 
 
 class PoseResult(_Model):
