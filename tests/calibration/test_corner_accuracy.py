@@ -31,6 +31,8 @@ from calibration.corners import (
     detect_corners,
     detect_corners_robustly,
 )
+from calibration.image_checks import GLARE_SHARE
+from calibration.image_measures import saturated_share
 from sim.geometry import CameraModel, Rig, RigidTransform, pinhole
 from sim.light import render_rig_image
 from sim.poses import FACING_CAMERA
@@ -156,3 +158,15 @@ def test_no_corner_of_a_noisy_image_is_far_off(seed: int) -> None:
     error = found - truth
     assert np.abs(error).max() < 0.5
     assert _rms(error) < 0.15
+
+
+def test_a_noisy_sensor_is_no_glare_and_a_highlight_is() -> None:
+    """calibration.image_measures.saturated_share: 30 grey levels of noise push about 13 % of
+    the white squares' pixels to full scale (3 % of the board: over image_checks' glare
+    threshold); after its median filter none count, and a lamp's highlight still does."""
+    image, truth = _render("distorted", "square-on, 40 px squares", 30.0, 1)
+    assert saturated_share(image, truth) < GLARE_SHARE
+    v, u = np.mgrid[: image.shape[0], : image.shape[1]]
+    centre = truth.mean(axis=0)
+    lamp = np.where(np.hypot(u - centre[0], v - centre[1]) < 25, 255, image).astype(np.uint8)
+    assert saturated_share(lamp, truth) > 5 * GLARE_SHARE
