@@ -1213,7 +1213,7 @@ def refined_cameras(cams: CameraCalibration, solution: BundleSolution) -> Camera
                                          state.extrinsics[i - 1, 3:].copy())
             extrinsics[name] = Extrinsics(cam0_to_cam, rms, old_ext.n_shared_views, old_ext.via)
     return CameraCalibration(cams.board, intrinsics, extrinsics, cams.views, cams.missed,
-                             cams.uncalibrated)
+                             cams.uncalibrated, bow=cams.bow)
 
 
 def pose_estimate(solution: BundleSolution, index: int) -> Pose:

@@ -30,6 +30,7 @@ from acquisition.contracts.session import SessionReader
 
 from ._blas import single_threaded_blas
 from ._cores import default_workers
+from .board_bow import BoardBow, CameraViews, estimate_bow
 from .corner_noise import CornerNoise, estimate_corner_noise
 from .corners import (
     Checkerboard,
@@ -182,6 +183,9 @@ class CameraCalibration:
         views: board views by (camera, step), calibrated cameras only.
         missed: images without a detectable board, reported and skipped.
         uncalibrated: cameras left out, with the reason.
+        findings: the images' mistakes found (calibration.image_checks).
+        bow: the board's sag out of its plane (calibration.board_bow), estimated from every
+            camera with `MIN_VIEWS` views (None: not estimated, or no such camera).
     """
 
     board: Checkerboard
@@ -191,6 +195,7 @@ class CameraCalibration:
     missed: list[MissedImage]
     uncalibrated: dict[str, str]
     findings: list[Finding] = field(default_factory=list)
+    bow: BoardBow | None = None
 
     @property
     def reference_camera(self) -> str:
@@ -268,7 +273,7 @@ def calibrate_session(
     verdict = check_images([ViewImage(c, s, corners) for (c, s), (corners, _) in found.items()],
                            read, board, hashes, image_checks)
     if not verdict.left_out:
-        return replace(first, findings=verdict.findings)
+        return replace(first, findings=verdict.findings, bow=_bow(first))
     kept = {key: d for key, d in found.items() if key not in verdict.left_out}
     try:
         again = calibrate_detections(kept, cameras, board, min_views, min_shared_views, known)
@@ -277,7 +282,21 @@ def calibrate_session(
         raise CameraCalibrationError(f"{exc} (views left out: {mistakes})") from exc
     left_out = [MissedImage(c, s, f"left out: {reason}")
                 for (c, s), reason in verdict.left_out.items()]
-    return replace(again, missed=[*again.missed, *left_out], findings=verdict.findings)
+    return replace(again, missed=[*again.missed, *left_out], findings=verdict.findings,
+                   bow=_bow(again))
+
+
+def _bow(cams: CameraCalibration) -> BoardBow | None:
+    """The board's sag from the views of every camera with `MIN_VIEWS` of them."""
+    views = [CameraViews(intr.K, intr.dist, (intr.width, intr.height),
+                         [v.corners_px for (c, _), v in cams.views.items() if c == name],
+                         intr.noise.sigma_px)
+             for name, intr in cams.intrinsics.items()]
+    usable = [v for v in views if len(v.corners_px) >= MIN_VIEWS]
+    if not usable:
+        return None
+    with _reproducible():
+        return estimate_bow(cams.board, usable)
 
 
 ROUGH_STEPS = 24

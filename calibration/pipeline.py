@@ -56,6 +56,7 @@ from .bundle import (
     refined_cameras,
     view_sigmas,
 )
+from .board_bow import sagged_points
 from .camera_calibration import (
     DETECTION_CACHE_SIZE,
     CameraCalibration,
@@ -90,6 +91,7 @@ from .responses import (
     evenly_spread,
 )
 from .result import (
+    BoardBowResult,
     CalibrationResult,
     CameraFrozenResult,
     CameraResult,
@@ -805,7 +807,7 @@ def fit_joint(m: Measurements, frozen: MicrophoneSolution, options: CalibrationO
         c_of_pose[pose_idx] = np.arange(pose_idx.size)
     priors = bundle_priors(m, options)
     problem = BundleProblem(
-        board_points_m=m.cameras.board.object_points(),
+        board_points_m=_board_points(m.cameras),
         speakers_rig_m=data.speakers_rig_m,
         view_camera=view_camera, view_pose=view_pose, corners_px=corners,
         pose_of_source=np.repeat(pose_idx, speaker_idx.size),
@@ -840,6 +842,21 @@ def fit_joint(m: Measurements, frozen: MicrophoneSolution, options: CalibrationO
         speaker_offsets_m=priors.speaker_offset_mean_m.copy(),
     ) if start is None else start  # fmt: skip
     return fit_bundle(problem, start)
+
+
+BOW_SIGNIFICANT = 3.0
+"""A board sag (calibration.board_bow) this many of its standard deviations from 0 is
+modelled in the joint fit; a smaller one is a bound (the report states it), and the board is
+taken as flat rather than with a sag that is mostly its estimate's noise."""
+
+
+def _board_points(cams: CameraCalibration) -> np.ndarray:
+    """The board's inner corners in the rig frame for the joint fit: sagged by the estimated
+    bow where it is significant (`BOW_SIGNIFICANT`), flat otherwise."""
+    bow = cams.bow
+    if bow is not None and abs(bow.sag_m) > BOW_SIGNIFICANT * bow.std_m:
+        return sagged_points(cams.board, bow.sag_m)
+    return cams.board.object_points()
 
 
 def joint_measurements(m: Measurements, bundle: BundleSolution, frozen: MicrophoneSolution,
@@ -957,6 +974,8 @@ def _assemble(m: Measurements, sol: MicrophoneSolution, options: CalibrationOpti
         notes=notes,
         findings=m.findings,
         latency_gauge_board=data.reference_group,
+        board_bow=(None if cams.bow is None else BoardBowResult(
+            sag_m=cams.bow.sag_m, sag_std_m=cams.bow.std_m, n_views=cams.bow.n_views)),
     )
 
 

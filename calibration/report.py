@@ -208,6 +208,11 @@ def summary_lines(run: CalibrationRun, truth: dict | None = None) -> list[str]:
                 f"{significant(1e3 * frozen['mean_mic_error_m'])} mm, c error "
                 f"{significant(frozen['speed_of_sound_error_m_s'], signed=True)} m/s")
     lines += [line for c in r.cameras if (line := corner_noise_line(c))]
+    if r.board_bow is not None:
+        bow = r.board_bow
+        lines.append(f"board bow (the pattern's centre out of the plane of its corners): "
+                     f"{significant(1e3 * bow.sag_m, signed=True)} ± "
+                     f"{significant(1e3 * bow.sag_std_m)} mm from {bow.n_views} views")
     lines.append("time: " + ", ".join(f"{k} {v:.1f} s" for k, v in r.timings_s.items()))
     return lines
 

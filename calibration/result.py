@@ -231,6 +231,15 @@ class Finding(_Model):
         return f"{self.evidence}; {self.advice}"
 
 
+class BoardBowResult(_Model):
+    """The printed board's sag out of its plane (calibration.board_bow)."""
+
+    sag_m: float = Field(description="the inner-corner grid's centre out of the plane of its "
+                         "corners, metres (+: out of the printed face)")
+    sag_std_m: float
+    n_views: int
+
+
 class CalibrationResult(_Model):
     schema_version: int = 1
     session_id: str
@@ -258,6 +267,7 @@ class CalibrationResult(_Model):
     microphone_responses: MicrophoneResponsesResult | None = None
     findings: list[Finding] = Field(
         default_factory=list, description="the capture's mistakes found, in the order found")
+    board_bow: BoardBowResult | None = None
 
     def left_out_microphones(self) -> set[int]:
         """The microphones that a finding left out whole: the result has no position for
