@@ -7,8 +7,10 @@ import cv2
 import numpy as np
 import pytest
 
-from calibration.board_bow import CameraViews, estimate_bow, sagged_points
+from calibration.board_bow import BoardBow, CameraViews, estimate_bow, sagged_points
+from calibration.camera_calibration import CameraCalibration
 from calibration.corners import Checkerboard
+from calibration.pipeline import _board_points
 
 from .synthetic import random_poses
 
@@ -45,3 +47,13 @@ def test_a_bow_is_recovered_within_its_std(sag_m: float, seed: int) -> None:
     assert 5e-6 < bow.std_m < 15e-6
     assert abs(bow.sag_m - sag_m) < 3 * bow.std_m
     assert bow.n_views == 15
+
+
+def test_the_joint_fit_models_a_significant_bow_only() -> None:
+    """The joint fit's board: sagged where the bow is 3 std from 0, flat where it is not."""
+    def points(sag_m: float, std_m: float) -> np.ndarray:
+        cams = CameraCalibration(BOARD, {}, {}, {}, [], {}, bow=BoardBow(sag_m, std_m, 15))
+        return _board_points(cams)
+
+    assert np.array_equal(points(2e-3, 1e-5), sagged_points(BOARD, 2e-3))
+    assert np.array_equal(points(2e-5, 1e-5), BOARD.object_points())
