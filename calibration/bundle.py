@@ -38,11 +38,13 @@ Unknowns: every camera's 9 intrinsics, the other cameras' extrinsics (6 each), e
 pose including the reference-microphone step (6 each), the microphones (3 each), the reference
 microphone (3), c (one, or one per pose), the latencies, and with their priors (`BundlePriors`)
 the microphones' own delays, the speakers' rig offsets, the off-axis move b and the print
-scale. Residuals are
-whitened: corner pixels by a per-camera sigma, times of flight by their predicted std times a
-per-kind scale; both are estimated from the residual scatter (median absolute deviation) at
-the start and again after each pass. The priors are Gaussian pseudo-observations with the
-stated standard deviations (never rescaled, never down-weighted).
+scale. Residuals are whitened: corner pixels by a per-camera sigma (times each view's noise
+relative to its camera's, as the camera calibration estimated it:
+`BundleProblem.corner_sigma_px`), times of flight by their predicted std times a per-kind
+scale; both are estimated from the residual scatter (median absolute deviation) at the start
+and again after each pass, the corners' last from residuals standardized by their leverage
+(`_corner_sigmas_for_leverage`). The priors are Gaussian pseudo-observations with the stated
+standard deviations (never rescaled, never down-weighted).
 
 Solver: Levenberg-Marquardt on the normal equations J^T W J, which are small (about 1,100
 unknowns for 140 poses) even when J has 10^5 rows; J is sparse and analytic (OpenCV's
