@@ -54,7 +54,9 @@ from .solve.bundle import (
     fit_bundle,
     pose_estimate,
     refined_cameras,
+    view_sigmas,
 )
+from .board_bow import sagged_points
 from .camera.camera_calibration import (
     DETECTION_CACHE_SIZE,
     CameraCalibration,
@@ -836,7 +838,7 @@ def fit_joint(m: Measurements, frozen: MicrophoneSolution, options: CalibrationO
         c_of_pose[pose_idx] = np.arange(pose_idx.size)
     priors = bundle_priors(m, options)
     problem = BundleProblem(
-        board_points_m=m.cameras.board.object_points(),
+        board_points_m=_board_points(m.cameras),
         speakers_rig_m=data.speakers_rig_m,
         view_camera=view_camera, view_pose=view_pose, corners_px=corners,
         pose_of_source=np.repeat(pose_idx, speaker_idx.size),
@@ -850,7 +852,7 @@ def fit_joint(m: Measurements, frozen: MicrophoneSolution, options: CalibrationO
         reference_distance_m=data.reference_distances_m[np.tile(speaker_idx, pose_idx.size)],
         tof_speed_of_sound_m_s=NOMINAL_SPEED_OF_SOUND_M_S,
         speed_of_sound_of_pose=c_of_pose,
-        priors=priors,
+        priors=priors, corner_sigma_px=view_sigmas(m.cameras, steps),
     )  # fmt: skip
     sources = _rig_sources(data, m.speakers, pose_idx, speaker_idx).positions()
     if data.reference_column is not None:
@@ -871,6 +873,21 @@ def fit_joint(m: Measurements, frozen: MicrophoneSolution, options: CalibrationO
         speaker_offsets_m=priors.speaker_offset_mean_m.copy(),
     ) if start is None else start  # fmt: skip
     return fit_bundle(problem, start)
+
+
+BOW_SIGNIFICANT = 3.0
+"""A board sag (calibration.board_bow) this many of its standard deviations from 0 is
+modelled in the joint fit; a smaller one is a bound (the report states it), and the board is
+taken as flat rather than with a sag that is mostly its estimate's noise."""
+
+
+def _board_points(cams: CameraCalibration) -> np.ndarray:
+    """The board's inner corners in the rig frame for the joint fit: sagged by the estimated
+    bow where it is significant (`BOW_SIGNIFICANT`), flat otherwise."""
+    bow = cams.bow
+    if bow is not None and abs(bow.sag_m) > BOW_SIGNIFICANT * bow.std_m:
+        return sagged_points(cams.board, bow.sag_m)
+    return cams.board.object_points()
 
 
 def joint_measurements(m: Measurements, bundle: BundleSolution, frozen: MicrophoneSolution,

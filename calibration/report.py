@@ -32,7 +32,7 @@ from .figures.residuals import (
 from .figures.style import save_all
 from .pipeline import CalibrationRun
 from .plan import _bundle_steps
-from .result import CalibrationResult, TofQuality, compare_with_truth
+from .result import CalibrationResult, CameraResult, TofQuality, compare_with_truth
 
 FIGURES = ("geometry.png", "residuals.png", "corners.png", "tof_quality.png")
 
@@ -208,8 +208,27 @@ def summary_lines(run: CalibrationRun, truth: dict | None = None) -> list[str]:
                 f"camera frozen (before the joint fit): mean microphone error "
                 f"{significant(1e3 * frozen['mean_mic_error_m'])} mm, c error "
                 f"{significant(frozen['speed_of_sound_error_m_s'], signed=True)} m/s")
+    lines += [line for c in r.cameras if (line := corner_noise_line(c))]
+    if r.board_bow is not None:
+        bow = r.board_bow
+        lines.append(f"board bow (the pattern's centre out of the plane of its corners): "
+                     f"{significant(1e3 * bow.sag_m, signed=True)} ± "
+                     f"{significant(1e3 * bow.sag_std_m)} mm from {bow.n_views} views")
     lines.append("time: " + ", ".join(f"{k} {v:.1f} s" for k, v in r.timings_s.items()))
     return lines
+
+
+def corner_noise_line(c: CameraResult) -> str | None:
+    """"camera cam0: corner noise 0.084 px (estimated from 1,560 corners)", with the views
+    whose noise differs; None for a result without the estimate."""
+    if c.corner_noise_px is None:
+        return None
+    own = ""
+    if c.view_corner_noise_px:
+        own = "; its own in " + ", ".join(f"{step} {significant(v)} px"
+                                          for step, v in c.view_corner_noise_px.items())
+    return (f"camera {c.name}: corner noise {significant(c.corner_noise_px)} px (estimated "
+            f"from {c.corner_noise_corners:,} corners){own}")
 
 
 def _median_std(run: CalibrationRun) -> float:

@@ -66,6 +66,16 @@ class CameraResult(_Model):
     images_without_board: list[str]
     intrinsics_std: list[float] | None = Field(
         default=None, description="std of fx, fy, cx, cy (px), k1, k2, p1, p2, k3")
+    corner_noise_px: float | None = Field(
+        default=None, description="the camera's corner noise per pixel coordinate, estimated "
+        "from the camera calibration's residuals with the degrees of freedom its fit absorbs "
+        "(calibration.corner_noise); the joint fit weights the corners by it")
+    corner_noise_std_px: float | None = None
+    corner_noise_corners: int | None = Field(
+        default=None, description="corners it was estimated from (the views of the pool)")
+    view_corner_noise_px: dict[str, float] = Field(
+        default_factory=dict, description="the views whose noise differs from the camera's "
+        "(a blurred or distant pose), by step: their own, px per coordinate")
 
 
 class PoseResult(_Model):
@@ -220,6 +230,15 @@ class Finding(_Model):
         return f"{self.evidence}; {self.advice}"
 
 
+class BoardBowResult(_Model):
+    """The printed board's sag out of its plane (calibration.board_bow)."""
+
+    sag_m: float = Field(description="the inner-corner grid's centre out of the plane of its "
+                         "corners, metres (+: out of the printed face)")
+    sag_std_m: float
+    n_views: int
+
+
 class CalibrationResult(_Model):
     schema_version: int = 1
     session_id: str
@@ -247,6 +266,7 @@ class CalibrationResult(_Model):
     microphone_responses: MicrophoneResponsesResult | None = None
     findings: list[Finding] = Field(
         default_factory=list, description="the capture's mistakes found, in the order found")
+    board_bow: BoardBowResult | None = None
 
     def left_out_microphones(self) -> set[int]:
         """The microphones that a finding left out whole: the result has no position for

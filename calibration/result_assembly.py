@@ -24,6 +24,7 @@ from .plan import (
 )
 from .acoustic.responses import MicrophoneResponses
 from .result import (
+    BoardBowResult,
     CalibrationResult,
     CameraFrozenResult,
     CameraResult,
@@ -132,6 +133,8 @@ def _assemble(m: Measurements, sol: MicrophoneSolution, options: CalibrationOpti
         notes=notes,
         findings=m.findings,
         latency_gauge_board=data.reference_group,
+        board_bow=(None if cams.bow is None else BoardBowResult(
+            sag_m=cams.bow.sag_m, sag_std_m=cams.bow.std_m, n_views=cams.bow.n_views)),
     )
 
 
@@ -259,7 +262,11 @@ def _camera_result(cams: CameraCalibration, name: str) -> CameraResult:
         from_cam0=TransformResult(rotvec=_vec(ext.cam0_to_cam.rotvec),
                                   t_m=_vec(ext.cam0_to_cam.t)),
         reprojection_rms_px=float(intr.rms_px), images_used=int(intr.n_views),
-        images_without_board=missed, intrinsics_std=intr.std.tolist())
+        images_without_board=missed, intrinsics_std=intr.std.tolist(),
+        corner_noise_px=intr.noise.sigma_px, corner_noise_std_px=intr.noise.std_px,
+        corner_noise_corners=intr.noise.n_corners,
+        view_corner_noise_px={v.step: v.sigma_px for (c, _), v in cams.views.items()
+                              if c == name and v.sigma_px != intr.noise.sigma_px})
 
 
 def _pose_result(data: SessionData, speakers: SpeakerPositions, i: int) -> PoseResult:

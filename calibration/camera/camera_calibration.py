@@ -30,6 +30,8 @@ from kernel.rigid import RigidTransform
 
 from .._blas import single_threaded_blas
 from .._cores import default_workers
+from ..board_bow import BoardBow, CameraViews, estimate_bow
+from ..corner_noise import CornerNoise, estimate_corner_noise
 from .corners import (
     Checkerboard,
     Unsure,
@@ -97,9 +99,11 @@ class BoardView:
         step: session step of the image ("pose/0003", "refmic").
         corners_px: (n_corners, 2) refined corner pixels in rig order (X fastest).
         rig_to_cam: the board pose in this camera's frame; its covariance comes from the
-            Jacobian of the reprojection scaled by this image's residual variance, and includes
-            the uncertainty of the camera's intrinsics (see `_pose_covariances`).
+            Jacobian of the reprojection scaled by the view's corner noise (`sigma_px`), and
+            includes the uncertainty of the camera's intrinsics (see `_pose_covariances`).
         rms_px: RMS reprojection error of the image's corners, pixels.
+        sigma_px: the corner noise of the view per pixel coordinate (its camera's, or its
+            own where it differs: `CornerNoise.view_sigma_px`), pixels.
     """
 
     camera: str
@@ -107,6 +111,7 @@ class BoardView:
     corners_px: np.ndarray
     rig_to_cam: Pose
     rms_px: float
+    sigma_px: float
 
 
 @dataclass(frozen=True)
@@ -121,6 +126,7 @@ class CameraIntrinsics:
         cov: (9, 9) covariance of (fx, fy, cx, cy, k1, k2, p1, p2, k3), pixels and unitless.
         rms_px: RMS reprojection error over all the camera's views, pixels.
         n_views: images used.
+        noise: the corner noise estimated from the camera calibration's residuals.
     """
 
     name: str
@@ -131,6 +137,7 @@ class CameraIntrinsics:
     cov: np.ndarray
     rms_px: float
     n_views: int
+    noise: CornerNoise
 
     @property
     def std(self) -> np.ndarray:
@@ -176,6 +183,9 @@ class CameraCalibration:
         views: board views by (camera, step), calibrated cameras only.
         missed: images without a detectable board, reported and skipped.
         uncalibrated: cameras left out, with the reason.
+        findings: the images' mistakes found (calibration.image_checks).
+        bow: the board's sag out of its plane (calibration.board_bow), estimated from every
+            camera with `MIN_VIEWS` views (None: not estimated, or no such camera).
     """
 
     board: Checkerboard
@@ -185,6 +195,7 @@ class CameraCalibration:
     missed: list[MissedImage]
     uncalibrated: dict[str, str]
     findings: list[Finding] = field(default_factory=list)
+    bow: BoardBow | None = None
 
     @property
     def reference_camera(self) -> str:
@@ -262,7 +273,7 @@ def calibrate_session(
     verdict = check_images([ViewImage(c, s, corners) for (c, s), (corners, _) in found.items()],
                            read, board, hashes, image_checks)
     if not verdict.left_out:
-        return replace(first, findings=verdict.findings)
+        return replace(first, findings=verdict.findings, bow=_bow(first))
     kept = {key: d for key, d in found.items() if key not in verdict.left_out}
     try:
         again = calibrate_detections(kept, cameras, board, min_views, min_shared_views, known)
@@ -271,7 +282,21 @@ def calibrate_session(
         raise CameraCalibrationError(f"{exc} (views left out: {mistakes})") from exc
     left_out = [MissedImage(c, s, f"left out: {reason}")
                 for (c, s), reason in verdict.left_out.items()]
-    return replace(again, missed=[*again.missed, *left_out], findings=verdict.findings)
+    return replace(again, missed=[*again.missed, *left_out], findings=verdict.findings,
+                   bow=_bow(again))
+
+
+def _bow(cams: CameraCalibration) -> BoardBow | None:
+    """The board's sag from the views of every camera with `MIN_VIEWS` of them."""
+    views = [CameraViews(intr.K, intr.dist, (intr.width, intr.height),
+                         [v.corners_px for (c, _), v in cams.views.items() if c == name],
+                         intr.noise.sigma_px)
+             for name, intr in cams.intrinsics.items()]
+    usable = [v for v in views if len(v.corners_px) >= MIN_VIEWS]
+    if not usable:
+        return None
+    with _reproducible():
+        return estimate_bow(cams.board, usable)
 
 
 ROUGH_STEPS = 24
@@ -484,6 +509,7 @@ def _calibrate_camera(
         intrinsics_cov = (np.diag(np.square(known.std)) if known.std is not None
                           else np.zeros((9, 9)))
         fits = _fits_with(K, dist, corners, steps, board)
+        noise = _corner_noise(fits, None)
     else:
         flags = cv2.CALIB_USE_INTRINSIC_GUESS if known is not None else 0
         K0 = np.array(known.camera_matrix) if known is not None else None
@@ -498,18 +524,34 @@ def _calibrate_camera(
             _view_fit(corners[s], r.ravel(), t.ravel(), K, dist, board)
             for s, r, t in zip(steps, rvecs, tvecs, strict=True)
         ]
-        intrinsics_cov = np.linalg.inv(_intrinsics_information(fits))
+        noise = _corner_noise(fits, _intrinsics_information(fits, np.ones(len(fits))))
+        intrinsics_cov = np.linalg.inv(
+            _intrinsics_information(fits, noise.view_sigma_px**2))
         if known is not None:
             K, dist, intrinsics_cov = _combine_with_prior(K, dist, intrinsics_cov, known)
             fits = _fits_with(K, dist, corners, steps, board)
-    pose_covs = _pose_covariances(fits, intrinsics_cov)
+    pose_covs = _pose_covariances(fits, noise.view_sigma_px**2, intrinsics_cov)
     views = [
-        BoardView(camera, s, corners[s], Pose(f.rig_to_cam, cov), f.rms_px)
-        for s, f, cov in zip(steps, fits, pose_covs, strict=True)
+        BoardView(camera, s, corners[s], Pose(f.rig_to_cam, cov), f.rms_px, float(sigma))
+        for s, f, cov, sigma in zip(steps, fits, pose_covs, noise.view_sigma_px, strict=True)
     ]
     rms = float(np.sqrt(np.mean([f.rms_px**2 for f in fits])))
-    intr = CameraIntrinsics(camera, size[0], size[1], K, dist, intrinsics_cov, rms, len(steps))
+    intr = CameraIntrinsics(camera, size[0], size[1], K, dist, intrinsics_cov, rms, len(steps),
+                            noise)
     return intr, views
+
+
+def _corner_noise(fits: list[_ViewFit], information: np.ndarray | None) -> CornerNoise:
+    """The camera's corner noise (calibration.corner_noise) from its views' residuals, each
+    view having absorbed its pose's 6 parameters and, where the intrinsics were fitted (their
+    information at unit noise given), its share tr(S^-1 S_i) of their 9: S_i is the view's
+    term of the Schur complement S (`_intrinsics_information`), so the shares sum to 9."""
+    absorbed = np.full(len(fits), 6.0)
+    if information is not None:
+        S_inv = np.linalg.inv(information)
+        absorbed += [np.trace(S_inv @ _schur_term(f, 1.0)) for f in fits]
+    return estimate_corner_noise(np.array([f.sum_sq_px2 for f in fits]),
+                                 np.array([len(f.J_pose) // 2 for f in fits]), absorbed)
 
 
 def _fits_with(K: np.ndarray, dist: np.ndarray, corners: dict[str, np.ndarray],
@@ -551,14 +593,14 @@ class _ViewFit:
         rig_to_cam: the pose, made from the fitted rotation vector.
         J_pose: (2 n, 6) derivatives of the pixel coordinates by (rvec, tvec).
         J_intr: (2 n, 9) derivatives by (fx, fy, cx, cy, k1, k2, p1, p2, k3).
-        s2: residual variance per pixel coordinate, px^2 (sum of squares / (2 n - 6)).
+        sum_sq_px2: sum of the squared residuals of the view's corners, px^2.
         rms_px: RMS reprojection error per corner, pixels.
     """
 
     rig_to_cam: RigidTransform
     J_pose: np.ndarray
     J_intr: np.ndarray
-    s2: float
+    sum_sq_px2: float
     rms_px: float
 
 
@@ -578,40 +620,47 @@ def _view_fit(
         rig_to_cam=RigidTransform.from_rotvec(rvec, tvec),
         J_pose=jac[:, :6],
         J_intr=jac[:, 6:15],
-        s2=sq / (residual.size - 6),
+        sum_sq_px2=sq,
         rms_px=float(np.sqrt(sq / len(residual))),
     )
 
 
-def _intrinsics_information(fits: list[_ViewFit]) -> np.ndarray:
+def _schur_term(f: _ViewFit, variance: float) -> np.ndarray:
+    """A view's term (9, 9) of the intrinsics' information with the poses marginalized out
+    (`_intrinsics_information`), at the given noise variance per coordinate (px^2)."""
+    W = f.J_intr.T @ f.J_pose
+    return (f.J_intr.T @ f.J_intr - W @ np.linalg.inv(f.J_pose.T @ f.J_pose) @ W.T) / variance
+
+
+def _intrinsics_information(fits: list[_ViewFit], variances: np.ndarray) -> np.ndarray:
     """Information matrix (9, 9) of the intrinsics in the joint fit of all views, the poses
     marginalized out.
 
-    The information matrix of the joint fit, each view weighted by its own residual variance
-    s_i^2 (a blurred image counts less), is [[U, W], [W^T, V]] with V block-diagonal:
-    V_i = J_i^T J_i / s_i^2, W_i = C_i^T J_i / s_i^2, U = sum C_i^T C_i / s_i^2 (J: pose
-    Jacobian, C: intrinsics Jacobian). The intrinsics' information is the Schur complement
-    S = U - sum W_i V_i^-1 W_i^T (its inverse their covariance).
+    The information matrix of the joint fit, each view weighted by its corner noise's
+    variance s_i^2 (px^2 per coordinate: a blurred image counts less), is [[U, W], [W^T, V]]
+    with V block-diagonal: V_i = J_i^T J_i / s_i^2, W_i = C_i^T J_i / s_i^2,
+    U = sum C_i^T C_i / s_i^2 (J: pose Jacobian, C: intrinsics Jacobian). The intrinsics'
+    information is the Schur complement S = U - sum W_i V_i^-1 W_i^T (its inverse their
+    covariance).
     """
-    S = sum(f.J_intr.T @ f.J_intr / f.s2 for f in fits)
-    for f in fits:
-        W = f.J_intr.T @ f.J_pose / f.s2
-        S = S - W @ np.linalg.inv(f.J_pose.T @ f.J_pose / f.s2) @ W.T
-    return S
+    return sum((_schur_term(f, v) for f, v in zip(fits, variances, strict=True)),
+               np.zeros((9, 9)))
 
 
-def _pose_covariances(fits: list[_ViewFit], intrinsics_cov: np.ndarray) -> list[np.ndarray]:
+def _pose_covariances(fits: list[_ViewFit], variances: np.ndarray,
+                      intrinsics_cov: np.ndarray) -> list[np.ndarray]:
     """Each pose's marginal covariance (6, 6): V_i^-1 + V_i^-1 W_i^T C W_i V_i^-1, its own
-    noise plus the intrinsics' uncertainty C (notation of `_intrinsics_information`).
+    noise plus the intrinsics' uncertainty C (notation of `_intrinsics_information`; the views'
+    corner noise variances s_i^2, px^2).
 
     Why the second term: a focal-length error scales every pose's depth; left out, the
     covariance claims depths several times better than they are. (The intrinsics' errors also
     correlate the poses with each other; those cross terms are not returned.)
     """
     covs = []
-    for f in fits:
-        V_inv = np.linalg.inv(f.J_pose.T @ f.J_pose / f.s2)
-        W = f.J_intr.T @ f.J_pose / f.s2
+    for f, variance in zip(fits, variances, strict=True):
+        V_inv = np.linalg.inv(f.J_pose.T @ f.J_pose / variance)
+        W = f.J_intr.T @ f.J_pose / variance
         covs.append(V_inv + V_inv @ W.T @ intrinsics_cov @ W @ V_inv)
     return covs
 

@@ -38,11 +38,13 @@ Unknowns: every camera's 9 intrinsics, the other cameras' extrinsics (6 each), e
 pose including the reference-microphone step (6 each), the microphones (3 each), the reference
 microphone (3), c (one, or one per pose), the latencies, and with their priors (`BundlePriors`)
 the microphones' own delays, the speakers' rig offsets, the off-axis move b and the print
-scale. Residuals are
-whitened: corner pixels by a per-camera sigma, times of flight by their predicted std times a
-per-kind scale; both are estimated from the residual scatter (median absolute deviation) at
-the start and again after each pass. The priors are Gaussian pseudo-observations with the
-stated standard deviations (never rescaled, never down-weighted).
+scale. Residuals are whitened: corner pixels by a per-camera sigma (times each view's noise
+relative to its camera's, as the camera calibration estimated it:
+`BundleProblem.corner_sigma_px`), times of flight by their predicted std times a per-kind
+scale; both are estimated from the residual scatter (median absolute deviation) at the start
+and again after each pass, the corners' last from residuals standardized by their leverage
+(`_corner_sigmas_for_leverage`). The priors are Gaussian pseudo-observations with the stated
+standard deviations (never rescaled, never down-weighted).
 
 Solver: Levenberg-Marquardt on the normal equations J^T W J, which are small (about 1,100
 unknowns for 140 poses) even when J has 10^5 rows; J is sparse and analytic (OpenCV's
@@ -139,6 +141,11 @@ class BundleProblem:
         speed_of_sound_of_pose: (n_pose,) index of the c unknown of each board pose (-1: a
             pose without sources); None: one c for the whole session.
         priors: the Gaussian priors of the optional unknowns (`BundlePriors`).
+        corner_sigma_px: (n_view,) each view's corner noise as the camera calibration
+            estimated it (`view_sigmas`), pixels per coordinate: a view's corners are
+            weighted by it relative to its camera's other views (a blurred or distant view
+            counts less), each camera's scale estimated again from the joint fit's
+            residuals. None: a camera's views alike.
     """
 
     board_points_m: np.ndarray
@@ -159,6 +166,7 @@ class BundleProblem:
     tof_speed_of_sound_m_s: float = NOMINAL_SPEED_OF_SOUND_M_S
     speed_of_sound_of_pose: np.ndarray | None = None
     priors: BundlePriors | None = None
+    corner_sigma_px: np.ndarray | None = None
 
     @property
     def n_camera(self) -> int:
@@ -469,6 +477,18 @@ def _corner_rows(views: np.ndarray, n_corner: int) -> np.ndarray:
     return (2 * n_corner * views[:, None] + np.arange(2 * n_corner)).ravel()
 
 
+def _relative_sigmas(view_sigma_px: np.ndarray | None, views: np.ndarray,
+                     n_corner: int) -> np.ndarray:
+    """The base sigmas of one camera's corner rows (`_corner_rows` of `views`): each view's
+    corner noise over the median of the camera's views' (1 for a view of the camera's
+    pooled noise: the group's scale is then the camera's corner noise in pixels), or 1 for
+    every view without estimates."""
+    if view_sigma_px is None or views.size == 0:
+        return np.ones(2 * n_corner * views.size)
+    sigma = view_sigma_px[views]
+    return np.repeat(sigma / np.median(sigma), 2 * n_corner)
+
+
 class _Model:
     """Unwhitened residuals (model - measurement) and their Jacobian at a state."""
 
@@ -490,8 +510,10 @@ class _Model:
         p, groups = self.p, []
         n_corner = p.corners_px.shape[1]
         for i, name in enumerate(p.camera_names):
-            rows = _corner_rows(np.flatnonzero(p.view_camera == i), n_corner)
-            groups.append(_Rows(name, rows, np.ones(rows.size), 2, name))
+            views = np.flatnonzero(p.view_camera == i)
+            rows = _corner_rows(views, n_corner)
+            groups.append(_Rows(name, rows, _relative_sigmas(p.corner_sigma_px, views, n_corner),
+                                2, name))
         start = self.n_corner_rows
         base = p.tof_std_s[self.tof_valid]
         for m in range(p.tof_s.shape[1]):  # each microphone its own noise level
@@ -863,6 +885,19 @@ class _Pass:
                 return x, iteration
         return x, self.options.max_iterations
 
+    def leverages(self, residual: np.ndarray, jac: sparse.csr_matrix, x: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The inverse normal matrix over the free unknowns, the rows' weights (whitening
+        squared times Huber's; zero for the rows left out) and their leverages (n_rows,):
+        h = w j^T A^-1 j, the share of its own residual the fit absorbs (they sum to the
+        number of unknowns the data determine)."""
+        A, _ = self.normal_equations(residual, jac, x)
+        A_inv = inverse_normal(A)
+        weight, _ = self.cost(residual, x)
+        w = weight * self.whiten**2
+        free_jac = jac.tocsc()[:, self.free].tocsr()
+        return A_inv, w, w * _quadratic_forms(free_jac, A_inv)
+
     def covariance(self, residual: np.ndarray, jac: sparse.csr_matrix,
                    x: np.ndarray) -> np.ndarray:
         """(n_param, n_param) covariance over the free unknowns (the fixed ones have zero rows
@@ -880,13 +915,9 @@ class _Pass:
         synthetic scenes with independent Gaussian noise the microphones' errors relative to
         the array then have the squared Mahalanobis distance they should (3.1 for 3), where
         the plain sandwich gave 5.1 (tests/calibration/test_bundle.py)."""
-        A, _ = self.normal_equations(residual, jac, x)
-        A_inv = inverse_normal(A)
-        weight, _ = self.cost(residual, x)
-        w = weight * self.whiten**2  # zero for the rows left out
+        A_inv, w, h = self.leverages(residual, jac, x)
         clusters = self.model.clusters()
-        free_jac = jac.tocsc()[:, self.free].tocsr()
-        leverage = np.bincount(clusters, w * _quadratic_forms(free_jac, A_inv))
+        leverage = np.bincount(clusters, h)
         score = w * residual / np.sqrt(1.0 - np.minimum(leverage, _MAX_LEVERAGE))[clusters]
         sums = sparse.csr_matrix((score, (clusters, np.arange(score.size))),
                                  shape=(int(clusters.max()) + 1, score.size))
@@ -1009,6 +1040,8 @@ def _fit(problem: BundleProblem, start: BundleState, options: BundleOptions) -> 
         sigma, keep = new_sigma, new_keep
         if settled:
             break
+    sigma = _corner_sigmas_for_leverage(model, _Pass(model, sigma, keep, priors, options), x,
+                                        sigma, keep)
     final = _Pass(model, sigma, keep, priors, options)
     x, n = final.run(x)
     iterations += n
@@ -1019,6 +1052,24 @@ def _fit(problem: BundleProblem, start: BundleState, options: BundleOptions) -> 
     dof = max(int(keep.sum()) + prior.size - int(priors.free.sum()), 1)
     return _solution(model, x, residual, keep, sigma, covariance,
                      float(e @ e + prior @ prior) / dof, iterations)
+
+
+def _corner_sigmas_for_leverage(model: _Model, settled: _Pass, x: np.ndarray,
+                                sigma: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """`sigma` with the cameras' corner sigmas estimated again from residuals standardized
+    by their leverage, r / sqrt(1 - h) (`_Pass.leverages`).
+
+    Why: the fit absorbs part of the noise (each view's pose, a share of its camera's
+    intrinsics): a corner's residual has variance sigma^2 (1 - h), so the scatter of the
+    plain residuals underestimates the noise by sqrt(1 - p / n), p of n rows' worth of
+    unknowns (2-3 % for a camera's corners; the camera calibration's figure,
+    calibration.corner_noise, has the same correction). The times of flight keep theirs."""
+    residual, jac = model.evaluate(x, jacobian=True)
+    h = settled.leverages(residual, jac, x)[2]
+    corners = np.arange(model.n_rows) < model.n_corner_rows
+    standardized = np.where(corners, residual / np.sqrt(1.0 - np.minimum(h, _MAX_LEVERAGE)),
+                            residual)
+    return np.where(corners, _estimate_sigmas(model, standardized, keep), sigma)
 
 
 def _check(problem: BundleProblem, start: BundleState) -> None:
@@ -1117,14 +1168,27 @@ def board_views(cams: CameraCalibration,
                 steps: list[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(view_camera, view_pose, corners_px) of every view of `steps` (pose index = position
     in `steps`) by the calibrated cameras."""
+    keys = _view_keys(cams, steps)
+    corners = np.array([cams.views[key].corners_px for key, _ in keys])
+    view_camera, view_pose = (np.array(v) for v in zip(*(ik for _, ik in keys), strict=True))
+    return view_camera, view_pose, corners
+
+
+def view_sigmas(cams: CameraCalibration, steps: list[str]) -> np.ndarray:
+    """(n_view,) the corner noise of every view of `board_views`, in its order, pixels per
+    coordinate (`BoardView.sigma_px`: `BundleProblem.corner_sigma_px`)."""
+    return np.array([cams.views[key].sigma_px for key, _ in _view_keys(cams, steps)])
+
+
+def _view_keys(cams: CameraCalibration, steps: list[str]
+               ) -> list[tuple[tuple[str, str], tuple[int, int]]]:
+    """((camera, step), (camera index, pose index)) of every view of `steps`, pose by pose."""
     names = list(cams.intrinsics)
-    keys = [(i, k) for k, step in enumerate(steps) for i, name in enumerate(names)
-            if (name, step) in cams.views]  # fmt: skip
+    keys = [((name, step), (i, k)) for k, step in enumerate(steps)
+            for i, name in enumerate(names) if (name, step) in cams.views]  # fmt: skip
     if not keys:
         raise ValueError("no board view of the given steps: nothing to fit the cameras to")
-    corners = np.array([cams.views[(names[i], steps[k])].corners_px for i, k in keys])
-    view_camera, view_pose = (np.array(v) for v in zip(*keys, strict=True))
-    return view_camera, view_pose, corners
+    return keys
 
 
 def refined_cameras(cams: CameraCalibration, solution: BundleSolution) -> CameraCalibration:
@@ -1140,7 +1204,8 @@ def refined_cameras(cams: CameraCalibration, solution: BundleSolution) -> Camera
         rms = float(solution.corner_rms_px[i])
         intrinsics[name] = CameraIntrinsics(
             name, old.width, old.height, K, state.intrinsics[i, 4:].copy(),
-            solution.marginal("intrinsics", i, N_INTRINSICS).copy(), rms, old.n_views)
+            solution.marginal("intrinsics", i, N_INTRINSICS).copy(), rms, old.n_views,
+            old.noise)
         old_ext = cams.cam_from_cam0[name]
         if i == 0:
             extrinsics[name] = old_ext
@@ -1150,7 +1215,7 @@ def refined_cameras(cams: CameraCalibration, solution: BundleSolution) -> Camera
                                          state.extrinsics[i - 1, 3:].copy())
             extrinsics[name] = Extrinsics(cam0_to_cam, rms, old_ext.n_shared_views, old_ext.via)
     return CameraCalibration(cams.board, intrinsics, extrinsics, cams.views, cams.missed,
-                             cams.uncalibrated)
+                             cams.uncalibrated, bow=cams.bow)
 
 
 def pose_estimate(solution: BundleSolution, index: int) -> Pose:

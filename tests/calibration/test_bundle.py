@@ -343,3 +343,33 @@ def test_an_infinite_std_is_no_data_and_warns_nothing() -> None:
     expected = fit_bundle(missing, start)
     np.testing.assert_allclose(fit.state.microphones_m, expected.state.microphones_m,
                                atol=1e-12)
+
+
+@pytest.mark.slow
+def test_a_noisier_camera_and_view_are_weighted_by_their_noise(scene: Scene,
+                                                                fitted: BundleSolution) -> None:
+    """cam1's corners with nine times the noise added (sqrt(1 + 81) = 9.06 times the noise):
+    its estimated sigma is that many times cam0's, and the std of its extrinsics grows 3 to 7
+    times (what its corners decide grows ninefold; the board poses' share, from cam0 and the
+    times of flight, not). One of cam0's
+    views with five times the noise, told by the camera calibration's per-view estimate
+    (`corner_sigma_px`), is weighted by it: none of its corners is an outlier, where one
+    sigma for the camera leaves out most of them."""
+    p = scene.problem
+    rng = np.random.default_rng(12)
+    n_pose = p.view_camera.size // 2
+    corners = p.corners_px.copy()
+    corners[n_pose:] += 9 * CORNER_NOISE_PX * rng.standard_normal(corners[n_pose:].shape)
+    noisy = fit_bundle(replace(p, corners_px=corners), frozen_camera_start(scene.truth))
+    assert noisy.sigmas["cam1"] / noisy.sigmas["cam0"] == pytest.approx(np.sqrt(82), rel=0.15)
+    growth = noisy.std.extrinsics[0] / fitted.std.extrinsics[0]
+    assert np.all((growth > 2.5) & (growth < 9.1))
+    blurred = p.corners_px.copy()
+    blurred[3] += 4 * CORNER_NOISE_PX * rng.standard_normal(blurred[3].shape)
+    view_sigma = np.full(p.view_camera.size, CORNER_NOISE_PX)
+    view_sigma[3] *= 5
+    told = fit_bundle(replace(p, corners_px=blurred, corner_sigma_px=view_sigma),
+                      frozen_camera_start(scene.truth))
+    untold = fit_bundle(replace(p, corners_px=blurred), frozen_camera_start(scene.truth))
+    assert told.corner_outliers[3].sum() == 0 and untold.corner_outliers[3].sum() > 20
+    assert told.sigmas["cam0"] == pytest.approx(CORNER_NOISE_PX, rel=0.15)

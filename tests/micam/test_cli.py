@@ -285,7 +285,7 @@ def test_the_summary_of_a_method_without_uncertainties_prints_no_nan() -> None:
         microphones=[SimpleNamespace(std_m=[nan, nan, nan])] * 3, poses=[0, 1],
         method="paper", speed_of_sound_m_s=343.2, speed_of_sound_std_m_s=nan,
         residuals=SimpleNamespace(rms_s=1e-8), timings_s={"solver": 1.0}, camera_frozen=None,
-        left_out_microphones=set)
+        left_out_microphones=set, cameras=[], board_bow=None)
     text = "\n".join(summary_lines(SimpleNamespace(result=result,  # type: ignore[arg-type]
                                                    data=SimpleNamespace(n_speakers=6))))
     assert "nan" not in text and "no position std (method paper gives none)" in text
