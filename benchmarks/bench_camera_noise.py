@@ -9,7 +9,7 @@ and calibrated with micam's defaults.
 
 Columns: the detected corners' RMS error per coordinate against the true projections (what
 the cameras' noise really is), the camera calibration's corner noise estimate
-(calibration.corner_noise; absent before it existed), the joint fit's corner sigma, the mean
+(calibration.camera.corner_noise; absent before it existed), the joint fit's corner sigma, the mean
 and max microphone error, and the share of microphones within 2 sigma (3-D, 95.4 %) of their
 reported covariance (bench_real_lab.figures).
 
@@ -55,7 +55,7 @@ def session(directory: Path, poses: int, seed: int, noise_grey: float,
 def corner_figures(path: Path, truth: dict) -> dict:
     """Per camera: the detected corners' true RMS error per coordinate (against the board as
     printed: the realistic lab's print is off scale by a few 1e-4), the camera
-    calibration's estimate (None before calibration.corner_noise) and the joint fit's sigma,
+    calibration's estimate (None before calibration.camera.corner_noise) and the joint fit's sigma,
     pixels."""
     run = calibrate(path, CalibrationOptions())
     cams = run.measurements.cameras

@@ -56,7 +56,7 @@ from .solve.bundle import (
     refined_cameras,
     view_sigmas,
 )
-from .board_bow import sagged_points
+from .camera.board_bow import sagged_points
 from .camera.camera_calibration import (
     DETECTION_CACHE_SIZE,
     CameraCalibration,
@@ -876,7 +876,7 @@ def fit_joint(m: Measurements, frozen: MicrophoneSolution, options: CalibrationO
 
 
 BOW_SIGNIFICANT = 3.0
-"""A board sag (calibration.board_bow) this many of its standard deviations from 0 is
+"""A board sag (calibration.camera.board_bow) this many of its standard deviations from 0 is
 modelled in the joint fit; a smaller one is a bound (the report states it), and the board is
 taken as flat rather than with a sag that is mostly its estimate's noise."""
 

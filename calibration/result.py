@@ -69,7 +69,7 @@ class CameraResult(_Model):
     corner_noise_px: float | None = Field(
         default=None, description="the camera's corner noise per pixel coordinate, estimated "
         "from the camera calibration's residuals with the degrees of freedom its fit absorbs "
-        "(calibration.corner_noise); the joint fit weights the corners by it")
+        "(calibration.camera.corner_noise); the joint fit weights the corners by it")
     corner_noise_std_px: float | None = None
     corner_noise_corners: int | None = Field(
         default=None, description="corners it was estimated from (the views of the pool)")
@@ -231,7 +231,7 @@ class Finding(_Model):
 
 
 class BoardBowResult(_Model):
-    """The printed board's sag out of its plane (calibration.board_bow)."""
+    """The printed board's sag out of its plane (calibration.camera.board_bow)."""
 
     sag_m: float = Field(description="the inner-corner grid's centre out of the plane of its "
                          "corners, metres (+: out of the printed face)")

@@ -30,8 +30,8 @@ from kernel.rigid import RigidTransform
 
 from .._blas import single_threaded_blas
 from .._cores import default_workers
-from ..board_bow import BoardBow, CameraViews, estimate_bow
-from ..corner_noise import CornerNoise, estimate_corner_noise
+from .board_bow import BoardBow, CameraViews, estimate_bow
+from .corner_noise import CornerNoise, estimate_corner_noise
 from .corners import (
     Checkerboard,
     Unsure,
@@ -184,7 +184,7 @@ class CameraCalibration:
         missed: images without a detectable board, reported and skipped.
         uncalibrated: cameras left out, with the reason.
         findings: the images' mistakes found (calibration.image_checks).
-        bow: the board's sag out of its plane (calibration.board_bow), estimated from every
+        bow: the board's sag out of its plane (calibration.camera.board_bow), estimated from every
             camera with `MIN_VIEWS` views (None: not estimated, or no such camera).
     """
 
@@ -542,7 +542,7 @@ def _calibrate_camera(
 
 
 def _corner_noise(fits: list[_ViewFit], information: np.ndarray | None) -> CornerNoise:
-    """The camera's corner noise (calibration.corner_noise) from its views' residuals, each
+    """The camera's corner noise (calibration.camera.corner_noise) from its views' residuals, each
     view having absorbed its pose's 6 parameters and, where the intrinsics were fitted (their
     information at unit noise given), its share tr(S^-1 S_i) of their 9: S_i is the view's
     term of the Schur complement S (`_intrinsics_information`), so the shares sum to 9."""

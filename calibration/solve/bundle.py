@@ -1063,7 +1063,7 @@ def _corner_sigmas_for_leverage(model: _Model, settled: _Pass, x: np.ndarray,
     intrinsics): a corner's residual has variance sigma^2 (1 - h), so the scatter of the
     plain residuals underestimates the noise by sqrt(1 - p / n), p of n rows' worth of
     unknowns (2-3 % for a camera's corners; the camera calibration's figure,
-    calibration.corner_noise, has the same correction). The times of flight keep theirs."""
+    calibration.camera.corner_noise, has the same correction). The times of flight keep theirs."""
     residual, jac = model.evaluate(x, jacobian=True)
     h = settled.leverages(residual, jac, x)[2]
     corners = np.arange(model.n_rows) < model.n_corner_rows

@@ -1,4 +1,4 @@
-"""The board's bow out of its plane (calibration.board_bow), from corners projected by
+"""The board's bow out of its plane (calibration.camera.board_bow), from corners projected by
 cv2.projectPoints off a sagged grid with Gaussian noise (no rendering needed)."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
-from calibration.board_bow import BoardBow, CameraViews, estimate_bow, sagged_points
+from calibration.camera.board_bow import BoardBow, CameraViews, estimate_bow, sagged_points
 from calibration.camera.camera_calibration import CameraCalibration
 from calibration.camera.corners import Checkerboard
 from calibration.pipeline import _board_points

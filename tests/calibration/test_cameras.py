@@ -118,7 +118,7 @@ def test_board_poses_match_truth_with_consistent_covariance(
 def test_corner_noise_matches_the_detected_corners_error(
     calibration: CameraCalibration, session
 ) -> None:
-    """Each camera's corner noise estimated from its residuals (calibration.corner_noise) is
+    """Each camera's corner noise estimated from its residuals (calibration.camera.corner_noise) is
     the scatter of its detected corners about the true projections, within 20 % (the
     rendered images' corners: about 0.006 px per coordinate)."""
     _, truth = session

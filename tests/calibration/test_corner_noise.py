@@ -1,5 +1,5 @@
 """The camera's corner noise estimated from its reprojection residuals
-(calibration.corner_noise, calibration.camera.camera_calibration): recovered from corners projected
+(calibration.camera.corner_noise, calibration.camera.camera_calibration): recovered from corners projected
 by a known camera with Gaussian noise added, per view where a view is noisier, with the
 degrees of freedom the fit absorbs; the rendered-image case is in test_cameras.py."""
 
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from calibration.camera.camera_calibration import calibrate_detections
-from calibration.corner_noise import estimate_corner_noise
+from calibration.camera.corner_noise import estimate_corner_noise
 from calibration.camera.corners import Checkerboard
 
 from .synthetic import random_poses

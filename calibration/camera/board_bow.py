@@ -11,7 +11,7 @@ the grid's outer corners stay in the plane z = 0, its centre is s out of it (s >
 +Z, out of the printed face). It is estimated by calibrating each camera again (its
 intrinsics, distortion and every board pose free) with the corners' rig coordinates sagged
 by s, for a few s: the sum over the cameras of the squared residuals over each camera's
-corner noise (calibration.corner_noise) is a chi-square, quadratic in s near its minimum,
+corner noise (calibration.camera.corner_noise) is a chi-square, quadratic in s near its minimum,
 whose curvature gives the estimate's standard deviation.
 """
 
@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .camera.corners import Checkerboard
+from .corners import Checkerboard
 
 PROBE_SAG_M = (-1e-3, 0.0, 1e-3)
 """Sags (metres, about the estimate) the chi-square is evaluated at, first about the flat
@@ -67,7 +67,7 @@ class CameraViews:
         dist: (5,) distortion (OpenCV's order).
         size: the image's (width, height), pixels.
         corners_px: the corners (n_corners, 2) of each of its views, rig order.
-        sigma_px: its corner noise per coordinate, pixels (calibration.corner_noise).
+        sigma_px: its corner noise per coordinate, pixels (calibration.camera.corner_noise).
     """
 
     K: np.ndarray
