@@ -9,7 +9,7 @@ DEMO_DIR := out/demo-$(shell date +%Y%m%d-%H%M%S)
 
 .PHONY: demo demo-offline test bench clean-venv
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml setup.py
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e '.[test]'
