@@ -157,3 +157,35 @@ def test_no_test_forks_the_test_process() -> None:
     offenders = [str(p.relative_to(REPO)) for p in (REPO / "tests").rglob("*.py")
                  if re.search(r"\bos\.fork\(", p.read_text()) and p.name != Path(__file__).name]
     assert offenders == []
+
+
+def test_one_chessboard_detector() -> None:
+    """#29 found two (the daemon's quality check and the calibration's quick path, with other
+    flags and scales): OpenCV's classic detector and its fast check are called in
+    kernel.chessboard alone (the calibration's sector-based fallback is another detector)."""
+    calls = re.compile(r"\b(findChessboardCorners|checkChessboard)\(")
+    found = sorted(str(path.relative_to(REPO))
+                   for top in ("acquisition", "calibration", "daq", "imaging", "kernel", "micam",
+                               "sim")
+                   for path in (REPO / top).rglob("*.py") if calls.search(path.read_text()))
+    assert found == ["kernel/chessboard.py"]
+
+
+@pytest.mark.slow
+def test_the_daemon_sees_the_corners_the_calibration_starts_from() -> None:
+    """A pose the daemon's quick look accepts is one the calibration's quick path finds, at
+    the corners the daemon drew (unrefined, within a pixel of the refined ones)."""
+    from acquisition.daemon.quality import checkerboard_corners
+    from calibration.camera.corners import Checkerboard, detect_corners_quickly
+    from sim.capture import SimulationOptions, build_simulated_capture
+
+    sim = build_simulated_capture(SimulationOptions(array="scatter48", poses=1, seed=3))
+    sim.world.place_rig(sim.poses[0])
+    image = sim.cameras[0].grab().image
+    board = Checkerboard.of_rig(sim.config.rig)
+    daemon = checkerboard_corners(image, board.pattern_size)
+    calibration = detect_corners_quickly(image, board)
+    assert daemon is not None and isinstance(calibration, np.ndarray)
+    assert daemon.shape == calibration.shape
+    nearest = np.linalg.norm(calibration[:, None, :] - daemon[None, :, :], axis=2).min(axis=1)
+    assert nearest.max() < 1.0, nearest.max()

@@ -15,10 +15,10 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from daq import CODE_FULL_SCALE
+from kernel.chessboard import quick_look
 
 from .config import Policy, QualityConfig
 
@@ -153,18 +153,13 @@ def checkerboard_corners(image: np.ndarray, corners: tuple[int, int]) -> np.ndar
     """The rig's checkerboard corners in `image` (pixels, shape (n, 2)), or None if OpenCV does
     not find all of them; `corners` counts the inner corners, x by y.
 
-    A quick look, not a measurement: the search runs on the image shrunk to at most
-    QUICK_LOOK_PX on its longer side (a board partly out of view costs OpenCV seconds at full
-    size, a fraction of that shrunk), and the corners are not refined; calibration refines them
-    from the stored full image.
+    A quick look, not a measurement: the calibration's own quick look (kernel.chessboard), on
+    the image shrunk to at most QUICK_LOOK_PX on its longer side (a board partly out of view
+    costs OpenCV seconds at full size, a fraction of that shrunk); the corners are not
+    refined, calibration refines them from the stored full image.
     """
-    grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-    scale = min(1.0, QUICK_LOOK_PX / max(grey.shape))
-    if scale < 1.0:
-        grey = cv2.resize(grey, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
-    flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
-    found, points = cv2.findChessboardCorners(grey, corners, flags=flags)
-    return points.reshape(-1, 2) / scale if found else None
+    scale = min(1.0, QUICK_LOOK_PX / max(image.shape[:2]))
+    return quick_look(image, corners, scale).corners_px
 
 
 def board_outline(corners: np.ndarray, pattern: tuple[int, int], width: int,

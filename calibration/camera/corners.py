@@ -45,13 +45,8 @@ import cv2
 import numpy as np
 
 from acquisition.contracts.rig_description import RigDescription
+from kernel.chessboard import as_grey, classic_grid, quick_look
 
-_CLASSIC_FLAGS = cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
-"""The classic detector without adaptive thresholding: on the realistic lab's images (30
-poses, 3 cameras) it finds the same boards in a fraction of the time, and where it fails (a
-board cut by the image's edge) it fails in a fraction of it too; the
-sector-based fallback is the detector robust to uneven light, and it found every board the
-adaptive classic one found."""
 _DETECT_SMOOTH_PX = 1.0
 """Gaussian sigma (pixels) of the smoothing the full-size classic detector looks at (the
 corners are refined on the image itself): on a noisy sensor's images (30 grey levels) the
@@ -187,20 +182,15 @@ def detect_corners_quickly(image: np.ndarray, board: Checkerboard
     """The corners (as `detect_corners`) from the cheap detectors alone, None when the fast
     check sees no board, or `UNSURE`.
 
-    cv2.checkChessboard (the detector's own fast check) rejects most images without a board:
-    at half size first (about 1 ms), at full size (about 9 ms) only when that fails (it misses
-    2-4 % of the boards the detector then finds); then the classic detector at half size
-    (`_CLASSIC_FLAGS`)."""
-    grey = _grey(image)
-    half = cv2.resize(grey, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
-    if not (cv2.checkChessboard(half, board.pattern_size)
-            or cv2.checkChessboard(grey, board.pattern_size)):
+    The look at half size that the daemon's checks take too (kernel.chessboard.quick_look:
+    the fast check, then the classic detector), its corners then refined on the full image."""
+    full = as_grey(image)
+    look = quick_look(full, board.pattern_size, scale=0.5)
+    if not look.board_seen:
         return None
-    found, corners = cv2.findChessboardCorners(half, board.pattern_size, flags=_CLASSIC_FLAGS)
-    if not found:
+    if look.corners_px is None:
         return UNSURE
-    # pixel centres: full = (half + 1/2) * 2 - 1/2 (INTER_AREA averages 2 x 2 blocks)
-    finished = _finished(grey, (corners.reshape(-1, 2) + 0.5) * 2.0 - 0.5, board)
+    finished = _finished(full, look.corners_px, board)
     return UNSURE if finished is None else finished
 
 
@@ -213,18 +203,13 @@ def detect_corners_robustly(image: np.ndarray, board: Checkerboard) -> np.ndarra
     the sector-based one found on the realistic lab's 140 poses, 10, in 5-16 ms instead of
     0.1-0.15 s, finished to the same corners within 3e-6 px); where it fails it costs
     45-80 ms more."""
-    grey = _grey(image)
-    smoothed = cv2.GaussianBlur(grey, (0, 0), _DETECT_SMOOTH_PX)
-    found, corners = cv2.findChessboardCorners(smoothed, board.pattern_size,
-                                               flags=_CLASSIC_FLAGS)
-    if found and (finished := _finished(grey, corners.reshape(-1, 2), board)) is not None:
+    full = as_grey(image)
+    smoothed = cv2.GaussianBlur(full, (0, 0), _DETECT_SMOOTH_PX)
+    corners = classic_grid(smoothed, board.pattern_size)
+    if corners is not None and (finished := _finished(full, corners, board)) is not None:
         return finished
-    found, corners = cv2.findChessboardCornersSB(grey, board.pattern_size)
-    return _finished(grey, corners.reshape(-1, 2), board) if found else None
-
-
-def _grey(image: np.ndarray) -> np.ndarray:
-    return image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    found, sb_corners = cv2.findChessboardCornersSB(full, board.pattern_size)
+    return _finished(full, sb_corners.reshape(-1, 2), board) if found else None
 
 
 def _finished(grey: np.ndarray, corners: np.ndarray, board: Checkerboard) -> np.ndarray | None:

@@ -12,6 +12,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from kernel.chessboard import as_grey
+
 from .corners import Checkerboard
 
 SATURATED = 254
@@ -21,10 +23,6 @@ _PROFILE_SAMPLES = 25
 """Samples across an edge, from one square's middle to the other's (0.7 of a square)."""
 
 
-def _grey(image: np.ndarray) -> np.ndarray:
-    return image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-
-
 def edge_sharpness(image: np.ndarray, corners_px: np.ndarray, board: Checkerboard) -> float:
     """The steepest slope across the board's edges over the step's height (1/px): the median
     over the edges between adjacent inner corners, of the edges along the rig's X and of those
@@ -32,7 +30,7 @@ def edge_sharpness(image: np.ndarray, corners_px: np.ndarray, board: Checkerboar
     1 / (sigma sqrt(2 pi)) (0.4 at one pixel); blurred by a motion over L pixels about 1 / L
     across the edges the motion crosses: the smaller family sees a motion in any direction
     (by at least L / sqrt 2)."""
-    grey = _grey(image).astype(np.float32)
+    grey = as_grey(image).astype(np.float32)
     grid = corners_px.reshape(board.corners_y, board.corners_x, 2)
     slopes = []
     for a, b in ((grid[:, :-1], grid[:, 1:]), (grid[:-1], grid[1:])):
@@ -62,7 +60,7 @@ def saturated_share(image: np.ndarray, hull_px: np.ndarray) -> float:
     above after a median filter (`SATURATED_MEDIAN_PX`): 0 on a board lit without highlights
     (whose white squares are exposed below full scale), however noisy its sensor, the glare's
     disc on one that reflects a lamp."""
-    grey = cv2.medianBlur(_grey(image), SATURATED_MEDIAN_PX)
+    grey = cv2.medianBlur(as_grey(image), SATURATED_MEDIAN_PX)
     mask = np.zeros(grey.shape, np.uint8)
     cv2.fillConvexPoly(mask, cv2.convexHull(np.round(hull_px).astype(np.int32)), 1)
     inside = grey[mask.astype(bool)]
@@ -74,7 +72,7 @@ def blockiness(image: np.ndarray) -> float:
     boundaries of JPEG than elsewhere (the mean absolute difference, both directions): 1 on
     raw frames, where nothing marks every eighth pixel; above it on frames JPEG-compressed
     (each block quantized on its own leaves a seam at its edge)."""
-    grey = _grey(image).astype(np.float32)
+    grey = as_grey(image).astype(np.float32)
     at, off = 0.0, 0.0
     for axis in (0, 1):
         d = np.abs(np.diff(grey, axis=axis)).mean(axis=1 - axis)
@@ -88,7 +86,7 @@ def x_corner_response(image: np.ndarray) -> np.ndarray:
     """The checkerboard X-corner response at every pixel (grey levels^2 / px^4): minus the
     determinant of the Hessian of the image smoothed over 1.5 px, large where two dark and
     two light quadrants meet, small on edges, flat areas and noise."""
-    grey = cv2.GaussianBlur(_grey(image).astype(np.float32), (0, 0), 1.5)
+    grey = cv2.GaussianBlur(as_grey(image).astype(np.float32), (0, 0), 1.5)
     xx = cv2.Sobel(grey, cv2.CV_32F, 2, 0, ksize=3)
     yy = cv2.Sobel(grey, cv2.CV_32F, 0, 2, ksize=3)
     xy = cv2.Sobel(grey, cv2.CV_32F, 1, 1, ksize=3)
