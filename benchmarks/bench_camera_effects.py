@@ -10,7 +10,9 @@ result.json. Also: the corners' own error, the RMS distance of the found corners
 true corners' projections (the bowed face's, by the true camera: the simulated corner noise a
 calibration's noise estimate should recover, which the residual understates by the fitted
 unknowns' share and overstates by what the model cannot fit), the focal length's error
-against the simulated truth, and the mean time to render one image (the cost of the effects;
+against the simulated truth, the calibration's estimate of the corner noise per pixel
+coordinate (calibration.camera.corner_noise) beside the true one (the standard deviation of
+the corners' errors per coordinate about their mean), and the mean time to render one image (the cost of the effects;
 the rays of a camera are computed once before).
 
     .venv/bin/python benchmarks/bench_camera_effects.py [--poses 8] [--seeds 0]
@@ -68,6 +70,8 @@ def measure(row: str, poses: int, seed: int) -> dict:
     return {"row": row, "seed": seed, "poses": poses, "views": fitted.n_views,
             "rms_px": fitted.rms_px,
             "corner_error_px": float(np.sqrt(np.mean(np.sum(np.vstack(errors) ** 2, axis=1)))),
+            "noise_estimate_px": fitted.noise.sigma_px,
+            "true_noise_px": float(np.std(np.vstack(errors) - np.vstack(errors).mean(axis=0))),
             "focal_error_px": float(fitted.K[0, 0] - true_f),
             "render_s": float(np.mean(render_s))}
 
@@ -81,12 +85,13 @@ def main() -> None:
                         default=Path(__file__).parent / "results" / "camera_effects.json")
     args = parser.parse_args()
     results = [measure(row, args.poses, seed) for row in args.rows for seed in args.seeds]
-    print("| effect | seed | views | corner RMS (px) | corner error (px) | focal error (px) "
-          "| render (s) |")
-    print("|---|---|---|---|---|---|---|")
+    print("| effect | seed | views | corner RMS (px) | corner error (px) | noise estimate "
+          "(px) | true noise (px) | focal error (px) | render (s) |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for r in results:
         print(f"| {r['row']} | {r['seed']} | {r['views']} | {r['rms_px']:.4f} | "
-              f"{r['corner_error_px']:.4f} | {r['focal_error_px']:+.3f} | {r['render_s']:.3f} |")
+              f"{r['corner_error_px']:.4f} | {r['noise_estimate_px']:.4f} | "
+              f"{r['true_noise_px']:.4f} | {r['focal_error_px']:+.3f} | {r['render_s']:.3f} |")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(results, indent=2))
     print(f"written to {args.out}")
