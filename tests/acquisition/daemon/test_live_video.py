@@ -21,6 +21,7 @@ from imaging.csm import WelchOptions, band_bins, cross_spectra
 from imaging.geometry import ArrayGeometry, geometry_from_dict
 from imaging.live import LiveImager, LiveSettings
 from imaging.live_frames import MapFrames
+from imaging.peaks import subgrid_peak
 from imaging.steering import SteeringModel
 from imaging.view_plane import depth_plane_grid
 from micam.cli import main
@@ -154,8 +155,10 @@ def test_acoular_reads_a_live_recording_and_makes_micams_map(recording, geometry
     imager = LiveImager(plain, LiveSettings(grid_shape=(41, 31), window_s=n / fs), fs)
     imager.push(volts)
     live_peak = imager.map().peak_index
-    their_peak = np.unravel_index(int(np.argmax(theirs)), grid.shape)
-    assert np.hypot(live_peak[0] - their_peak[0], live_peak[1] - their_peak[1]) <= 1.0
+    # both sub-grid (0.003 of a cell apart here): the live peak against Acoular's grid node
+    # were up to 0.7 of a cell apart with identical maps, and 1.1 once under load
+    their_peak = subgrid_peak(theirs, grid.shape)
+    assert np.hypot(live_peak[0] - their_peak[0], live_peak[1] - their_peak[1]) <= 0.1
 
 
 def world_truth_of(geometry: ArrayGeometry) -> dict:
