@@ -12,8 +12,8 @@ calibration's noise estimate should recover, which the residual understates by t
 unknowns' share and overstates by what the model cannot fit), the focal length's error
 against the simulated truth, the calibration's estimate of the corner noise per pixel
 coordinate (calibration.camera.corner_noise) beside the true one (the standard deviation of
-the corners' errors per coordinate about their mean), and the mean time to render one image (the cost of the effects;
-the rays of a camera are computed once before).
+the corners' errors per coordinate about their mean), and the mean time to render one image
+(the cost of the effects; the rays of a camera are computed once before).
 
     .venv/bin/python benchmarks/bench_camera_effects.py [--poses 8] [--seeds 0]
     .venv/bin/python benchmarks/bench_camera_effects.py --rows none all --poses 30

@@ -124,9 +124,9 @@ class BurstConfig(ConfigModel):
     state (the direct sound and every reflection of a period arrive within it), so one period
     correlated circularly against the reference's is exactly the periodic impulse response: a
     room's reflections are clean pulses that leave the direct one alone, and the sequence's
-    flat spectrum costs no precision (calibration.acoustic.delay_estimation). One period (the default,
-    and what sessions recorded before it existed hold) is a burst whose reflections bias
-    delays by tens of nanoseconds in a room."""
+    flat spectrum costs no precision (calibration.acoustic.delay_estimation). One period (the
+    default, and what sessions recorded before it existed hold) is a burst whose reflections
+    bias delays by tens of nanoseconds in a room."""
 
     mls_order: MlsOrder = 14
     amplitude_v: float = Field(default=1.0, gt=0, le=10)

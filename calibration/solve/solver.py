@@ -100,8 +100,8 @@ class SolverOptions:
         speed_of_sound_m_s: the start value of c, or its value when not fitted (e.g. from
             `calibration.acoustic.speed_of_sound.fit_speed_of_sound`).
         fit_speed_of_sound: make c an unknown (shared by all microphones, it costs little).
-        latency: "per_board" (the default, `calibration.choices.DEFAULT_LATENCY`), "common" (one delta for all
-            channels) or "none".
+        latency: "per_board" (the default, `calibration.choices.DEFAULT_LATENCY`), "common"
+            (one delta for all channels) or "none".
         reference_board: with "per_board", the board whose latency is fixed at 0 (the one
             recording the reference microphone: delays are measured against it). None fits
             every board's latency.

@@ -1,6 +1,6 @@
 """The camera's corner noise estimated from its reprojection residuals
-(calibration.camera.corner_noise, calibration.camera.camera_calibration): recovered from corners projected
-by a known camera with Gaussian noise added, per view where a view is noisier, with the
+(calibration.camera.corner_noise, calibration.camera.camera_calibration): recovered from
+corners projected by a known camera with Gaussian noise added, per view where a view is noisier, with the
 degrees of freedom the fit absorbs; the rendered-image case is in test_cameras.py."""
 
 from __future__ import annotations
