@@ -5,15 +5,19 @@ without it.
 
 Every session is `micam simulate --lab realistic` (48-microphone scatter array by default)
 with `--mistake NAME` at the mistake's drawn defaults; the clean session of each seed is the
-same world without mistakes. Found means a finding of the expected kind (`EXPECTED`); a
-mistake without one (the calibration does not look for it yet) says "not looked for". Every
-calibration is given the array's nominal layout (`calibration.truth.nominal_layout_of`: the
-simulated positions off by 0.5 mm per axis, in a frame of their own), against which swapped
-microphone cables and a shifted column map are found; `--no-layout` leaves it out (and the
-one `micam simulate` writes into the session's description).
+same world without mistakes. Found means a finding of the expected kind (`EXPECTED`) for
+each of the session's mistakes; a false finding is any other kind. Every calibration is
+given the array's nominal layout (`calibration.truth.nominal_layout_of`: the simulated
+positions off by 0.5 mm per axis, in a frame of their own), against which swapped microphone
+cables and a shifted column map are found; `--no-layout` leaves it out (and the one `micam
+simulate` writes into the session's description).
 
     .venv/bin/python benchmarks/bench_mistakes.py [--poses 8] [--seeds 1] [--keep DIR]
-    .venv/bin/python benchmarks/bench_mistakes.py --poses 20 --seeds 1 2 3 4 5 --pairs
+    .venv/bin/python benchmarks/bench_mistakes.py --poses 20 --seeds 1 2 3 4 5 --pairs \
+        --workers 2 --keep /tmp/mistakes
+
+Each session (a seed and its mistakes) is a task: on a local Dask cluster with --workers N,
+or on --scheduler ADDRESS (whose workers must see --keep at the same path).
 
 Printed as a markdown table, written as JSON to benchmarks/results/mistakes.json (or --out).
 """
@@ -21,6 +25,7 @@ Printed as a markdown table, written as JSON to benchmarks/results/mistakes.json
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import subprocess
 import sys
@@ -32,6 +37,7 @@ from calibration.errors import CalibrationInputError
 from calibration.pipeline import CalibrationOptions, calibrate
 from calibration.result import compare_with_truth
 from calibration.truth import nominal_layout_of
+from micam.cluster import cluster_map
 
 EXPECTED = {
     "dead-mic": "dead-microphone",
@@ -51,7 +57,7 @@ EXPECTED = {
     "refmic-far": "misplaced-reference-microphone",
     "close-reflector": "close-reflection",
 }
-"""Each mistake and the finding kind that names it (None: not looked for yet)."""
+"""Each mistake and the finding kind that names it."""
 
 
 def _session(root: Path, name: str, seed: int, poses: int, array: str,
@@ -84,56 +90,86 @@ def _calibrated(path: Path, layout: bool) -> dict:
             "seconds": round(time.perf_counter() - start, 2)}
 
 
+def cell(root: Path, seed: int, combo: tuple[str, ...], poses: int, array: str,
+         layout: bool) -> dict:
+    """One session of `combo`'s mistakes (() for the clean one) simulated under `root` unless
+    kept there, and calibrated: a task of its own, so that the grid runs on a cluster."""
+    name = "+".join(combo) or "clean"
+    got = _calibrated(_session(root, name, seed, poses, array, combo), layout)
+    wanted = {EXPECTED[m] for m in combo}
+    return {"mistakes": list(combo), "seed": seed, **got,
+            "found": wanted <= set(got["findings"]) if combo else None,
+            "false_findings": sorted(set(got["findings"]) - wanted)}
+
+
+def combinations(mistakes: list[str], pairs: str | None) -> list[tuple[str, ...]]:
+    """Each mistake alone, then the pairs: each with the next of the list ("next", so that
+    every mistake is in two pairs) or every pair ("all")."""
+    combos = [(m,) for m in mistakes]
+    if pairs == "next" and len(mistakes) > 1:
+        following = mistakes[1:] + mistakes[:1]
+        combos += list(dict.fromkeys(tuple(sorted((a, b), key=mistakes.index))
+                                     for a, b in zip(mistakes, following, strict=True)))
+    elif pairs == "all":
+        combos += list(itertools.combinations(mistakes, 2))
+    return combos
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--poses", type=int, default=8)
     parser.add_argument("--seeds", type=int, nargs="+", default=[1])
     parser.add_argument("--array", default="scatter48")
-    parser.add_argument("--mistakes", nargs="+", default=list(EXPECTED))
-    parser.add_argument("--pairs", action="store_true",
-                        help="also each mistake with the next one of the list")
+    parser.add_argument("--mistakes", nargs="+", default=list(EXPECTED), choices=list(EXPECTED),
+                        metavar="MISTAKE")
+    parser.add_argument("--pairs", nargs="?", const="next", choices=["next", "all"],
+                        help="also two mistakes at a time: each with the next one of the list "
+                             "(--pairs) or every pair (--pairs all)")
     parser.add_argument("--no-layout", action="store_true",
                         help="calibrate without the array's nominal layout")
-    parser.add_argument("--keep", type=Path, default=None, help="keep the sessions here")
+    parser.add_argument("--keep", type=Path, default=None,
+                        help="keep the sessions here (and reuse them)")
+    parser.add_argument("--workers", type=int, default=None,
+                        help="run the sessions on a local Dask cluster of N processes "
+                             "(default: one after another here)")
+    parser.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                        help="run the sessions on this Dask scheduler (its workers must see "
+                             "--keep)")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/mistakes.json"))
     args = parser.parse_args()
-    combos = [(m,) for m in args.mistakes]
-    if args.pairs:
-        combos += [(a, b) for a, b in zip(args.mistakes, args.mistakes[1:] + args.mistakes[:1],
-                                         strict=True)]
-    rows = []
-    with tempfile.TemporaryDirectory() as scratch:
-        root = args.keep or Path(scratch)
+    combos = [(), *combinations(args.mistakes, args.pairs)]
+    with tempfile.TemporaryDirectory() as scratch, \
+            cluster_map("mistakes", args.scheduler, args.workers) as mapper:
+        root = (args.keep or Path(scratch)).absolute()
         root.mkdir(parents=True, exist_ok=True)
-        print("| mistakes | seed | found | false findings | error mm | clean mm | ratio | s |")
-        print("|---|---|---|---|---|---|---|---|")
-        for seed in args.seeds:
-            clean = _calibrated(_session(root, "clean", seed, args.poses, args.array, ()),
-                                not args.no_layout)
-            rows.append({"mistakes": [], "seed": seed, **clean,
-                         "false_findings": clean["findings"]})
-            print(f"| (none) | {seed} | - | {', '.join(clean['findings']) or '-'} | "
-                  f"{clean['error_mm']:.3f} | {clean['error_mm']:.3f} | 1.0 | "
-                  f"{clean['seconds']:.1f} |")
-            for combo in combos:
-                got = _calibrated(_session(root, "+".join(combo), seed, args.poses, args.array,
-                                           combo), not args.no_layout)
-                wanted = {EXPECTED[m] for m in combo} - {None}
-                found = wanted <= set(got["findings"]) if wanted else None
-                false = sorted(set(got["findings"]) - wanted)
-                ratio = (None if got["error_mm"] is None or not clean["error_mm"]
-                         else round(got["error_mm"] / clean["error_mm"], 2))
-                rows.append({"mistakes": list(combo), "seed": seed, **got, "found": found,
-                             "false_findings": false, "clean_error_mm": clean["error_mm"],
-                             "ratio": ratio})
-                said = "not looked for" if found is None else ("yes" if found else "NO")
-                error = "refused" if got["refused"] else f"{got['error_mm']:.3f}"
-                print(f"| {' + '.join(combo)} | {seed} | {said} | {', '.join(false) or '-'} | "
-                      f"{error} | {clean['error_mm']:.3f} | {ratio} | {got['seconds']:.1f} |")
+        jobs = [(root, seed, combo, args.poses, args.array, not args.no_layout)
+                for seed in args.seeds for combo in combos]
+        rows = list(mapper(cell, jobs) if mapper else (cell(*job) for job in jobs))
+    clean = {row["seed"]: row["error_mm"] for row in rows if not row["mistakes"]}
+    for row in rows:
+        row["clean_error_mm"] = clean[row["seed"]]
+        row["ratio"] = (None if row["error_mm"] is None or not clean[row["seed"]]
+                        else round(row["error_mm"] / clean[row["seed"]], 2))
+    print(table(rows))
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps({"poses": args.poses, "array": args.array,
                                     "layout": not args.no_layout, "rows": rows}, indent=1))
     print(f"written: {args.out}")
+
+
+def table(rows: list[dict]) -> str:
+    """The rows as a markdown table: mistake, seed, found, false findings, error with and
+    without the mistake, their ratio and the calibration's run time."""
+    lines = ["| mistakes | seed | found | false findings | error mm | clean mm | ratio | s |",
+             "|---|---|---|---|---|---|---|---|"]
+    for row in rows:
+        said = {None: "-", True: "yes", False: "NO"}[row["found"]]
+        error = "refused" if row["refused"] else f"{row['error_mm']:.3f}"
+        clean = "-" if row["clean_error_mm"] is None else f"{row['clean_error_mm']:.3f}"
+        lines.append(f"| {' + '.join(row['mistakes']) or '(none)'} | {row['seed']} | {said} | "
+                     f"{', '.join(row['false_findings']) or '-'} | {error} | {clean} | "
+                     f"{row['ratio']} | {row['seconds']:.1f} |")
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

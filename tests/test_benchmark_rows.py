@@ -22,3 +22,21 @@ def _load(name: str) -> ModuleType:
 def test_every_row_of_the_real_lab_budget_has_its_magnitude() -> None:
     bench = _load("bench_real_lab")
     assert set(bench.ROWS) <= set(bench.MAGNITUDES), set(bench.ROWS) - set(bench.MAGNITUDES)
+
+
+def test_every_mistake_of_the_simulator_is_in_the_mistakes_benchmark() -> None:
+    from sim.mistakes import KINDS
+
+    bench = _load("bench_mistakes")
+    assert set(bench.EXPECTED) == {kind.name for kind in KINDS}
+
+
+def test_the_mistakes_benchmark_pairs_each_mistake_with_its_neighbours_or_every_other() -> None:
+    bench = _load("bench_mistakes")
+    names = ["a", "b", "c", "d"]
+    alone = [("a",), ("b",), ("c",), ("d",)]
+    assert bench.combinations(names, None) == alone
+    assert bench.combinations(names, "next") == alone + [("a", "b"), ("b", "c"), ("c", "d"),
+                                                         ("a", "d")]
+    assert len(bench.combinations(names, "all")) == 4 + 6
+    assert bench.combinations(["a", "b"], "next") == [("a",), ("b",), ("a", "b")]
