@@ -204,7 +204,7 @@ def _measure(view: ViewImage, image: np.ndarray, board: Checkerboard) -> _Measur
 def _missed(view: ViewImage, image: np.ndarray, board: Checkerboard, response: float,
             spacing_px: float) -> Finding | None:
     """The reason the board was not found in an image, where the image shows one."""
-    visible = x_corners(image, X_CORNER_LEVEL * response, int(spacing_px / 2))
+    visible = x_corners(image, X_CORNER_LEVEL * response, spacing_px)
     if len(visible) < MIN_VISIBLE:
         return None
     saturated = saturated_share(image, visible)

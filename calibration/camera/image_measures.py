@@ -93,12 +93,51 @@ def x_corner_response(image: np.ndarray) -> np.ndarray:
     return np.asarray(xy * xy - xx * yy)
 
 
-def x_corners(image: np.ndarray, level: float, spacing_px: int) -> np.ndarray:
-    """(n, 2) pixels of the local maxima of `x_corner_response` above `level`, at least
-    `spacing_px` apart."""
+def x_corners(image: np.ndarray, level: float, square_px: float) -> np.ndarray:
+    """(n, 2) pixels of the checkerboard X-corners in an image of squares `square_px` wide:
+    the local maxima of `x_corner_response` above `level`, at least half a square apart, whose
+    surroundings alternate dark, light, dark, light (`x_shape`).
+
+    The response alone also peaks where a square's corner meets the board's white margin (an
+    L-corner) or where an arm's edge crosses a square's (a T-junction): on a realistic image
+    of a board 40 % hidden it found 49 peaks where 32 corners were in view."""
     response = x_corner_response(image)
-    size = 2 * max(1, spacing_px // 2) + 1
+    size = 2 * max(1, int(square_px / 2) // 2) + 1
     peaks = (response >= cv2.dilate(response, np.ones((size, size), np.uint8))) & (
         response > level)
     v, u = np.nonzero(peaks)
-    return np.stack([u, v], axis=1).astype(np.float64)
+    found = np.stack([u, v], axis=1).astype(np.float64)
+    return found[x_shape(image, found, X_SHAPE_RADIUS * square_px) >= X_SHAPE_RATIO]
+
+
+X_SHAPE_RADIUS = 0.35
+"""The circle `x_shape` samples, in squares: inside the four squares that meet at a corner
+(half a square along the grid's lines, less where the view foreshortens them)."""
+
+X_SHAPE_RATIO = 1.2
+"""Least `x_shape` of an X-corner. On 150 images of five realistic 30-pose sessions (noise,
+vignetting, the lamp, gamma, the bow) the 8100 board corners lay at 7.6-150 and the 739
+other peaks (L-corners at the margin) at 0.82 at most; on a board 40 % hidden, the corners the
+arm's edge cuts into lay at 1.4-2.3 (one quadrant partly covered: still in view), the
+T-junctions of its edge with the squares' at 0.85 at most."""
+
+_X_SHAPE_SAMPLES = 16
+"""Points on the circle (the fourth harmonic, the highest that matters, has four each)."""
+
+
+def x_shape(image: np.ndarray, points_px: np.ndarray, radius_px: float) -> np.ndarray:
+    """(n,) how much each point looks like an X-corner: the grey levels on a circle of
+    `radius_px` about it, their second harmonic's amplitude over their first's.
+
+    Four quadrants alternating dark and light go round the circle twice (second harmonic);
+    one dark quadrant in the light (an L-corner) or an edge ending on another (a T-junction)
+    goes round once (first harmonic), a straight edge likewise."""
+    if len(points_px) == 0:
+        return np.zeros(0)
+    grey = cv2.GaussianBlur(as_grey(image).astype(np.float32), (0, 0), 1.0)
+    angles = 2 * np.pi * np.arange(_X_SHAPE_SAMPLES) / _X_SHAPE_SAMPLES
+    xs = (points_px[:, :1] + radius_px * np.cos(angles)).astype(np.float32)
+    ys = (points_px[:, 1:] + radius_px * np.sin(angles)).astype(np.float32)
+    ring = cv2.remap(grey, xs, ys, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    harmonics = np.abs(np.fft.rfft(ring, axis=1))
+    return np.asarray(harmonics[:, 2] / np.maximum(harmonics[:, 1], 1e-9))

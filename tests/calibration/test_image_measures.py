@@ -1,0 +1,56 @@
+"""calibration.camera.image_measures' X-corners: the board's inner corners count, the
+corners of its outer squares on the white margin (L-corners) and an arm's edge across the
+squares (T-junctions) do not."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from calibration.camera.image_measures import x_corner_response, x_corners
+
+SQUARE_PX = 30
+ORIGIN_PX = 100
+
+
+def _board(squares: int = 5, arm: bool = False) -> np.ndarray:
+    """A `squares` x `squares` checkerboard of dark (40) and light (210) squares on a light
+    margin in a 400 x 400 image with 2 grey levels of noise; with `arm`, a mid-grey (90) band
+    over the right half of the board's lower rows."""
+    v, u = np.mgrid[0:400, 0:400]
+    i, j = (u - ORIGIN_PX) // SQUARE_PX, (v - ORIGIN_PX) // SQUARE_PX
+    on_board = (i >= 0) & (i < squares) & (j >= 0) & (j < squares)
+    image = np.where(on_board & ((i + j) % 2 == 0), 40.0, 210.0)
+    if arm:
+        image[ORIGIN_PX + 3 * SQUARE_PX - 7:, ORIGIN_PX + 2 * SQUARE_PX + 9:] = 90.0
+    noisy = image + np.random.default_rng(0).normal(0.0, 2.0, image.shape)
+    return np.clip(np.round(noisy), 0, 255).astype(np.uint8)
+
+
+def _inner_corners(squares: int) -> set[tuple[int, int]]:
+    return {(ORIGIN_PX + a * SQUARE_PX, ORIGIN_PX + b * SQUARE_PX)
+            for a in range(1, squares) for b in range(1, squares)}
+
+
+def _found(image: np.ndarray) -> set[tuple[int, int]]:
+    inner = np.array(sorted(_inner_corners(5)))
+    response = x_corner_response(image)
+    level = 0.3 * float(np.median(response[inner[:, 1], inner[:, 0]]))
+    found = x_corners(image, level, SQUARE_PX)
+    # snap each to the nearest inner corner when within 2 px, else keep it as it is
+    snapped = set()
+    for point in found:
+        nearest = inner[np.argmin(np.linalg.norm(inner - point, axis=1))]
+        close = np.linalg.norm(nearest - point) <= 2.0
+        snapped.add(tuple(int(x) for x in (nearest if close else np.round(point))))
+    return snapped
+
+
+def test_the_inner_corners_count_and_the_margins_l_corners_do_not() -> None:
+    assert _found(_board()) == _inner_corners(5)
+
+
+def test_an_arms_edge_across_the_squares_makes_no_corner() -> None:
+    covered = {(x, y) for x, y in _inner_corners(5)
+               if y >= ORIGIN_PX + 3 * SQUARE_PX - 7 and x >= ORIGIN_PX + 2 * SQUARE_PX + 9}
+    assert covered
+    assert _found(_board(arm=True)) == _inner_corners(5) - covered
