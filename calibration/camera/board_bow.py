@@ -13,6 +13,11 @@ intrinsics, distortion and every board pose free) with the corners' rig coordina
 by s, for a few s: the sum over the cameras of the squared residuals over each camera's
 corner noise (calibration.camera.corner_noise) is a chi-square, quadratic in s near its minimum,
 whose curvature gives the estimate's standard deviation.
+
+A significant sag (`BOW_SIGNIFICANT`) is modelled: the cameras are calibrated again with the
+sagged corners (calibration.camera.camera_calibration), and the joint fit uses the same points
+(`board_points`), so that every board pose, the intrinsics and the corner noise come from one
+board; a smaller one is a bound, the board taken as flat.
 """
 
 from __future__ import annotations
@@ -32,6 +37,10 @@ to 3 mm; a few tenths of a second per camera at 15-30 views."""
 _CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 100, 1e-12)
 _MIN_SIGMA_PX = 1e-6
 """Least corner noise a camera's residuals are divided by (exact synthetic corners have 0)."""
+BOW_SIGNIFICANT = 3.0
+"""A sag this many of its standard deviations from 0 is modelled (`BoardBow.significant`); a
+smaller one is a bound (the report states it), and the board is taken as flat rather than with
+a sag that is mostly its estimate's noise."""
 
 
 @dataclass(frozen=True)
@@ -48,6 +57,11 @@ class BoardBow:
     std_m: float
     n_views: int
 
+    @property
+    def significant(self) -> bool:
+        """Whether the sag is modelled: `BOW_SIGNIFICANT` of its std from 0."""
+        return abs(self.sag_m) > BOW_SIGNIFICANT * self.std_m
+
 
 def sagged_points(board: Checkerboard, sag_m: float) -> np.ndarray:
     """(n_corners, 3) the board's inner corners in the rig frame with a sag of `sag_m`."""
@@ -56,6 +70,14 @@ def sagged_points(board: Checkerboard, sag_m: float) -> np.ndarray:
     r2 = np.sum(xy**2, axis=1)
     points[:, 2] = sag_m * (1.0 - r2 / r2.max())
     return points
+
+
+def board_points(board: Checkerboard, bow: BoardBow | None) -> np.ndarray:
+    """(n_corners, 3) the board's inner corners in the rig frame as the calibration models
+    them: sagged by `bow` where it is significant, flat otherwise (or without an estimate)."""
+    if bow is not None and bow.significant:
+        return sagged_points(board, bow.sag_m)
+    return board.object_points()
 
 
 @dataclass(frozen=True)
