@@ -12,7 +12,11 @@ the grid's outer corners stay in the plane z = 0, its centre is s out of it (s >
 intrinsics, distortion and every board pose free) with the corners' rig coordinates sagged
 by s, for a few s: the sum over the cameras of the squared residuals over each camera's
 corner noise (calibration.camera.corner_noise) is a chi-square, quadratic in s near its minimum,
-whose curvature gives the estimate's standard deviation.
+whose curvature gives the estimate's standard deviation. The noise given is the flat board's
+fit's, which a bow inflates (its misfit taken for noise: 2-3 times the true noise for 0.5 mm
+seen from 0.6-1 m); so the curvature is scaled by the chi-square per degree of freedom at the
+minimum, which puts the bowed board's noise in its place (the cameras' given noises only weigh
+them against each other).
 
 A significant sag (`BOW_SIGNIFICANT`) is modelled: the cameras are calibrated again with the
 sagged corners (calibration.camera.camera_calibration), and the joint fit uses the same points
@@ -117,7 +121,14 @@ def estimate_bow(board: Checkerboard, cameras: list[CameraViews]) -> BoardBow:
     centre = 0.0
     for _ in range(2):  # about the flat board, then about the first estimate
         sags = centre + np.array(PROBE_SAG_M)
-        a, b, _ = np.polyfit(sags, [chi2(s) for s in sags], 2)
+        quadratic = np.polyfit(sags, [chi2(s) for s in sags], 2)
+        a, b = quadratic[:2]
         centre = -b / (2 * a) if a > 0 else centre
-    return BoardBow(float(centre), float(1.0 / np.sqrt(a)) if a > 0 else float("inf"),
-                    sum(len(cam.corners_px) for cam in cameras))
+    n_views = sum(len(cam.corners_px) for cam in cameras)
+    if a <= 0:
+        return BoardBow(float(centre), float("inf"), n_views)
+    # coordinates less each view's pose, each camera's 9 intrinsics and the sag
+    dof = sum(2 * sum(len(c) for c in cam.corners_px) - 6 * len(cam.corners_px) - 9
+              for cam in cameras) - 1
+    reduced = max(float(np.polyval(quadratic, centre)), 0.0) / dof
+    return BoardBow(float(centre), float(np.sqrt(reduced / a)), n_views)

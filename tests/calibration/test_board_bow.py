@@ -3,6 +3,8 @@ cv2.projectPoints off a sagged grid with Gaussian noise (no rendering needed).""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import cv2
 import numpy as np
 import pytest
@@ -57,6 +59,17 @@ def test_a_bow_is_recovered_within_its_std(sag_m: float, seed: int) -> None:
     assert 5e-6 < bow.std_m < 15e-6
     assert abs(bow.sag_m - sag_m) < 3 * bow.std_m
     assert bow.n_views == 15
+
+
+def test_the_bows_std_is_the_bowed_boards_not_the_flat_fits() -> None:
+    """The noise a bow is estimated with is the flat board's fit's, which the bow inflates:
+    given twice the true noise, the same sag and the same std (the chi-square per degree of
+    freedom at its minimum scales the curvature); the old std would double."""
+    views = _views(5e-4, 4)
+    honest = estimate_bow(BOARD, [views])
+    inflated = estimate_bow(BOARD, [replace(views, sigma_px=2 * NOISE_PX)])
+    assert inflated.sag_m == pytest.approx(honest.sag_m, rel=1e-9)
+    assert inflated.std_m == pytest.approx(honest.std_m, rel=1e-6)
 
 
 def test_the_board_points_are_sagged_where_the_bow_is_significant_only() -> None:
