@@ -305,8 +305,8 @@ def _with_bow(
     estimated, and where it is significant the cameras calibrated again with the sagged
     corners, each started from its flat fit (calibrateCamera needs a start for corners out of
     a plane). Why again: the flat board's misfit of a bowed one would stay in the residuals,
-    taken for corner noise (2-3 times the true one for a 0.5 mm sag seen from 0.6-1 m), and in
-    the focal length (2-4 px)."""
+    taken for corner noise (1.8-2.9 times the true one for the realistic lab's 0.5 mm plate
+    bow), and in the focal length (2.5-4 px of 1000)."""
     bow = _bow(flat)
     if bow is None or not bow.significant:
         return replace(flat, bow=bow)
@@ -558,9 +558,11 @@ def _calibrate_camera(
         fits = _fits_with(K, dist, corners, steps, points)
         noise = _corner_noise(fits, None)
     else:
-        K0, d0 = ((start.K.copy(), start.dist.copy()) if start is not None
-                  else (np.array(known.camera_matrix), np.array(known.distortion))
-                  if known is not None else (None, None))
+        K0, d0 = None, None
+        if start is not None:
+            K0, d0 = start.K.copy(), start.dist.copy()
+        elif known is not None:
+            K0, d0 = np.array(known.camera_matrix), np.array(known.distortion)
         flags = cv2.CALIB_USE_INTRINSIC_GUESS if K0 is not None else 0
         with _reproducible():
             _, K, dist, rvecs, tvecs = cv2.calibrateCamera(
