@@ -56,7 +56,6 @@ from .solve.bundle import (
     refined_cameras,
     view_sigmas,
 )
-from .camera.board_bow import sagged_points
 from .camera.camera_calibration import (
     DETECTION_CACHE_SIZE,
     CameraCalibration,
@@ -838,7 +837,7 @@ def fit_joint(m: Measurements, frozen: MicrophoneSolution, options: CalibrationO
         c_of_pose[pose_idx] = np.arange(pose_idx.size)
     priors = bundle_priors(m, options)
     problem = BundleProblem(
-        board_points_m=_board_points(m.cameras),
+        board_points_m=m.cameras.board_points(),
         speakers_rig_m=data.speakers_rig_m,
         view_camera=view_camera, view_pose=view_pose, corners_px=corners,
         pose_of_source=np.repeat(pose_idx, speaker_idx.size),
@@ -873,21 +872,6 @@ def fit_joint(m: Measurements, frozen: MicrophoneSolution, options: CalibrationO
         speaker_offsets_m=priors.speaker_offset_mean_m.copy(),
     ) if start is None else start  # fmt: skip
     return fit_bundle(problem, start)
-
-
-BOW_SIGNIFICANT = 3.0
-"""A board sag (calibration.camera.board_bow) this many of its standard deviations from 0 is
-modelled in the joint fit; a smaller one is a bound (the report states it), and the board is
-taken as flat rather than with a sag that is mostly its estimate's noise."""
-
-
-def _board_points(cams: CameraCalibration) -> np.ndarray:
-    """The board's inner corners in the rig frame for the joint fit: sagged by the estimated
-    bow where it is significant (`BOW_SIGNIFICANT`), flat otherwise."""
-    bow = cams.bow
-    if bow is not None and abs(bow.sag_m) > BOW_SIGNIFICANT * bow.std_m:
-        return sagged_points(cams.board, bow.sag_m)
-    return cams.board.object_points()
 
 
 def joint_measurements(m: Measurements, bundle: BundleSolution, frozen: MicrophoneSolution,

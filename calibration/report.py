@@ -174,7 +174,7 @@ def _reprojection_residual(run: CalibrationRun, key: tuple[str, str]) -> np.ndar
     """Detected minus projected corners (n, 2) of one camera-only board view."""
     cams = run.measurements.cameras
     view, intr = cams.views[key], cams.intrinsics[key[0]]
-    projected, _ = cv2.projectPoints(cams.board.object_points(), view.rig_to_cam.transform.rotvec,
+    projected, _ = cv2.projectPoints(cams.board_points(), view.rig_to_cam.transform.rotvec,
                                      view.rig_to_cam.transform.t, intr.K, intr.dist)
     return view.corners_px - projected.reshape(-1, 2)
 

@@ -12,7 +12,16 @@ the grid's outer corners stay in the plane z = 0, its centre is s out of it (s >
 intrinsics, distortion and every board pose free) with the corners' rig coordinates sagged
 by s, for a few s: the sum over the cameras of the squared residuals over each camera's
 corner noise (calibration.camera.corner_noise) is a chi-square, quadratic in s near its minimum,
-whose curvature gives the estimate's standard deviation.
+whose curvature gives the estimate's standard deviation. The noise given is the flat board's
+fit's, which a bow inflates (its misfit taken for noise: 2-3 times the true noise for 0.5 mm
+seen from 0.6-1 m); so the curvature is scaled by the chi-square per degree of freedom at the
+minimum, which puts the bowed board's noise in its place (the cameras' given noises only weigh
+them against each other).
+
+A significant sag (`BOW_SIGNIFICANT`) is modelled: the cameras are calibrated again with the
+sagged corners (calibration.camera.camera_calibration), and the joint fit uses the same points
+(`board_points`), so that every board pose, the intrinsics and the corner noise come from one
+board; a smaller one is a bound, the board taken as flat.
 """
 
 from __future__ import annotations
@@ -32,6 +41,10 @@ to 3 mm; a few tenths of a second per camera at 15-30 views."""
 _CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 100, 1e-12)
 _MIN_SIGMA_PX = 1e-6
 """Least corner noise a camera's residuals are divided by (exact synthetic corners have 0)."""
+BOW_SIGNIFICANT = 3.0
+"""A sag this many of its standard deviations from 0 is modelled (`BoardBow.significant`); a
+smaller one is a bound (the report states it), and the board is taken as flat rather than with
+a sag that is mostly its estimate's noise."""
 
 
 @dataclass(frozen=True)
@@ -48,6 +61,11 @@ class BoardBow:
     std_m: float
     n_views: int
 
+    @property
+    def significant(self) -> bool:
+        """Whether the sag is modelled: `BOW_SIGNIFICANT` of its std from 0."""
+        return abs(self.sag_m) > BOW_SIGNIFICANT * self.std_m
+
 
 def sagged_points(board: Checkerboard, sag_m: float) -> np.ndarray:
     """(n_corners, 3) the board's inner corners in the rig frame with a sag of `sag_m`."""
@@ -56,6 +74,14 @@ def sagged_points(board: Checkerboard, sag_m: float) -> np.ndarray:
     r2 = np.sum(xy**2, axis=1)
     points[:, 2] = sag_m * (1.0 - r2 / r2.max())
     return points
+
+
+def board_points(board: Checkerboard, bow: BoardBow | None) -> np.ndarray:
+    """(n_corners, 3) the board's inner corners in the rig frame as the calibration models
+    them: sagged by `bow` where it is significant, flat otherwise (or without an estimate)."""
+    if bow is not None and bow.significant:
+        return sagged_points(board, bow.sag_m)
+    return board.object_points()
 
 
 @dataclass(frozen=True)
@@ -95,7 +121,14 @@ def estimate_bow(board: Checkerboard, cameras: list[CameraViews]) -> BoardBow:
     centre = 0.0
     for _ in range(2):  # about the flat board, then about the first estimate
         sags = centre + np.array(PROBE_SAG_M)
-        a, b, _ = np.polyfit(sags, [chi2(s) for s in sags], 2)
+        quadratic = np.polyfit(sags, [chi2(s) for s in sags], 2)
+        a, b = quadratic[:2]
         centre = -b / (2 * a) if a > 0 else centre
-    return BoardBow(float(centre), float(1.0 / np.sqrt(a)) if a > 0 else float("inf"),
-                    sum(len(cam.corners_px) for cam in cameras))
+    n_views = sum(len(cam.corners_px) for cam in cameras)
+    if a <= 0:
+        return BoardBow(float(centre), float("inf"), n_views)
+    # coordinates less each view's pose, each camera's 9 intrinsics and the sag
+    dof = sum(2 * sum(len(c) for c in cam.corners_px) - 6 * len(cam.corners_px) - 9
+              for cam in cameras) - 1
+    reduced = max(float(np.polyval(quadratic, centre)), 0.0) / dof
+    return BoardBow(float(centre), float(np.sqrt(reduced / a)), n_views)
