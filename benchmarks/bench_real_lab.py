@@ -65,7 +65,7 @@ MAGNITUDES = {
     "room": "7 image sources, absorption 0.3 (table 0.1)",
     "ambient-noise": "30 mV below 80 Hz",
     "directivity": "26 mm baffled piston",
-    "sensor-noise": "shot + 5 e- read noise, gain 8",
+    "sensor-noise": "shot + 5 e- read noise, gain 16",
     "fixed-pattern": "PRNU 1 %, DSNU 4 e-",
     "defocus": "f/2 focused at 1.2 m",
     "lens-distortion": "13 % barrel, tangential",

@@ -44,8 +44,8 @@ class SensorModel:
 
     Attributes:
         full_well_e: electrons a pixel holds.
-        analog_gain: the gain at which the camera runs (indoors, 10 ms, the auto exposure of a
-            webcam turns it up to about 8).
+        analog_gain: the gain at which the camera runs (10 ms in a room lit for people, about
+            250 lux: the auto exposure of a webcam turns it up to about 16).
         read_noise_e: read noise, electrons RMS, referred to the pixel (at that gain).
         prnu: photo-response non-uniformity, relative gain spread between pixels (RMS).
         dsnu_e: dark-signal non-uniformity, electrons RMS (dark current over 10 ms and the
@@ -53,7 +53,7 @@ class SensorModel:
     """
 
     full_well_e: float = 10_000.0
-    analog_gain: float = 8.0
+    analog_gain: float = 16.0
     read_noise_e: float = 5.0
     prnu: float = 0.01
     dsnu_e: float = 4.0
@@ -61,8 +61,8 @@ class SensorModel:
     @property
     def electrons_per_dn(self) -> float:
         """Electrons per digital number of the linear 8-bit signal: full well over 255
-        levels, divided by the gain (4.9 e-/DN at gain 8: the print's white, 210 DN, is
-        about 1030 e-, its shot noise 32 e- = 6.5 DN)."""
+        levels, divided by the gain (2.45 e-/DN at gain 16: the print's white, 210 DN, is
+        about 515 e-, its shot noise 23 e- = 9.3 DN)."""
         return self.full_well_e / (255.0 * self.analog_gain)
 
 
