@@ -90,9 +90,12 @@ class SourceResiduals:
 
     def speaker_scatter_us(self) -> np.ndarray:
         """(S,) median |residual - the speaker's median residual|, microseconds: how far a
-        speaker's times of flight are from the geometry once a constant offset is allowed."""
-        offset = np.nanmedian(self.residual_s, axis=(0, 2), keepdims=True)
-        return 1e6 * np.nanmedian(np.abs(self.residual_s - offset), axis=(0, 2))
+        speaker's times of flight are from the geometry once a constant offset is allowed
+        (NaN for a speaker without a measured one: silent)."""
+        with warnings.catch_warnings():  # a speaker left out has no residual: NaN, as it says
+            warnings.simplefilter("ignore", RuntimeWarning)
+            offset = np.nanmedian(self.residual_s, axis=(0, 2), keepdims=True)
+            return 1e6 * np.nanmedian(np.abs(self.residual_s - offset), axis=(0, 2))
 
 
 Resolve = Callable[[np.ndarray, np.ndarray], MicrophoneSolution]
@@ -102,42 +105,58 @@ Resolve = Callable[[np.ndarray, np.ndarray], MicrophoneSolution]
 
 def gross_speakers(residuals: SourceResiduals) -> np.ndarray:
     """Indices of the speakers whose times of flight do not fit their positions
-    (`GROSS_SHARE`), while most speakers' do."""
+    (`GROSS_SHARE`), while most of the measured speakers' do. A speaker without a measured
+    time of flight (left out already: silent) is neither: its share is NaN, which once made
+    the median NaN and hid a swap beside a silent speaker."""
     share = residuals.outlier_share((0, 2))
-    if not np.median(share) < GROSS_SHARE:
+    measured = np.isfinite(share)
+    if not measured.any() or not np.median(share[measured]) < GROSS_SHARE:
         return np.array([], dtype=int)
-    return np.flatnonzero(share > GROSS_SHARE)
+    return np.flatnonzero(measured & (share > GROSS_SHARE))
 
 
 def speaker_findings(tof_s: np.ndarray, std_s: np.ndarray, residuals: SourceResiduals,
                      resolve: Resolve) -> tuple[list[Finding], np.ndarray]:
     """The findings about gross speakers and the speakers to leave out. Two gross speakers
     are tried exchanged (one more solve): when their times of flight then fit, they are named
-    as swapped."""
+    as swapped. One gross speaker beside a silent one (no time of flight: its cable drove a
+    speaker that did not play) is tried at the silent one's place likewise."""
     gross = gross_speakers(residuals)
     if gross.size == 0:
         return [], gross
     before = residuals.median_us((0, 2))[gross]
-    if gross.size == 2:
-        a, b = gross
+    scatter_before = residuals.speaker_scatter_us()
+    others = np.delete(scatter_before, gross)
+    others = others[np.isfinite(others)]  # not a silent speaker's
+    typical = float(np.median(others)) if others.size else 0.0
+    silent = np.flatnonzero(~np.isfinite(tof_s).any(axis=(0, 2)))
+    pairs = [tuple(gross)] if gross.size == 2 else (
+        [(int(gross[0]), int(k)) for k in silent] if gross.size == 1 else [])
+    for a, b in pairs:
         exchanged = [tof_s.copy(), std_s.copy()]
         for array, original in zip(exchanged, (tof_s, std_s), strict=True):
             array[:, [a, b]] = original[:, [b, a]]
         trial = SourceResiduals.of(resolve(*exchanged), *tof_s.shape[:2])
-        scatter, scatter_before = trial.speaker_scatter_us(), residuals.speaker_scatter_us()
-        typical = float(np.median(np.delete(scatter_before, gross)))
-        if np.all(scatter[gross] < SWAP_SCATTER * max(typical, 1e-3)):
-            offsets = 1e6 * np.nanmedian(trial.residual_s[:, gross], axis=(0, 2))
-            return [Finding(
-                kind="swapped-speakers", action="left out", speakers=[int(a), int(b)],
-                evidence=f"speakers {a} and {b} look swapped: with their recordings exchanged "
-                         f"their times of flight fit the geometry to {_us(scatter[gross])} "
-                         f"(the other speakers' {typical:.2f} us; {_us(scatter_before[gross])} "
-                         f"as recorded) after a constant offset of {_us(np.abs(offsets))}, "
-                         "the reference microphone's distance from the other speaker",
-                advice="both were left out (their reference recordings were swapped too, so "
-                       "their times of flight carry that offset); check the two speakers' "
-                       "cables")], gross
+        heard = [k for k in (a, b) if k not in silent]  # where the recordings now sit
+        moved = [b if k == a else a for k in heard]
+        scatter = trial.speaker_scatter_us()[moved]
+        if not np.all(scatter < SWAP_SCATTER * max(typical, 1e-3)):
+            continue
+        offsets = 1e6 * np.nanmedian(trial.residual_s[:, moved], axis=(0, 2))
+        quiet = [k for k in (a, b) if k in silent]
+        whose = f"speaker {heard[0]}'s" if quiet else "their"
+        return [Finding(
+            kind="swapped-speakers", action="left out", speakers=sorted([int(a), int(b)]),
+            evidence=f"speakers {a} and {b} look swapped: with their recordings exchanged "
+                     f"{whose} times of flight fit "
+                     f"the geometry to {_us(scatter)} (the other speakers' {typical:.2f} us; "
+                     f"{_us(scatter_before[heard])} as recorded) after a constant offset of "
+                     f"{_us(np.abs(offsets))}, the reference microphone's distance from the "
+                     "other speaker"
+                     + (f"; the speaker on {quiet[0]}'s cable did not play" if quiet else ""),
+            advice="both were left out (their reference recordings were swapped too, so "
+                   "their times of flight carry that offset); check the two speakers' "
+                   "cables" + (" and the silent one" if quiet else ""))], gross
     return [Finding(
         kind="misplaced-speaker", action="left out", speakers=[int(k)],
         evidence=f"speaker {k}'s times of flight do not fit where the rig description puts "

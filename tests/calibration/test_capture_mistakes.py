@@ -13,7 +13,9 @@ from __future__ import annotations
 
 import json
 import re
+from collections.abc import Callable
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -36,7 +38,13 @@ from calibration.checks.distortion import (
     distorted_speakers,
     reference_floors,
 )
-from calibration.checks.fit_checks import REFERENCE_OFFSET_US, SourceResiduals, reference_offset
+from calibration.checks.fit_checks import (
+    REFERENCE_OFFSET_US,
+    SourceResiduals,
+    gross_speakers,
+    reference_offset,
+    speaker_findings,
+)
 from calibration.checks.response_checks import CLOSE_REFLECTION_SCORE, close_reflections
 from calibration.levels import CLIPPED_SAMPLES, DROPOUT_BLOCK, channel_levels, full_scale_of
 from calibration.pipeline import CalibrationOptions, CalibrationRun, calibrate, measure
@@ -418,6 +426,62 @@ def test_a_speaker_off_by_a_constant_is_named_one_at_a_time() -> None:
     without[3] = False
     assert reference_offset(_offsets([1.0, -2.0, 0.5, -14.6, 2.0, 0.0]), 343.0, stated,
                             without) is None
+
+
+def test_gross_speakers_are_found_beside_a_silent_one() -> None:
+    """Speakers 1 and 4 with most of their times of flight outliers (a swap), speaker 2 silent
+    (no time of flight measured: left out before the fit): 1 and 4 are the gross ones. The
+    silent speaker's NaN share once made the median NaN, and nothing was found."""
+    residuals = _offsets([0.0] * 6)
+    outlier = np.zeros(residuals.residual_s.shape, dtype=bool)
+    outlier[:, [1, 4], :15] = True
+    residual = residuals.residual_s.copy()
+    residual[:, 2] = np.nan
+    assert gross_speakers(SourceResiduals(residual, outlier)).tolist() == [1, 4]
+    everything_silent = np.full(residual.shape, np.nan)
+    assert gross_speakers(SourceResiduals(everything_silent, outlier)).size == 0
+
+
+def _swapped(silent: int, swap: tuple[int, int]
+             ) -> tuple[list, np.ndarray, SourceResiduals, Callable]:
+    """Times of flight of 6 poses, 6 speakers and 20 microphones with speakers `swap`
+    exchanged and speaker `silent` without any (0.3 us of noise; outliers beyond 10 us), a
+    solver that takes them against the true ones, and speaker_findings' answer."""
+    rng = np.random.default_rng(3)
+    expected = rng.uniform(1e-3, 5e-3, (6, 6, 20))
+    order = list(range(6))
+    order[swap[0]], order[swap[1]] = swap[1], swap[0]
+    tof = expected[:, order] + rng.normal(0.0, 0.3e-6, expected.shape)
+    tof[:, silent] = np.nan
+    std = np.where(np.isfinite(tof), 0.3e-6, np.nan)
+
+    def resolve(tof_s: np.ndarray, std_s: np.ndarray) -> SimpleNamespace:
+        residual = tof_s - expected
+        return SimpleNamespace(residuals_s=residual,
+                               outliers=np.nan_to_num(np.abs(residual)) > 10e-6)
+
+    residuals = SourceResiduals.of(resolve(tof, std), 6, 6)  # type: ignore[arg-type]
+    findings, left_out = speaker_findings(tof, std, residuals, resolve)  # type: ignore[arg-type]
+    return findings, left_out, residuals, resolve
+
+
+def test_a_swap_beside_a_silent_speaker_is_named() -> None:
+    """Speakers 4 and 5 swapped while speaker 2 did not play: the swap is named. The silent
+    speaker's NaN scatter once made the others' typical scatter NaN, and two "misplaced"
+    speakers were named instead (before that, the session was refused for its outliers)."""
+    findings, left_out, _, _ = _swapped(2, (4, 5))
+    assert [f.kind for f in findings] == ["swapped-speakers"]
+    assert findings[0].speakers == [4, 5] and left_out.tolist() == [4, 5]
+
+
+def test_a_swap_with_the_silent_speaker_is_named() -> None:
+    """Speakers 4 and 5 swapped, and the speaker on 4's cable silent: 4 has no time of
+    flight and 5's fit 4's place. Named as the swap, not as a misplaced speaker 5."""
+    findings, left_out, _, _ = _swapped(4, (4, 5))
+    assert [f.kind for f in findings] == ["swapped-speakers"]
+    assert findings[0].speakers == [4, 5] and left_out.tolist() == [5]
+    assert "speaker 5's times of flight fit" in findings[0].evidence
+    assert "the speaker on 4's cable did not play" in findings[0].evidence
 
 
 def test_speakers_off_every_which_way_are_no_one_speakers_mistake() -> None:
