@@ -3,8 +3,8 @@ arm in front of it), blurred by motion, in glare, and cameras that deliver MJPEG
 
 Each is judged against the same camera's other views where it can be (the sharpness of its
 edges, the strength of its corners), so that another lab's lens or exposure does not
-move the thresholds; saturation and JPEG's block seams are absent from raw, well-exposed
-frames whatever the lab. A view whose corners cannot be trusted (blurred, or in glare) is
+move the thresholds; saturation and JPEG's quantised blocks are absent from raw,
+well-exposed frames whatever the lab. A view whose corners cannot be trusted (blurred, or in glare) is
 left out of the camera calibration, which is then computed without it; an image where the
 board was not found is named when the reason shows (a hidden part, a highlight); MJPEG,
 which moves every corner of a camera a little, is noted.
@@ -27,8 +27,8 @@ from .._cores import default_workers
 from .corners import Checkerboard
 from ..memo import LruMemo
 from .image_measures import (
-    blockiness,
     edge_sharpness,
+    jpeg_quantisation,
     saturated_share,
     x_corner_response,
     x_corners,
@@ -46,10 +46,12 @@ GLARE_SHARE = 0.002
 glare: clean realistic boards have none (their white squares peak at 220 of 255); a highlight
 of the simulated world's smallest default disc saturates several per cent."""
 
-MJPEG_BLOCKINESS = 1.2
-"""A camera whose median view's `blockiness` exceeds this delivers JPEG-compressed frames:
-raw frames lie at 0.945-1.05, MJPEG at quality 90 at 1.4-1.55, at 70-75 at 1.7-2.3 (at 95,
-1.12-1.14, whose corners move less than the noise)."""
+MJPEG_QUANTISATION = 0.4
+"""A camera whose median view's `jpeg_quantisation` exceeds this delivers JPEG-compressed
+frames: raw realistic frames (sensor noise at gain 16) lie at 0.02 at most, the ideal world's
+low-noise ones at 0.14 at most; MJPEG at quality 95 at 0.66, 90 at 0.83, 70 at 0.98. (The
+block seams measured before fell to 1.02 times the steps elsewhere at quality 90 and gain
+16, where raw frames lay at 0.99-1.01: the noise hid them.)"""
 
 X_CORNER_LEVEL = 0.3
 """An X-corner counts as visible in an image where the board was not found when its
@@ -99,7 +101,7 @@ class _Measured:
     view: ViewImage
     sharpness: float
     saturated: float
-    blockiness: float
+    jpeg_quantisation: float
     response: float
     spacing_px: float
 
@@ -157,17 +159,18 @@ def check_images(views: list[ViewImage], read: Callable[[tuple[str, str]], np.nd
                              f"{1 / typical:.1f} px in {camera}'s other views",
                     advice="that view was left out of the camera calibration; hold the rig "
                            "still while the cameras expose (or shorten the exposure)"))
-        block = float(np.median([m.blockiness for m in ms]))
-        if block > MJPEG_BLOCKINESS:
-            jpeg.append((camera, block))
+        quantised = float(np.median([m.jpeg_quantisation for m in ms]))
+        if quantised > MJPEG_QUANTISATION:
+            jpeg.append((camera, quantised))
     if jpeg:
         names = [c for c, _ in jpeg]
         findings.append(Finding(
             kind="mjpeg", action="noted", cameras=names,
             evidence=f"{_join(names)} deliver{'s' if len(names) == 1 else ''} JPEG-compressed "
-                     f"frames: steps between pixels {_join(f'{b:.2f}' for _, b in jpeg)} "
-                     "times larger across the 8 x 8 block seams than elsewhere (raw frames: "
-                     "1.00); the compression moves the corners",
+                     "frames: the DCT of their 8 x 8 blocks lies on multiples of JPEG's steps "
+                     "(quantisation "
+                     f"{_join(f'{q:.2f}' for _, q in jpeg)} of 1; raw frames: near 0); the "
+                     "compression moves the corners",
             advice="the views were used; set the cameras to uncompressed frames (YUYV) for "
                    "the next capture"))
     reference = {c: (float(np.median([m.response for m in ms])),
@@ -197,7 +200,7 @@ def _measure(view: ViewImage, image: np.ndarray, board: Checkerboard) -> _Measur
     response = x_corner_response(image[low[1]:high[1] + 1, low[0]:high[0] + 1])
     at = np.round(corners).astype(int) - low
     return _Measured(view, edge_sharpness(image, corners, board),
-                     saturated_share(image, corners), blockiness(image),
+                     saturated_share(image, corners), jpeg_quantisation(image),
                      float(np.median(response[at[:, 1], at[:, 0]])), spacing)
 
 

@@ -1,6 +1,6 @@
 """Cheap measures of a checkerboard image that tell the capture's image mistakes apart: the
 sharpness of the board's edges (motion blur), saturated pixels on the board (glare), the
-8 x 8 block pattern of JPEG compression (MJPEG), and the X-corners visible in an image where
+quantised DCT of JPEG's 8 x 8 blocks (MJPEG), and the X-corners visible in an image where
 the board was not found (a board half hidden).
 
 Each measure is of the image alone, in pixels or grey levels; the thresholds that turn them
@@ -67,19 +67,53 @@ def saturated_share(image: np.ndarray, hull_px: np.ndarray) -> float:
     return float(np.mean(inside >= SATURATED)) if inside.size else 0.0
 
 
-def blockiness(image: np.ndarray) -> float:
-    """How much larger the steps between neighbouring pixels are across the 8 x 8 block
-    boundaries of JPEG than elsewhere (the mean absolute difference, both directions): 1 on
-    raw frames, where nothing marks every eighth pixel; above it on frames JPEG-compressed
-    (each block quantized on its own leaves a seam at its edge)."""
-    grey = as_grey(image).astype(np.float32)
-    at, off = 0.0, 0.0
-    for axis in (0, 1):
-        d = np.abs(np.diff(grey, axis=axis)).mean(axis=1 - axis)
-        seams = np.zeros(d.size, dtype=bool)
-        seams[7:-1:8] = True
-        at, off = at + float(d[seams].mean()), off + float(d[~seams].mean())
-    return at / off if off > 0 else 1.0
+JPEG_COEFFICIENTS = ((0, 1), (1, 0), (1, 1), (0, 2), (2, 0), (1, 2), (2, 1), (2, 2))
+"""The 8 x 8 DCT coefficients (row, column) whose quantisation `jpeg_quantisation` looks for:
+the lowest AC ones, whose steps at the qualities webcams use lie between 2 (quality 90) and
+16 (quality 50)."""
+
+JPEG_STEPS = range(2, 17)
+"""Quantisation steps tried. A step of 1 (quality 98 and above) leaves nothing to see, nor
+does it move a corner; steps above 16 matched the board's own edges on low-noise frames."""
+
+JPEG_MIN_VALUES = 500
+"""Fewest coefficients beyond half a step from 0 for a step to be judged."""
+
+
+def jpeg_quantisation(image: np.ndarray) -> float:
+    """How closely the low DCT coefficients of the image's 8 x 8 blocks sit on multiples of
+    one step: near 1 for a frame decoded from JPEG, near 0 for a raw one.
+
+    JPEG stores each block's DCT (the orthonormal 2-D DCT-II of the grey levels less 128)
+    divided by a step per coefficient and rounded; the decoded frame gives back those
+    multiples, blurred only by its rounding to integers (0.29 of a level). For each of
+    `JPEG_COEFFICIENTS` and `JPEG_STEPS`, the mean of cos(2 pi c / step) over the blocks'
+    coefficients c further than half a step from 0 (the zeros of flat areas would match
+    any step); the largest. A sensor's noise, which hid JPEG's block seams at gain 16, is
+    quantised with the rest and hides nothing here."""
+    grey = as_grey(image).astype(np.float32) - 128.0
+    height, width = (grey.shape[0] // 8) * 8, (grey.shape[1] // 8) * 8
+    blocks = (grey[:height, :width].reshape(height // 8, 8, width // 8, 8)
+              .swapaxes(1, 2).reshape(-1, 8, 8))
+    basis = _dct_basis()
+    coefficients = basis @ blocks @ basis.T
+    best = 0.0
+    for row, column in JPEG_COEFFICIENTS:
+        values = coefficients[:, row, column]
+        for step in JPEG_STEPS:
+            beyond = values[np.abs(values) > step / 2]
+            if beyond.size < JPEG_MIN_VALUES:
+                break
+            best = max(best, float(np.mean(np.cos(2 * np.pi * beyond / step))))
+    return best
+
+
+def _dct_basis() -> np.ndarray:
+    """(8, 8) the orthonormal DCT-II matrix: row k is cos((2 n + 1) k pi / 16), scaled."""
+    n = np.arange(8)
+    basis = np.cos((2 * n[None, :] + 1) * n[:, None] * np.pi / 16) * np.sqrt(2 / 8)
+    basis[0] /= np.sqrt(2)
+    return basis.astype(np.float32)
 
 
 def x_corner_response(image: np.ndarray) -> np.ndarray:

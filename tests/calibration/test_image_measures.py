@@ -1,12 +1,15 @@
-"""calibration.camera.image_measures' X-corners: the board's inner corners count, the
-corners of its outer squares on the white margin (L-corners) and an arm's edge across the
-squares (T-junctions) do not."""
+"""calibration.camera.image_measures' X-corners (the board's inner corners count, the
+corners of its outer squares on the white margin and an arm's edge across the squares do
+not) and its JPEG detector."""
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
+import pytest
 
-from calibration.camera.image_measures import x_corner_response, x_corners
+from calibration.camera.image_checks import MJPEG_QUANTISATION
+from calibration.camera.image_measures import jpeg_quantisation, x_corner_response, x_corners
 
 SQUARE_PX = 30
 ORIGIN_PX = 100
@@ -54,3 +57,21 @@ def test_an_arms_edge_across_the_squares_makes_no_corner() -> None:
                if y >= ORIGIN_PX + 3 * SQUARE_PX - 7 and x >= ORIGIN_PX + 2 * SQUARE_PX + 9}
     assert covered
     assert _found(_board(arm=True)) == _inner_corners(5) - covered
+
+
+@pytest.mark.parametrize("noise_grey", [2.0, 10.0])
+def test_jpeg_is_told_from_raw_frames_however_noisy(noise_grey: float) -> None:
+    """The quantised DCT shows JPEG at the qualities webcams use, under the ideal world's
+    noise and under one as strong as the realistic lab's camera at gain 16 (where block
+    seams had vanished); raw frames, noisy or not, stay near 0. (A frame whose every block
+    JPEG flattens, no noise on a flat field, shows nothing, and has no corner to move.)"""
+    rng = np.random.default_rng(1)
+    scene = cv2.resize(_board().astype(np.float64), (640, 480))
+    raw = np.clip(np.round(scene + rng.normal(0.0, noise_grey, scene.shape)), 0, 255)
+    raw = raw.astype(np.uint8)
+    assert jpeg_quantisation(raw) < 0.5 * MJPEG_QUANTISATION
+    for quality in (70, 90, 95):
+        ok, encoded = cv2.imencode(".jpg", raw, [cv2.IMWRITE_JPEG_QUALITY, quality])
+        assert ok
+        decoded = cv2.imdecode(encoded, cv2.IMREAD_GRAYSCALE)
+        assert jpeg_quantisation(decoded) > 1.5 * MJPEG_QUANTISATION, quality
