@@ -37,7 +37,7 @@ from calibration.errors import CalibrationInputError
 from calibration.pipeline import CalibrationOptions, calibrate
 from calibration.result import compare_with_truth
 from calibration.truth import nominal_layout_of
-from micam.cluster import cluster_map
+from micam.cluster import add_cluster_options, cluster_map
 
 EXPECTED = {
     "dead-mic": "dead-microphone",
@@ -129,12 +129,7 @@ def main() -> None:
                         help="calibrate without the array's nominal layout")
     parser.add_argument("--keep", type=Path, default=None,
                         help="keep the sessions here (and reuse them)")
-    parser.add_argument("--workers", type=int, default=None,
-                        help="run the sessions on a local Dask cluster of N processes "
-                             "(default: one after another here)")
-    parser.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                        help="run the sessions on this Dask scheduler (its workers must see "
-                             "--keep)")
+    add_cluster_options(parser, "the sessions", "--keep")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/mistakes.json"))
     args = parser.parse_args()
     combos = [(), *combinations(args.mistakes, args.pairs)]

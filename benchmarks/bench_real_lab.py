@@ -47,7 +47,7 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import chi2
 
-from micam.cluster import cluster_map
+from micam.cluster import add_cluster_options, cluster_map
 from micam.simulated import record_simulated_session
 from calibration.checks.coverage import coverage
 from calibration.solve.crlb import expected_error_norm
@@ -149,11 +149,7 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, nargs="+", default=[1])
     parser.add_argument("--keep", type=Path, default=None,
                         help="keep the simulated sessions here (and reuse them)")
-    parser.add_argument("--workers", type=int, default=None,
-                        help="run the cells (row x seed) on a local Dask cluster of N processes "
-                             "(default: one after another here)")
-    parser.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                        help="run the cells on this Dask scheduler (its workers must see --keep)")
+    add_cluster_options(parser, "the cells (row x seed)", "--keep")
     parser.add_argument("--out", type=Path,
                         default=Path(__file__).parent / "results" / "real_lab.json")
     args = parser.parse_args()

@@ -17,6 +17,7 @@ and see the same paths (sessions, outputs) as the machine that submits them.
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import logging
 import sys
@@ -203,3 +204,15 @@ def cluster_map(name: str, scheduler: str | None, workers: int | None
         return
     with cluster(scheduler, workers or 1, announce=True) as client:
         yield ClusterMap(client, name)
+
+
+def add_cluster_options(parser: argparse.ArgumentParser, tasks: str, shared: str) -> None:
+    """A benchmark's --workers and --scheduler (for `cluster_map`): its `tasks` (e.g. "the
+    sessions") on a local cluster or an existing scheduler, whose workers must see `shared`
+    (e.g. "--keep") at the same path."""
+    parser.add_argument("--workers", type=int, default=None,
+                        help=f"run {tasks} on a local Dask cluster of N processes "
+                             "(default: one after another here)")
+    parser.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                        help=f"run {tasks} on this Dask scheduler (its workers must see "
+                             f"{shared})")
