@@ -157,20 +157,22 @@ def estimate_responses(tofs: SessionTofs, rows: list[int], flights: Flights, fs:
         # a burst not played) says nothing of the microphone's response either
         H[~np.isfinite(tofs.tof_s[row])] = np.nan
         per_source.append(H)
-    stack = np.concatenate(per_source)  # (n_src, n_mic, n_band)
-    stack = stack[np.isfinite(stack).any(axis=(1, 2))]  # sources with a measurement
-    stack /= np.nanmedian(np.abs(stack), axis=1, keepdims=True)  # each source's own level
-    mean = np.nanmean(stack, axis=0)
-    n = stack.shape[0]
-    n_per_mic = np.sum(np.isfinite(stack), axis=0)
-    reference_gain = np.nanmedian(np.abs(mean), axis=0)
-    phasors = mean / np.maximum(np.abs(mean), 1e-300)
-    reference_phase = np.angle(np.nansum(phasors, axis=0))
-    gain = np.abs(mean) / reference_gain
-    phase = np.angle(mean * np.exp(-1j * reference_phase))
-    relative = stack / np.where(mean == 0, 1.0, mean)[None]
-    gain_std = gain * np.nanstd(np.abs(relative), axis=0) / np.sqrt(n_per_mic)
-    phase_std = np.nanstd(np.angle(relative), axis=0) / np.sqrt(n_per_mic)
+    # masked, not NaN: a microphone without any measurement (dead, or clipped in every
+    # burst) gets a NaN response without numpy's warnings about empty slices
+    stack = np.ma.masked_invalid(np.concatenate(per_source))  # (n_src, n_mic, n_band)
+    n = int(np.sum(stack.count(axis=(1, 2)) > 0))  # sources with a measurement
+    stack = stack / np.ma.median(np.ma.abs(stack), axis=1)[:, None]  # each source's own level
+    mean = stack.mean(axis=0)
+    n_per_mic = stack.count(axis=0)
+    reference_gain = np.ma.median(np.ma.abs(mean), axis=0)
+    reference_phase = np.ma.angle((mean / np.ma.abs(mean)).sum(axis=0))
+    gain = np.ma.abs(mean) / reference_gain
+    phase = np.ma.angle(mean * np.exp(-1j * reference_phase))
+    relative = stack / mean[None]
+    gain_std = gain * np.ma.abs(relative).std(axis=0) / np.sqrt(n_per_mic)
+    phase_std = np.ma.angle(relative).std(axis=0) / np.sqrt(n_per_mic)
+    gain, phase, gain_std, phase_std = (np.ma.filled(a.astype(float), np.nan)
+                                        for a in (gain, phase, gain_std, phase_std))
     return MicrophoneResponses(centres_hz.copy(), gain, phase, gain_std, phase_std, n)
 
 

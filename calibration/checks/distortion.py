@@ -86,7 +86,9 @@ def reference_floors(references: np.ndarray, burst: BurstLayout, fs: float) -> R
     top = np.abs(correlation).max(axis=-1)
     # the spread, not the RMS: an MLS's autocorrelation is -1 off its peak, so a response
     # (or an offset of the recording) leaves a constant there, which is no distortion
-    floor = np.array([np.std(row[mask]) for row, mask in zip(correlation, away, strict=True)])
+    # (NaN, no distortion judged, where a short MLS leaves no lag outside the response)
+    floor = np.array([np.std(row[mask]) if mask.any() else np.nan
+                      for row, mask in zip(correlation, away, strict=True)])
     with np.errstate(divide="ignore", invalid="ignore"):
         return ReferenceFloors(20.0 * np.log10(floor / top),
                                20.0 * np.log10(top / np.median(top)))

@@ -70,9 +70,9 @@ def multilaterate(
         worst_value = residual[np.arange(residual.shape[0]), worst]
         others = np.where(keep > 0, residual, np.nan)
         others[np.arange(others.shape[0]), worst] = np.nan
-        with np.errstate(all="ignore"):
-            scale = MAD_TO_SIGMA * np.nanmedian(others, axis=1)
-        drop = (worst_value > 5.0 * np.maximum(np.nan_to_num(scale), 5e-4)) & (keep.sum(1) > 5)
+        # a microphone with one kept range has no others: its scale is 0 (masked, no warning)
+        scale = MAD_TO_SIGMA * np.ma.median(np.ma.masked_invalid(others), axis=1).filled(0.0)
+        drop = (worst_value > 5.0 * np.maximum(scale, 5e-4)) & (keep.sum(1) > 5)
         if not drop.any():
             break
         keep[np.flatnonzero(drop), worst[drop]] = 0.0

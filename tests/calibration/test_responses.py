@@ -3,6 +3,8 @@ bands."""
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -68,3 +70,39 @@ def test_the_dispersion_bands_reach_the_correlations_top() -> None:
         centres = dispersion_centres_hz(top)
         assert np.all(centres * half <= top * (1 + 1e-9))
         assert np.all(np.diff(centres) > 0)
+
+
+def test_a_microphone_without_a_measurement_has_no_response_and_no_warning() -> None:
+    """A dead microphone (no time of flight in any burst) and a speaker that did not play at
+    one pose: NaN responses for that microphone alone, the others' finite, and none of
+    numpy's empty-slice warnings on the user's stderr (the grid of issue 33 printed them)."""
+    n_mic, n_spk, n_pose = 6, 4, 2
+    rng = np.random.default_rng(3)
+    t = STEP * np.arange(-HALF, HALF + 1) / FS
+    impulses = _pulse(t) * rng.uniform(0.5, 2.0, (n_pose, n_spk, n_mic, 1))
+    shape = (n_pose, n_spk, n_mic)
+
+    def responses_with(tof_s: np.ndarray) -> responses.MicrophoneResponses:
+        tofs = SessionTofs(
+            tof_s=tof_s, std_s=np.full(shape, 1e-8), snr_db=np.full(shape, 40.0),
+            peak_to_sidelobe_db=np.full(shape, 20.0), reference_tof_s=np.zeros(shape[:2]),
+            reference_std_s=np.full(shape[:2], 1e-8), impulses=impulses.astype(np.float32),
+            impulse_first_lag=np.full(shape, -HALF * STEP), impulse_step=STEP,
+            echo_energy=np.ones(shape), lead_energy=np.ones(shape),
+            rail_samples=np.zeros(shape), dropout_share=np.zeros(shape),
+            polarity=np.ones(n_mic))
+        flights = Flights(("pose/0000", "pose/0001"), np.zeros(shape), np.full(shape, 0.5),
+                          np.zeros(shape))
+        return estimate_responses(tofs, [0, 1], flights, FS, np.full(n_spk, 0.002), 343.0)
+
+    clean = responses_with(np.zeros(shape))
+    tof = np.zeros(shape)
+    tof[:, :, 2] = np.nan  # the dead microphone
+    tof[1, 3] = np.nan  # the speaker silent at the second pose
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        mistaken = responses_with(tof)
+    for values in (mistaken.gain, mistaken.phase_rad, mistaken.gain_std, mistaken.phase_std_rad):
+        assert np.all(np.isnan(values[2]))
+        assert np.all(np.isfinite(np.delete(values, 2, axis=0)))
+    assert mistaken.n_sources == n_pose * n_spk - 1 and clean.n_sources == n_pose * n_spk

@@ -13,6 +13,7 @@ error spreads by ~50 %: 12 trials give a standard error of 0.10-0.15 on the rati
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import replace
 
 import numpy as np
@@ -202,3 +203,18 @@ def test_rotated_point_jacobian():
         [(Rotation.from_rotvec(v + h).apply(p) - Rotation.from_rotvec(v - h).apply(p)) / 2e-7
          for h in 1e-7 * np.eye(3)], axis=-1)  # fmt: skip
     np.testing.assert_allclose(rotated_point_jacobian(v, p), numeric, atol=1e-6)
+
+
+def test_multilateration_of_a_microphone_without_ranges_is_nan_without_a_warning() -> None:
+    """A dead microphone's ranges are all missing: its position is NaN, the others' exact,
+    and its empty set of residuals no numpy warning (the grid of issue 33 printed one)."""
+    rng = np.random.default_rng(5)
+    sources = rng.uniform(-0.5, 0.5, (12, 3)) + [0.0, 0.0, 1.0]
+    mics = rng.uniform(-0.2, 0.2, (3, 3))
+    ranges = np.linalg.norm(sources[:, None] - mics, axis=-1)
+    ranges[:, 1] = np.nan
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        positions = multilaterate(sources, ranges)
+    assert np.all(np.isnan(positions[1]))
+    assert np.allclose(positions[[0, 2]], mics[[0, 2]], atol=1e-9)
