@@ -301,6 +301,10 @@ class Measurements:
     weighting: Weighting = "compact"
     findings: list[Finding] = field(default_factory=list)
     kept_microphones: np.ndarray | None = None
+    reference_levels_db: np.ndarray | None = None
+    """(S,) each speaker's reference recording's level over the median speaker's, dB
+    (calibration.checks.distortion.ReferenceFloors): a reference microphone further than
+    stated hears its speaker weaker (calibration.checks.fit_checks.reference_offset)."""
 
 
 @dataclass
@@ -368,7 +372,8 @@ def measure(path: Path, options: CalibrationOptions | None = None,
         speakers = speaker_positions(cams, data.speakers_rig_m, data.pose_steps)
         reference = _reference_position(cams, data)
     with _timed(timings, "times of flight", on_stage):
-        tofs, weighting, verdict = _times_of_flight(data, options)
+        floors = _reference_floors(data, options.memo)
+        tofs, weighting, verdict = _times_of_flight(data, options, floors)
     session_mics = data.mic_ids.size
     data, tofs = apply_verdict(data, tofs, verdict)
     located = [data.pose_steps.index(p.step) for p in speakers.poses]
@@ -376,13 +381,13 @@ def measure(path: Path, options: CalibrationOptions | None = None,
     kept = None if verdict.kept.size == session_mics else verdict.kept
     return Measurements(data, cams, speakers, located, tofs, reference, reference_fit, timings,
                         _air(data), notes, weighting, [*cams.findings, *verdict.findings],
-                        kept)
+                        kept, floors.level_db)
 
 
-def _times_of_flight(data: SessionData, options: CalibrationOptions
+def _times_of_flight(data: SessionData, options: CalibrationOptions, floors: ReferenceFloors
                      ) -> tuple[SessionTofs, Weighting, CaptureVerdict]:
     """The session's times of flight, the weighting they were correlated with and the
-    capture's mistakes they show.
+    capture's mistakes they (and the reference recordings' `floors`) show.
 
     The weighting is the options', or for "auto" compact, then matched where the echo ratio
     shows free field (`FREE_FIELD_ECHO_RATIO`; a second pass over the recordings). The
@@ -408,8 +413,7 @@ def _times_of_flight(data: SessionData, options: CalibrationOptions
     if options.weighting == "auto" and tofs.echo_ratio() <= FREE_FIELD_ECHO_RATIO:
         # (a NaN ratio, nothing to judge by, keeps compact too)
         tofs, weighting = correlated("matched", tofs.polarity), "matched"
-    verdict = check_capture(data, tofs, uncorrected if inverted.size else None,
-                            _reference_floors(data, options.memo))
+    verdict = check_capture(data, tofs, uncorrected if inverted.size else None, floors)
     return tofs, weighting, verdict
 
 
@@ -611,7 +615,8 @@ def _without_misfits(m: Measurements, options: CalibrationOptions, poses: np.nda
     used = np.ones(m.data.n_speakers, dtype=bool)
     used[speakers] = False
     while (offset := reference_offset(residuals, solution.speed_of_sound_m_s,
-                                      m.data.reference_distances_m, used)) is not None:
+                                      m.data.reference_distances_m, used,
+                                      m.reference_levels_db)) is not None:
         finding, k = offset
         tof[:, k] = std[:, k] = np.nan
         used[k] = False

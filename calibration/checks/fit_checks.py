@@ -42,6 +42,18 @@ clean realistic sessions the speakers' median residuals lie within 2.5 us of the
 joint fit takes out); a reference microphone 4 mm further than stated puts its speaker
 11.9 us off."""
 
+REFERENCE_LEVEL_DB = 6.0
+"""A speaker whose reference recording is this much (dB) weaker than the median speaker's,
+with its times of flight shorter than the others' geometry (or stronger, and longer), has its
+reference microphone further (nearer) than stated, even within `REFERENCE_OFFSET_US`: a
+point source's level falls 6 dB at twice the distance (2 mm stated, 4 mm true: 5.8 us, less
+than the clean realistic lab's own per-speaker scatter, which reaches 5.8 us at 20 poses).
+On 20-pose realistic sessions the reference 6 mm from its speaker instead of 2 mm lies 9.3
+and 9.5 dB below the others (timing alone: 6.6 and 7.7 us, not named), the clean speakers
+within 0.01 dB of each other (the simulated speakers are equally loud: a real set differs
+by a dB or two). Near a large diaphragm the level falls slower than a point source's; the
+timing threshold does not depend on it."""
+
 MOVED_RATIO = 3.0
 """A pose whose median |residual| is this many times the median pose's, with outliers among
 its times of flight, was heard somewhere else than it was seen."""
@@ -167,12 +179,14 @@ def speaker_findings(tof_s: np.ndarray, std_s: np.ndarray, residuals: SourceResi
 
 
 def reference_offset(residuals: SourceResiduals, speed_of_sound_m_s: float,
-                     reference_distances_m: np.ndarray, used: np.ndarray
+                     reference_distances_m: np.ndarray, used: np.ndarray,
+                     reference_levels_db: np.ndarray | None = None
                      ) -> tuple[Finding, int] | None:
-    """The speaker whose times of flight are all off by one constant (`REFERENCE_OFFSET_US`)
-    the most, among those `used` ((S,) bool: still in the fit): its finding and index; None
-    when there is none, or when more than half of the speakers stand out (a common cause,
-    not one speaker's).
+    """The speaker whose times of flight are all off by one constant (`REFERENCE_OFFSET_US`,
+    or less when its reference recording's level, `reference_levels_db` ((S,) dB over the
+    median speaker's), says the same: `REFERENCE_LEVEL_DB`) the most, among those `used`
+    ((S,) bool: still in the fit): its finding and index; None when there is none, or when
+    more than half of the speakers stand out (a common cause, not one speaker's).
 
     A speaker's offset is its median residual less the median of the other speakers': a
     solution that fitted the offset in shares part of it with the others (a board latency
@@ -194,7 +208,11 @@ def reference_offset(residuals: SourceResiduals, speed_of_sound_m_s: float,
     index = np.arange(usable.size)
     relative = np.array([offset_us[k] - np.median(offset_us[usable & (index != k)])
                          for k in index])
-    far = usable & (np.abs(relative) > REFERENCE_OFFSET_US)
+    level_db = (np.zeros(usable.size) if reference_levels_db is None
+                else np.asarray(reference_levels_db, dtype=float))
+    heard_further = (level_db <= -REFERENCE_LEVEL_DB) & (relative < 0)
+    heard_nearer = (level_db >= REFERENCE_LEVEL_DB) & (relative > 0)
+    far = usable & ((np.abs(relative) > REFERENCE_OFFSET_US) | heard_further | heard_nearer)
     if not far.any() or 2 * far.sum() > usable.sum():
         return None
     k = int(np.argmax(np.where(far, np.abs(relative), -np.inf)))
@@ -210,7 +228,11 @@ def reference_offset(residuals: SourceResiduals, speed_of_sound_m_s: float,
                  f"(the other speakers' within {typical:.1f} us): in its reference recording "
                  f"the reference microphone was about {abs(off_mm):.1f} mm "
                  f"{'further from' if off_mm > 0 else 'nearer to'} it than the stated "
-                 f"{stated_mm:.1f} mm",
+                 f"{stated_mm:.1f} mm"
+                 + (f"; its reference recording is {abs(level_db[k]):.1f} dB "
+                    f"{'weaker' if level_db[k] < 0 else 'stronger'} than the other speakers' "
+                    f"(a point source {10 ** (-level_db[k] / 20):.1f} times as far)"
+                    if heard_further[k] or heard_nearer[k] else ""),
         advice="its bursts were left out (that reference recording is the template of all "
                "its times of flight); place the reference microphone at the stated distance "
                "from each speaker, or state the distance it is at"), k

@@ -40,6 +40,7 @@ from calibration.checks.distortion import (
     reference_floors,
 )
 from calibration.checks.fit_checks import (
+    REFERENCE_LEVEL_DB,
     REFERENCE_OFFSET_US,
     SourceResiduals,
     gross_speakers,
@@ -416,6 +417,7 @@ def test_an_mls_too_short_to_show_a_floor_judges_no_distortion() -> None:
     assert np.all(np.isnan(floors.floor_db)) and np.all(np.isfinite(floors.level_db))
     assert distorted_speakers(floors).size == 0
 
+
 def _offsets(per_speaker_us: list[float]) -> SourceResiduals:
     """Residuals of 6 poses and 20 microphones with 0.5 us of noise around each speaker's
     constant offset."""
@@ -443,6 +445,28 @@ def test_a_speaker_off_by_a_constant_is_named_one_at_a_time() -> None:
     assert reference_offset(_offsets([1.0, -2.0, 0.5, -14.6, 2.0, 0.0]), 343.0, stated,
                             without) is None
 
+
+def test_a_weaker_reference_recording_names_a_smaller_offset() -> None:
+    """5.8 us shorter (a reference 4 mm further than its stated 2 mm) is within the clean
+    lab's per-speaker scatter, so timing alone names nothing; with the reference recording
+    9.5 dB weaker than the others' (3x the distance, for a point source) it is named. A
+    weaker recording whose times are longer (a quieter speaker, not a further microphone),
+    or a louder one beside shorter times, names nothing."""
+    stated = np.full(6, 0.002)
+    everyone = np.ones(6, dtype=bool)
+    offsets = _offsets([1.0, -2.0, 0.5, -5.8, 2.0, 0.0])
+    assert -5.8 > -REFERENCE_OFFSET_US
+    assert reference_offset(offsets, 343.0, stated, everyone) is None
+    levels = np.array([0.0, 0.0, 0.0, -9.5, 0.0, 0.0])
+    found = reference_offset(offsets, 343.0, stated, everyone, levels)
+    assert found is not None and found[1] == 3
+    assert "9.5 dB weaker" in found[0].evidence and "3.0 times as far" in found[0].evidence
+    assert "further from" in found[0].evidence
+    longer = _offsets([1.0, -2.0, 0.5, 5.8, 2.0, 0.0])
+    assert reference_offset(longer, 343.0, stated, everyone, levels) is None
+    assert reference_offset(offsets, 343.0, stated, everyone, -levels) is None
+    assert reference_offset(offsets, 343.0, stated, everyone,
+                            np.array([0.0, 0.0, 0.0, -0.9 * REFERENCE_LEVEL_DB, 0, 0])) is None
 
 def test_gross_speakers_are_found_beside_a_silent_one() -> None:
     """Speakers 1 and 4 with most of their times of flight outliers (a swap), speaker 2 silent
