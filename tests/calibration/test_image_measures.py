@@ -1,6 +1,6 @@
 """calibration.camera.image_measures' X-corners (the board's inner corners count, the
 corners of its outer squares on the white margin and an arm's edge across the squares do
-not) and its JPEG detector."""
+not), its JPEG detector, and a board too blurred to be found (calibration.camera.image_checks)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,8 @@ import cv2
 import numpy as np
 import pytest
 
-from calibration.camera.image_checks import MJPEG_QUANTISATION
+from calibration.camera.corners import Checkerboard
+from calibration.camera.image_checks import MJPEG_QUANTISATION, ViewImage, check_images
 from calibration.camera.image_measures import jpeg_quantisation, x_corner_response, x_corners
 
 SQUARE_PX = 30
@@ -75,3 +76,35 @@ def test_jpeg_is_told_from_raw_frames_however_noisy(noise_grey: float) -> None:
         assert ok
         decoded = cv2.imdecode(encoded, cv2.IMREAD_GRAYSCALE)
         assert jpeg_quantisation(decoded) > 1.5 * MJPEG_QUANTISATION, quality
+
+
+def _motion_blurred(image: np.ndarray, length_px: int, highlight: bool) -> np.ndarray:
+    """`image` smeared along its rows over `length_px` (a motion during the exposure), with a
+    saturated disc of 25 px radius on the board's centre when `highlight`."""
+    smeared = cv2.filter2D(image.astype(np.float32), -1,
+                           np.full((1, length_px), 1.0 / length_px, np.float32))
+    if highlight:
+        centre = ORIGIN_PX + 5 * SQUARE_PX // 2
+        cv2.circle(smeared, (centre, centre), 25, 255.0, -1)
+    return np.clip(np.round(smeared), 0, 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize("highlight", [True, False])
+def test_a_board_too_blurred_to_be_found_is_named_with_its_glare(highlight: bool) -> None:
+    """Three sharp views of a camera and one whose board was not found: smeared over a third
+    of a square, its corners respond too weakly to count as visible, but enough of them show
+    to name the blur (and the highlight on them). Unnamed before: 'no board in view'."""
+    board = Checkerboard(corners_x=4, corners_y=4, square_m=0.03)
+    corners = np.array([(ORIGIN_PX + a * SQUARE_PX, ORIGIN_PX + b * SQUARE_PX)
+                        for b in range(1, 5) for a in range(1, 5)], dtype=float)
+    sharp = _board()
+    images = {("cam0", f"pose/{k:04d}"): sharp for k in range(3)}
+    images[("cam0", "pose/0003")] = _motion_blurred(sharp, 11, highlight)
+    views = [ViewImage("cam0", step, corners if step != "pose/0003" else None)
+             for _, step in images]
+    verdict = check_images(views, images.__getitem__, board)
+    kinds = ["motion-blur", "glare"] if highlight else ["motion-blur"]
+    assert [f.kind for f in verdict.findings] == kinds
+    assert all(f.poses == ["pose/0003"] and f.cameras == ["cam0"] for f in verdict.findings)
+    assert verdict.left_out == {("cam0", "pose/0003"): " and ".join(
+        k.replace("-", " ") for k in kinds)}
