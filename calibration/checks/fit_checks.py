@@ -9,8 +9,12 @@ say how far each measurement lies from the geometry of all the others, and alway
 to the session's other speakers and poses. What is found is left out and the solution computed
 again without it; a swap is named, but not undone: the reference recordings were swapped
 with the pose recordings, so each speaker's times of flight carry the reference
-microphone's distance from the other speaker, which no relabelling takes out. A speaker
-off by a constant is left out too (`reference_offset` says why it is not shifted back).
+microphone's distance from the other speaker, which no relabelling takes out. Relabelled and
+shifted back by the offset the exchange measures, the two speakers were tried on the 20-pose
+realistic sessions of five seeds: 5.5, 1.5, 13, 3.4 and 3.9x the clean error, against
+1.1-1.5x left out (their reference recordings, made a hand's width from the speaker that
+played, are templates with the room and that speaker's side in them). A speaker off by a
+constant is left out too (`reference_offset` says why it is not shifted back).
 """
 
 from __future__ import annotations
