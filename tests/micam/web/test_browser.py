@@ -32,6 +32,13 @@ def _steps(b: Chromium) -> int:
     return int(b.js("return Number(document.getElementById('progress').dataset.steps)"))
 
 
+def _shown_text(b: Chromium, element_id: str) -> str:
+    """The text element `element_id` shows, found and read in one script: the page renders
+    its panels again on every event, so an element found first may be gone by the time its
+    text is read (selenium's StaleElementReferenceException)."""
+    return str(b.js("return document.getElementById(arguments[0]).innerText", element_id))
+
+
 def _capture_from_page(b: Chromium) -> None:
     """Click Capture and wait until the page shows one more step done."""
     before = _steps(b)
@@ -137,7 +144,7 @@ def test_a_whole_session_from_the_page(stack: Stack, chromium: type[Chromium],
                              ".viewBox.baseVal; return [p.width, p.height]")
         assert len(points) == 4
         assert all(0 <= x <= width and 0 <= y <= height for x, y in points), points
-        assert "Next pose:" in b.driver.find_element(By.ID, "hint-text").text
+        assert "Next pose:" in _shown_text(b, "hint-text")
         _coverage_chart_is_labelled(b)
         _the_panels_fill_the_width(b, screenshots)
         b.driver.save_screenshot(str(screenshots / "session.png"))
@@ -156,10 +163,10 @@ def test_a_whole_session_from_the_page(stack: Stack, chromium: type[Chromium],
                 break
             assert time.monotonic() < deadline, "no final calibration in the report"
             time.sleep(2)
-        summary = b.driver.find_element(By.ID, "report-summary").text
+        summary = _shown_text(b, "report-summary")
         assert summary.startswith("complete") and f"{SESSION_POSES}/{SESSION_POSES + 2} poses" \
             in summary
-        assert "48 microphones" in b.driver.find_element(By.ID, "report-result").text
+        assert "48 microphones" in _shown_text(b, "report-result")
         # the worker's report beside the result: its figures shown, every file a download
         links = b.js("return [...document.querySelectorAll('#report-files a[download]')]"
                      ".map((a) => a.getAttribute('download'))")
@@ -284,11 +291,11 @@ def _a_second_session_shows_nothing_of_the_first(b: Chromium, stack: Stack,
     _capture_from_page(b)
     b.wait("document.querySelectorAll('.board.reference .meter').length === 1",
            what="the second session's first levels")
-    step = b.driver.find_element(By.ID, "levels-step").text
+    step = _shown_text(b, "levels-step")
     b.driver.refresh()
     b.wait("window.micam.snapshots === 1 && document.body.dataset.state === 'references'",
            what="the reloaded page's snapshot")
-    assert b.driver.find_element(By.ID, "levels-step").text == step
+    assert _shown_text(b, "levels-step") == step
     assert b.js("return document.querySelectorAll('.board.reference .meter').length") == 1
     assert b.js("return document.querySelectorAll('.camera .warning').length") == 0, \
         "3 poses and the refmic image make 4 board views: nothing to warn about"
