@@ -115,6 +115,7 @@ from .result_assembly import (
     _with_delays,
 )
 from .session_data import SessionData, load_session
+from .solve.acoustic_pose import place_rig
 from .solve.solver import (
     MicrophoneSolution,
     PriorGeometry,
@@ -485,6 +486,10 @@ def calibrate_measured(m: Measurements, options: CalibrationOptions,
     _check_plausible(m, options, _solution_figures(m, solution, options), frozen=True)
     if not (options.joint and options.method == "micam"):
         return CalibrationRun(_assemble(m, solution, options, timings), m, solution)
+    if poses is None and (placed := _placed_by_their_bursts(m, solution)) is not m:
+        m = placed
+        with _timed(timings, "solver", on_stage):
+            solution = solve(m, options)
     if options.responses and options.dispersion:
         with _timed(timings, "dispersion", on_stage):
             # the capsules' dispersion, measured on the camera-frozen geometry (its errors
@@ -518,6 +523,53 @@ def calibrate_measured(m: Measurements, options: CalibrationOptions,
     result = result.model_copy(update={
         "findings": [*result.findings, *close_reflections(result, Wiring(m.data))]})
     return CalibrationRun(result, joint_m, joint_solution, solution, bundle)
+
+
+PLACED_BY_TIMES_OF_FLIGHT = "times of flight"
+"""`RigPoseInCam0.camera` of a pose that no camera located and its bursts placed."""
+
+
+def _placed_by_their_bursts(m: Measurements, solution: MicrophoneSolution) -> Measurements:
+    """The measurements with every pose step that no camera located (its board not found, or
+    its views left out) placed by its own times of flight (calibration.solve.acoustic_pose),
+    from the camera-frozen `solution`'s microphones, latencies and c, with a note for each;
+    `m` itself when there is none to place. The joint fit then holds such a pose by its times
+    of flight alone: its bursts are kept, its images stay out."""
+    located = set(m.located)
+    # the speakers the checks left out at every located pose (a swap, a misplaced reference
+    # microphone) are left out of the placed poses too
+    left_out = ~np.isfinite(m.tofs.tof_s[m.located]).any(axis=(0, 2))
+    tof, std = m.tofs.tof_s.copy(), m.tofs.std_s.copy()
+    _, board_of_mic = board_indices(m.data)
+    latency = solution.latency_s[board_of_mic]
+    kept = np.isfinite(solution.residuals_s) & ~solution.outliers
+    typical = float(np.median(np.abs(solution.residuals_s[kept])))
+    starts = [p.rig_to_cam0.transform for p in m.speakers.poses]
+    placed: dict[int, RigPoseInCam0] = {}
+    notes = []
+    for row, step in enumerate(m.data.pose_steps):
+        if row in located:
+            continue
+        tof[row, left_out] = std[row, left_out] = np.nan
+        pose = place_rig(tof[row], solution.positions_m, latency,
+                         solution.speed_of_sound_m_s, m.data.speakers_rig_m, starts, typical)
+        if pose is None:
+            continue
+        placed[row] = RigPoseInCam0(step, PLACED_BY_TIMES_OF_FLIGHT, pose, np.nan)
+        notes.append(f"{step}: no camera located the rig; its own times of flight placed it, "
+                     "and its bursts were used (its images were not)")
+    if not placed:
+        return m
+    by_row = {**dict(zip(m.located, m.speakers.poses, strict=True)), **placed}
+    rows = sorted(by_row)
+    poses = [by_row[r] for r in rows]
+    where = [p.locate(m.data.speakers_rig_m) for p in poses]
+    speakers = SpeakerPositions(poses, np.stack([x for x, _ in where]),
+                                np.stack([c for _, c in where]),
+                                [s for s in m.speakers.unlocated
+                                 if s not in {p.step for p in placed.values()}])
+    return replace(m, speakers=speakers, located=rows, notes=[*m.notes, *notes],
+                   tofs=replace(m.tofs, tof_s=tof, std_s=std))
 
 
 def _session_ids(data: SessionData) -> np.ndarray:

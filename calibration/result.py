@@ -81,11 +81,14 @@ class CameraResult(_Model):
 class PoseResult(_Model):
     index: int
     step: str
-    camera: str = Field(description="the camera whose image located the rig")
+    camera: str = Field(description="the camera whose image located the rig, or \"times of "
+                                    "flight\" where no camera did and its bursts placed it")
     rig_to_cam0: TransformResult
     speakers_m: list[Vector3]
     speakers_std_m: list[Vector3]
-    reprojection_rms_px: float
+    reprojection_rms_px: float | None = Field(
+        description="RMS reprojection error of the image that located the rig; null where its "
+                    "times of flight placed it")
 
 
 class SpeedOfSoundReference(_Model):

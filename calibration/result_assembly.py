@@ -277,4 +277,4 @@ def _pose_result(data: SessionData, speakers: SpeakerPositions, i: int) -> PoseR
                                     t_m=_vec(pose.rig_to_cam0.transform.t)),
         speakers_m=[_vec(p) for p in speakers.positions_m[i]],
         speakers_std_m=[_vec(np.sqrt(np.diag(c))) for c in speakers.cov_m2[i]],
-        reprojection_rms_px=float(pose.rms_px))
+        reprojection_rms_px=float(pose.rms_px) if np.isfinite(pose.rms_px) else None)

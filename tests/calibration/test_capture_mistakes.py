@@ -49,7 +49,13 @@ from calibration.checks.fit_checks import (
 )
 from calibration.checks.response_checks import CLOSE_REFLECTION_SCORE, close_reflections
 from calibration.levels import CLIPPED_SAMPLES, DROPOUT_BLOCK, channel_levels, full_scale_of
-from calibration.pipeline import CalibrationOptions, CalibrationRun, calibrate, measure
+from calibration.pipeline import (
+    PLACED_BY_TIMES_OF_FLIGHT,
+    CalibrationOptions,
+    CalibrationRun,
+    calibrate,
+    measure,
+)
 from calibration.result import (
     CalibrationResult,
     MicrophoneResponse,
@@ -328,6 +334,12 @@ def test_views_that_cannot_be_trusted_are_left_out(images, clean) -> None:
     left_out = {m.step for m in cams.missed if m.reason.startswith("left out")}
     assert left_out == {"pose/0001", "pose/0003", "pose/0005"}
     assert not left_out & {step for _, step in cams.views}
+    # their bursts are kept: their own times of flight placed the rig
+    placed = {p.step for p in run.result.poses if p.camera == PLACED_BY_TIMES_OF_FLIGHT}
+    assert placed == left_out
+    assert all(p.reprojection_rms_px is None for p in run.result.poses if p.step in placed)
+    assert sum(f"{step}: no camera located the rig" in note for step in placed
+               for note in run.result.notes) == 3
     # the rest calibrate as well as the 5-pose capture without mistakes (within 1.5x)
     assert _error_mm(run, truth) <= 1.5 * _error_mm(clean[1], clean[2])
 
