@@ -543,6 +543,8 @@ def _placed_by_their_bursts(m: Measurements, solution: MicrophoneSolution) -> Me
     _, board_of_mic = board_indices(m.data)
     latency = solution.latency_s[board_of_mic]
     kept = np.isfinite(solution.residuals_s) & ~solution.outliers
+    if not kept.any():
+        return m
     typical = float(np.median(np.abs(solution.residuals_s[kept])))
     starts = [p.rig_to_cam0.transform for p in m.speakers.poses]
     placed: dict[int, RigPoseInCam0] = {}

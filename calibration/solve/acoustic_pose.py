@@ -59,8 +59,8 @@ def place_rig(tof_s: np.ndarray, microphones_m: np.ndarray, latency_s: np.ndarra
     """
     usable = np.isfinite(tof_s) & np.all(np.isfinite(microphones_m), axis=1)[None, :]
     speakers = np.flatnonzero(usable.sum(axis=1) >= 4)
-    if speakers.size < MIN_SPEAKERS or not starts:
-        return None
+    if speakers.size < MIN_SPEAKERS or not starts or not np.isfinite(typical_residual_s):
+        return None  # (a NaN typical residual: nothing to judge the placement against)
     spk, mic = np.nonzero(usable[speakers])
     spk = speakers[spk]
     measured = tof_s[spk, mic] - latency_s[mic]

@@ -50,8 +50,8 @@ def test_a_pose_is_placed_by_its_times_of_flight_within_its_stated_covariance(se
 
 
 def test_times_of_flight_no_rigid_rig_explains_place_nothing() -> None:
-    """Half of the speakers' times of flight from a rig 10 cm away (two poses' bursts mixed),
-    or three speakers heard by too few microphones: not placed."""
+    """Half of the speakers' times of flight from a rig 10 cm away (two poses' bursts mixed);
+    three speakers heard by too few microphones, or no typical residual: not placed."""
     microphones, latency, tof = _scene(4)
     elsewhere = RigidTransform.from_rotvec(TRUE.rotvec, TRUE.t + [0.1, 0.0, 0.0])
     moved = np.linalg.norm(microphones[None] - elsewhere.apply(SPEAKERS_RIG_M)[:, None], axis=2)
@@ -61,3 +61,5 @@ def test_times_of_flight_no_rigid_rig_explains_place_nothing() -> None:
     few = tof.copy()
     few[:4, 3:] = np.nan  # four speakers heard by three microphones: two speakers left
     assert place_rig(few, microphones, latency, C, SPEAKERS_RIG_M, _starts(), NOISE_S) is None
+    # no located pose's residual to judge the fit against: nothing placed (it once raised)
+    assert place_rig(tof, microphones, latency, C, SPEAKERS_RIG_M, _starts(), np.nan) is None
