@@ -29,6 +29,7 @@ Choices made here, and why (see docs/calibration.md for the figures behind them)
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -74,7 +75,16 @@ from .choices import DEFAULT_LATENCY, LatencyModel, Stage
 from .acoustic.delay_estimation import Weighting
 from .checks.distortion import ReferenceFloors, reference_floors
 from .errors import CalibrationInputError
-from .checks.fit_checks import SourceResiduals, moved_poses, reference_offset, speaker_findings
+from .checks.fit_checks import (
+    GROSS_SHARE,
+    SWAP_SCATTER,
+    SourceResiduals,
+    SpeakerSwap,
+    moved_poses,
+    on_lent_reference,
+    reference_offset,
+    speaker_findings,
+)
 from .camera.image_checks import ImageCheckMemo
 from .checks.layout_check import NominalLayout, check_layout, relabelled
 from .memo import LruMemo
@@ -281,6 +291,21 @@ class CalibrationOptions:
     memo: WorkMemo | None = field(default=None, compare=False, repr=False)
 
 
+@dataclass(frozen=True)
+class LentReference:
+    """How a speaker with a spoiled reference recording was measured.
+
+    Attributes:
+        lender: the speaker whose reference recording its bursts were correlated with.
+        shift_s: taken out of its times of flight before the fits: its median residual on
+            the camera-frozen solution, relative to the other speakers' (its emission delay
+            after the lender's, to the joint fit's refinement).
+    """
+
+    lender: int
+    shift_s: float
+
+
 @dataclass
 class Measurements:
     """Everything the solver works from: the session, the cameras, the speaker positions,
@@ -306,6 +331,9 @@ class Measurements:
     """(S,) each speaker's reference recording's level over the median speaker's, dB
     (calibration.checks.distortion.ReferenceFloors): a reference microphone further than
     stated hears its speaker weaker (calibration.checks.fit_checks.reference_offset)."""
+    lent_references: dict[int, LentReference] = field(default_factory=dict)
+    """The speakers measured on another's reference recording, their own being spoiled
+    (`_on_lent_reference`); the joint fit gives each an emission delay of its own."""
 
 
 @dataclass
@@ -647,7 +675,9 @@ def _without_misfits(m: Measurements, options: CalibrationOptions, poses: np.nda
     """The measurements and the camera-frozen solution without the speakers and poses whose
     times of flight do not fit the geometry of the others (calibration.checks.fit_checks: swapped
     speaker cables, a reference microphone at another distance than stated, a rig moved
-    after its images), with findings that name them."""
+    after its images), with findings that name them. A swap and a misplaced reference
+    microphone spoil only the speakers' reference recordings: their bursts are kept,
+    correlated with a sound speaker's (`_on_lent_reference`), when they then fit."""
     rows = np.asarray(m.located)[np.arange(len(m.located)) if poses is None else poses]
     shape = (rows.size, m.data.n_speakers)
 
@@ -661,21 +691,36 @@ def _without_misfits(m: Measurements, options: CalibrationOptions, poses: np.nda
 
     tof, std = m.tofs.tof_s[rows].copy(), m.tofs.std_s[rows].copy()
     residuals = SourceResiduals.of(solution, *shape)
-    findings, speakers = speaker_findings(
+    findings, speakers, swap = speaker_findings(
         tof, std, residuals, lambda t, s: solve(with_tofs(t, s), options, poses))
+    used = np.ones(m.data.n_speakers, dtype=bool)
+    if swap is not None and (lent := _on_lent_reference(m, options, poses, residuals,
+                                                        swap, used)) is not None:
+        m, residuals, lender = lent
+        findings = [on_lent_reference(findings[0], lender)]
+        speakers = np.array([], dtype=int)
+        used[list(swap.speakers)] = False  # their offset is fitted: nothing to judge by it
+        tof, std = m.tofs.tof_s[rows].copy(), m.tofs.std_s[rows].copy()
     if speakers.size:
         tof[:, speakers] = std[:, speakers] = np.nan
         residuals = residuals_of(tof, std)
-    used = np.ones(m.data.n_speakers, dtype=bool)
     used[speakers] = False
     while (offset := reference_offset(residuals, solution.speed_of_sound_m_s,
                                       m.data.reference_distances_m, used,
                                       m.reference_levels_db)) is not None:
         finding, k = offset
-        tof[:, k] = std[:, k] = np.nan
         used[k] = False
-        findings.append(finding)
-        residuals = residuals_of(tof, std)
+        lent = _on_lent_reference(m, options, poses, residuals, k, used)
+        if lent is None:
+            tof[:, k] = std[:, k] = np.nan
+            findings.append(finding)
+            residuals = residuals_of(tof, std)
+            continue
+        m, residuals, lender = lent
+        findings.append(on_lent_reference(finding, lender))
+        left_out = np.isnan(tof)
+        tof, std = m.tofs.tof_s[rows].copy(), m.tofs.std_s[rows].copy()
+        tof[left_out] = std[left_out] = np.nan
 
     def without_poses(moved: list[int]) -> SourceResiduals:
         t, s = tof.copy(), std.copy()
@@ -688,12 +733,85 @@ def _without_misfits(m: Measurements, options: CalibrationOptions, poses: np.nda
         return m, solution
     tof[moved] = std[moved] = np.nan
     checked = replace(with_tofs(tof, std), findings=[*m.findings, *findings, *pose_findings])
-    misplaced = [f.speakers[0] for f in findings if f.kind == "misplaced-reference-microphone"]
-    if misplaced:  # the stand's reference microphone was correlated with that template too
+    spoiled = [k for f in findings if f.action == "left out" and f.kind in (
+        "misplaced-reference-microphone", "swapped-speakers") for k in f.speakers]
+    if spoiled:  # the stand's reference microphone was correlated with those templates too
         reference = checked.tofs.reference_tof_s.copy()
-        reference[:, misplaced] = np.nan
+        reference[:, spoiled] = np.nan
         checked = replace(checked, tofs=replace(checked.tofs, reference_tof_s=reference))
     return checked, solve(checked, options, poses)
+
+
+LENT_EMISSION_STD_S = 1e-4
+"""Prior standard deviation of the emission delay of a speaker measured on another
+speaker's reference recording (`Measurements.lent_references`): wide, so that the data
+decide it (drivers and amplifiers of one kind differ by microseconds, cables by less)."""
+
+
+def _on_lent_reference(m: Measurements, options: CalibrationOptions, poses: np.ndarray | None,
+                       residuals: SourceResiduals, spoiled: SpeakerSwap | int, used: np.ndarray
+                       ) -> tuple[Measurements, SourceResiduals, int] | None:
+    """The measurements with a spoiled speaker's bursts (`spoiled`: one whose reference
+    microphone was misplaced, or a swap, whose recordings are exchanged too) correlated
+    again with the reference recording of the sound speaker that fits best (the `used`
+    speaker whose residuals' median is nearest the others'), their times of flight shifted
+    by their median residual (the emission delay, fitted again in the joint fit), and the
+    solution's residuals; None when no sound speaker is left to lend its recording, or when
+    the bursts do not fit then (`SWAP_SCATTER`, `GROSS_SHARE`): the caller leaves them out.
+
+    Why this is safe: every speaker plays the same burst through the same kind of driver,
+    so another speaker's reference recording is its own but for a constant delay. On the
+    20-pose realistic sessions, a swapped speaker measured on a lent recording lies within
+    1 ns (median) of the same speaker measured on its own in the session without the swap.
+    """
+    heard = [spoiled] if isinstance(spoiled, int) else list(spoiled.heard)
+    moved = heard if isinstance(spoiled, int) else [
+        spoiled.speakers[1] if k == spoiled.speakers[0] else spoiled.speakers[0] for k in heard]
+    involved = set(heard) | set(moved)
+    with warnings.catch_warnings():  # a speaker left out has no residual: NaN, as it says
+        warnings.simplefilter("ignore", RuntimeWarning)
+        offset_s = np.nanmedian(residuals.residual_s, axis=(0, 2))
+    lenders = np.flatnonzero(used & np.isfinite(offset_s)
+                             & ~np.isin(np.arange(used.size), list(involved)))
+    if lenders.size == 0:
+        return None
+    lender = int(lenders[np.argmin(np.abs(offset_s[lenders] - np.median(offset_s[lenders])))])
+    templates = np.arange(m.data.n_speakers)
+    templates[heard] = lender
+    again = measure_session_tofs(m.data, NOMINAL_SPEED_OF_SOUND_M_S, options.band_hz,
+                                 m.weighting, memo=None if options.memo is None
+                                 else options.memo.tofs, polarity=m.tofs.polarity,
+                                 templates=templates)
+    tofs = m.tofs.with_speakers_from(again, heard)
+    if not isinstance(spoiled, int):
+        tofs = tofs.exchanged(*spoiled.speakers)
+    levels = m.reference_levels_db
+    if levels is not None:
+        levels = levels.copy()
+        levels[moved] = levels[lender]
+    trial = replace(m, tofs=tofs, reference_levels_db=levels)
+    shape = residuals.residual_s.shape[:2]
+    fitted = SourceResiduals.of(solve(trial, options, poses), *shape)
+    scatter = fitted.speaker_scatter_us()
+    others = np.flatnonzero(used & np.isfinite(scatter)
+                            & ~np.isin(np.arange(used.size), list(involved)))
+    if others.size == 0:
+        return None
+    typical = float(np.median(scatter[others]))
+    if not (np.all(scatter[moved] < SWAP_SCATTER * max(typical, 1e-3))
+            and np.all(fitted.outlier_share((0, 2))[moved] <= GROSS_SHARE)):
+        return None
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        offset_s = np.nanmedian(fitted.residual_s, axis=(0, 2))
+    shift = offset_s[moved] - np.median(offset_s[others])
+    shifted = replace(trial.tofs, tof_s=trial.tofs.tof_s.copy(),
+                      reference_tof_s=trial.tofs.reference_tof_s.copy())
+    shifted.tof_s[:, moved] -= shift[None, :, None]
+    shifted.reference_tof_s[:, moved] -= shift[None, :]
+    lent = {k: LentReference(lender, float(s)) for k, s in zip(moved, shift, strict=True)}
+    trial = replace(trial, tofs=shifted, lent_references={**m.lent_references, **lent})
+    return trial, SourceResiduals.of(solve(trial, options, poses), *shape), lender
 
 
 def _for_kept_microphones(options: CalibrationOptions, kept: np.ndarray | None
@@ -840,6 +958,8 @@ def bundle_priors(m: Measurements, options: CalibrationOptions) -> BundlePriors:
         off_axis_std_m=OFF_AXIS_STD_M if options.speaker_offsets else FIXED,
         mic_delay_std_s=(FIXED if options.mic_delay_std_s is None
                          else options.mic_delay_std_s),
+        speaker_delay_std_s=np.where(np.isin(np.arange(n), list(m.lent_references)),
+                                     LENT_EMISSION_STD_S, FIXED),
         speed_of_sound=known_speed_of_sound(m, options),
         speed_of_sound_step_m_s=options.speed_of_sound_step_m_s,
         **_intrinsics_priors(m, options),

@@ -142,6 +142,18 @@ class CameraFrozenResult(_Model):
     focal_std_px: dict[str, tuple[float, float]]
 
 
+class LentReferenceResult(_Model):
+    """A speaker whose own reference recording was spoiled (a swapped cable, the reference
+    microphone misplaced), measured on another speaker's instead."""
+
+    speaker: int
+    reference_of: int = Field(description="the speaker whose reference recording its bursts "
+                              "were correlated with")
+    emission_delay_s: float = Field(description="its sound's delay after that speaker's, as "
+                                    "fitted (driver, amplifier and cable; 0 for a twin)")
+    emission_delay_std_s: float
+
+
 class RigFitResult(_Model):
     """What the joint fit found of the rig: where each speaker's sound comes from (rig frame:
     the stated position plus the fitted offset, the acoustic centre included) and the scale
@@ -156,6 +168,7 @@ class RigFitResult(_Model):
         default=0.0, description="b: off axis at angle theta the speakers' acoustic centre "
         "sits b (1 - cos theta) further out along the rig's normal")
     acoustic_centre_off_axis_std_m: float = 0.0
+    lent_references: list[LentReferenceResult] = Field(default_factory=list)
 
 
 class JointFitResult(_Model):

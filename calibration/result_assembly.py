@@ -34,6 +34,7 @@ from .result import (
     MicrophoneResult,
     PoseResult,
     ResidualStats,
+    LentReferenceResult,
     RigFitResult,
     SpeedOfSoundReference,
     TofQuality,
@@ -217,7 +218,8 @@ def _responses_result(m: Measurements, est: MicrophoneResponses) -> MicrophoneRe
 
 
 def _rig_summary(m: Measurements, bundle: BundleSolution) -> RigFitResult:
-    """The rig as the joint fit found it: speaker positions and print scale."""
+    """The rig as the joint fit found it: speaker positions, print scale, and the emission
+    delays of speakers measured on another's reference recording."""
     offsets = bundle.state.speaker_offsets_m
     std = bundle.std.speaker_offsets_m
     return RigFitResult(
@@ -225,7 +227,12 @@ def _rig_summary(m: Measurements, bundle: BundleSolution) -> RigFitResult:
         speakers_rig_std_m=[_vec(s) for s in std], offsets_m=[_vec(o) for o in offsets],
         print_scale=bundle.state.print_scale, print_scale_std=float(bundle.std.print_scale),
         acoustic_centre_off_axis_m=bundle.state.off_axis_m,
-        acoustic_centre_off_axis_std_m=float(bundle.std.off_axis_m))
+        acoustic_centre_off_axis_std_m=float(bundle.std.off_axis_m),
+        lent_references=[LentReferenceResult(
+            speaker=k, reference_of=lent.lender,
+            emission_delay_s=lent.shift_s + float(bundle.state.speaker_delays_s[k]),
+            emission_delay_std_s=float(bundle.std.speaker_delays_s[k]))
+            for k, lent in sorted(m.lent_references.items())])
 
 
 def _joint_summary(m: Measurements, bundle: BundleSolution,

@@ -61,6 +61,15 @@ def _frozen(pose: PoseTofs) -> PoseTofs:
     return pose
 
 
+_PER_MICROPHONE = ("tof_s", "std_s", "snr_db", "peak_to_sidelobe_db", "impulses",
+                   "impulse_first_lag", "echo_energy", "lead_energy", "rail_samples",
+                   "dropout_share")
+"""`SessionTofs`' arrays indexed (pose, speaker, microphone, ...)."""
+
+_MEASURED = ("tof_s", "std_s", "reference_tof_s", "reference_std_s")
+"""`SessionTofs`' arrays whose NaN says: left out."""
+
+
 @dataclass(frozen=True)
 class SessionTofs:
     """Times of flight of a session, indexed (pose, speaker, microphone).
@@ -103,10 +112,29 @@ class SessionTofs:
 
     def with_microphones(self, kept: np.ndarray) -> SessionTofs:
         """These times of flight of the microphones `kept` (indices into M) alone."""
-        per_mic = {name: getattr(self, name)[:, :, kept] for name in (
-            "tof_s", "std_s", "snr_db", "peak_to_sidelobe_db", "impulses", "impulse_first_lag",
-            "echo_energy", "lead_energy", "rail_samples", "dropout_share")}
+        per_mic = {name: getattr(self, name)[:, :, kept] for name in _PER_MICROPHONE}
         return replace(self, polarity=self.polarity[kept], **per_mic)
+
+    def with_speakers_from(self, other: SessionTofs, speakers: list[int]) -> SessionTofs:
+        """These measurements with those of `speakers` taken from `other` (the same
+        recordings correlated again), except where these are NaN: left out already (a
+        dropout, a clipped burst), which stays left out."""
+        taken = {}
+        for name in (*_PER_MICROPHONE, "reference_tof_s", "reference_std_s"):
+            mine = getattr(self, name).copy()
+            mine[:, speakers] = getattr(other, name)[:, speakers]
+            if name in _MEASURED:
+                mine = np.where(np.isnan(getattr(self, name)), np.nan, mine)
+            taken[name] = mine
+        return replace(self, **taken)
+
+    def exchanged(self, a: int, b: int) -> SessionTofs:
+        """These measurements with speakers `a`'s and `b`'s exchanged (two speaker cables
+        swapped: the recordings made as `a` hold `b`'s bursts)."""
+        order = np.arange(self.tof_s.shape[1])
+        order[[a, b]] = [b, a]
+        return replace(self, **{name: getattr(self, name)[:, order] for name in (
+            *_PER_MICROPHONE, "reference_tof_s", "reference_std_s")})
 
     def echo_ratio(self, poses: list[int] | slice = slice(None)) -> float:
         """The array's correlation energy after the direct sound over that before it, pooled
@@ -128,6 +156,7 @@ def measure_session_tofs(
     on_pose: Callable[[str], None] | None = None,
     memo: TofMemo | None = None,
     polarity: np.ndarray | None = None,
+    templates: np.ndarray | None = None,
 ) -> SessionTofs:
     """Times of flight of every pose of `data`.
 
@@ -145,6 +174,13 @@ def measure_session_tofs(
 
     `polarity` (M,): +1 or -1 per microphone, the sign its recordings are correlated with
     (None: all +1); the levels do not depend on it.
+
+    `templates` (S,): the speaker whose reference recording each speaker's bursts are
+    correlated with (None: its own). A speaker whose own reference recording is spoiled (its
+    cable swapped with another's, so the reference microphone heard the other speaker from a
+    hand's width away) is measured on a sound speaker's: the same burst through the same
+    kind of driver, so its times of flight are right up to a constant, that speaker's
+    emission delay relative to the lender's (calibration.solve.bundle fits it).
     """
     on_stand = data.reference_column is not None
     columns = np.append(data.mic_columns, [data.reference_column] if on_stand else [])
@@ -152,7 +188,9 @@ def measure_session_tofs(
     n_mic = data.mic_columns.size
     signs = np.ones(n_mic) if polarity is None else np.asarray(polarity, dtype=float)
     column_signs = np.append(signs, [1.0] if on_stand else []).astype(np.float32)
-    d_ref = data.reference_distances_m[:, None]  # (S, 1): per speaker, against (S, channels)
+    lent = (np.arange(data.n_speakers) if templates is None
+            else np.asarray(templates, dtype=int))
+    d_ref = data.reference_distances_m[lent, None]  # (S, 1): per speaker, against (S, channels)
     window = (-1e-4, MAX_RANGE_M / speed_of_sound_m_s)
     steady = data.description.burst.steady_window
     if steady is None:
@@ -170,7 +208,8 @@ def measure_session_tofs(
         n_fft = stop - first
         burst_samples = None
     settings = (band_hz, weighting, window, first, n_fft, tuple(columns.tolist()),
-                tuple(signs.tolist()), recording_hashes(data, reference_step))
+                tuple(signs.tolist()), recording_hashes(data, reference_step),
+                tuple(lent.tolist()))
     keys = [(recording_hashes(data, _every_speaker_in(step)), settings)
             for step in data.pose_steps]
     remembered: dict[int, PoseTofs] = {}
@@ -179,7 +218,7 @@ def measure_session_tofs(
             remembered[i] = known
     todo = [i for i in range(len(keys)) if i not in remembered]
     samples = slice(first, stop)
-    references = data.references(samples) if todo else None
+    references = data.references(samples)[lent] if todo else None
     full_scale = data.full_scale() if todo else 1.0
 
     def correlate(i: int) -> PoseTofs:

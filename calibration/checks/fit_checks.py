@@ -6,15 +6,15 @@ nudged between its images and its bursts).
 
 All three are judged on the camera-frozen solution (calibration.solve.solver), whose residuals
 say how far each measurement lies from the geometry of all the others, and always relative
-to the session's other speakers and poses. What is found is left out and the solution computed
-again without it; a swap is named, but not undone: the reference recordings were swapped
-with the pose recordings, so each speaker's times of flight carry the reference
-microphone's distance from the other speaker, which no relabelling takes out. Relabelled and
-shifted back by the offset the exchange measures, the two speakers were tried on the 20-pose
-realistic sessions of five seeds: 5.5, 1.5, 13, 3.4 and 3.9x the clean error, against
-1.1-1.5x left out (their reference recordings, made a hand's width from the speaker that
-played, are templates with the room and that speaker's side in them). A speaker off by a
-constant is left out too (`reference_offset` says why it is not shifted back).
+to the session's other speakers and poses. A moved pose is left out and the solution
+computed again without it. A swap and a misplaced reference microphone spoil only the
+speakers' reference recordings (swapped, the reference microphone heard the other speaker
+from a hand's width away): the pipeline measures their bursts again on a sound speaker's
+reference recording, with an emission delay of their own fitted (`on_lent_reference`), and
+leaves them out only when that does not fit. Shifting them back on their own recordings by
+the offset measured was tried first and is not safe: for a swap on the 20-pose realistic
+sessions of five seeds, 5.5, 1.5, 13, 3.4 and 3.9x the clean error (left out 1.1-1.5x; on a
+lent recording 0.98-1.07x).
 """
 
 from __future__ import annotations
@@ -131,15 +131,32 @@ def gross_speakers(residuals: SourceResiduals) -> np.ndarray:
     return np.flatnonzero(measured & (share > GROSS_SHARE))
 
 
+@dataclass(frozen=True)
+class SpeakerSwap:
+    """Two speaker cables found swapped.
+
+    Attributes:
+        speakers: the two speakers (a, b): the recordings made as a hold b's bursts and the
+            other way round.
+        heard: those of the two whose recordings hold a burst (one of them may be silent:
+            its cable drove a speaker that did not play).
+    """
+
+    speakers: tuple[int, int]
+    heard: tuple[int, ...]
+
+
 def speaker_findings(tof_s: np.ndarray, std_s: np.ndarray, residuals: SourceResiduals,
-                     resolve: Resolve) -> tuple[list[Finding], np.ndarray]:
-    """The findings about gross speakers and the speakers to leave out. Two gross speakers
-    are tried exchanged (one more solve): when their times of flight then fit, they are named
-    as swapped. One gross speaker beside a silent one (no time of flight: its cable drove a
+                     resolve: Resolve
+                     ) -> tuple[list[Finding], np.ndarray, SpeakerSwap | None]:
+    """The findings about gross speakers, the speakers to leave out and the swap found, if
+    any (the caller may undo it: `on_lent_reference`). Two gross speakers are tried
+    exchanged (one more solve): when their times of flight then fit, they are named as
+    swapped. One gross speaker beside a silent one (no time of flight: its cable drove a
     speaker that did not play) is tried at the silent one's place likewise."""
     gross = gross_speakers(residuals)
     if gross.size == 0:
-        return [], gross
+        return [], gross, None
     before = residuals.median_us((0, 2))[gross]
     scatter_before = residuals.speaker_scatter_us()
     others = np.delete(scatter_before, gross)
@@ -172,14 +189,31 @@ def speaker_findings(tof_s: np.ndarray, std_s: np.ndarray, residuals: SourceResi
                      + (f"; the speaker on {quiet[0]}'s cable did not play" if quiet else ""),
             advice="both were left out (their reference recordings were swapped too, so "
                    "their times of flight carry that offset); check the two speakers' "
-                   "cables" + (" and the silent one" if quiet else ""))], gross
+                   "cables" + (" and the silent one" if quiet else ""))], gross, SpeakerSwap(
+            (int(a), int(b)), tuple(int(k) for k in heard))
     return [Finding(
         kind="misplaced-speaker", action="left out", speakers=[int(k)],
         evidence=f"speaker {k}'s times of flight do not fit where the rig description puts "
                  f"it ({100 * residuals.outlier_share((0, 2))[k]:.0f} % outliers, median "
                  f"residual {_us(before[i:i + 1])})",
         advice="it was left out; check its cable and its position in the rig description")
-        for i, k in enumerate(gross)], gross
+        for i, k in enumerate(gross)], gross, None
+
+
+def on_lent_reference(finding: Finding, lender: int) -> Finding:
+    """`finding` (a swap of speaker cables, or a reference microphone misplaced) once its
+    speakers' bursts were correlated with speaker `lender`'s reference recording instead of
+    their own, spoiled one, and kept: what was done, in its advice."""
+    if finding.kind == "swapped-speakers":
+        advice = (f"corrected: their recordings were exchanged and correlated with speaker "
+                  f"{lender}'s reference recording (theirs are spoiled), each with an "
+                  "emission delay of its own fitted; check the two speakers' cables")
+    else:
+        advice = (f"corrected: its bursts were correlated with speaker {lender}'s reference "
+                  "recording (its own is spoiled), with an emission delay of its own fitted; "
+                  "place the reference microphone at the stated distance from each speaker, "
+                  "or state the distance it is at")
+    return finding.model_copy(update={"action": "corrected", "advice": advice})
 
 
 def reference_offset(residuals: SourceResiduals, speed_of_sound_m_s: float,
@@ -198,11 +232,13 @@ def reference_offset(residuals: SourceResiduals, speed_of_sound_m_s: float,
     residuals a little, so one speaker is judged at a time, left out, and the rest fitted
     again before the next is judged.
 
-    Why left out, not corrected: the reference recording at another distance is another
-    recording (another level, the diaphragm's near field and acoustic centre seen from
-    elsewhere), and it is the template of every one of that speaker's times of flight.
-    Shifted by the offset, even the true one, a 5-pose session kept 2.3x the error of the
-    same session without the mistake; left out, 1.2x (and 0.95x at 20 poses)."""
+    The finding says "left out"; the pipeline measures the speaker again on another
+    speaker's reference recording where it can (`on_lent_reference`). Not its own shifted
+    back: the reference recording at another distance is another recording (another level,
+    the diaphragm's near field and acoustic centre seen from elsewhere), and it is the
+    template of every one of that speaker's times of flight. Shifted by the offset, even the
+    true one, a 5-pose session kept 2.3x the error of the same session without the mistake;
+    left out, 1.2x (0.95x at 20 poses); on a lent recording, 0.95-1.01x at 20 poses."""
     with warnings.catch_warnings():  # a speaker left out has no residual: NaN, as it says
         warnings.simplefilter("ignore", RuntimeWarning)
         offset_us = 1e6 * np.nanmedian(residuals.residual_s, axis=(0, 2))

@@ -20,7 +20,8 @@ Model (frames of `calibration.camera.camera_calibration`; x_cam = R(rvec) x + t 
   acoustic centre depends on frequency, and off axis its high frequencies roll off: the
   centre a correlation sees moves with the angle, by tens of micrometres at 50 degrees), c_k
   the speed of sound during pose k, delta_b the board latency, e_m the microphone's own
-  delay, and d_ref the reference microphone's distance from the diaphragm during the
+  delay (and, for a speaker measured on another speaker's reference recording, g_s: its
+  emission delay relative to that speaker's, free), and d_ref the reference microphone's distance from the diaphragm during the
   reference recording (measured delays are relative to that recording; the TOFs handed in
   had d_ref / c_tof added, so the model takes it out again at the fitted c);
 - time of flight from the same source to the reference microphone on its stand (position an
@@ -37,8 +38,8 @@ speed of sound (a thermometer). The covariance carries what is left of it.
 Unknowns: every camera's 9 intrinsics, the other cameras' extrinsics (6 each), every board
 pose including the reference-microphone step (6 each), the microphones (3 each), the reference
 microphone (3), c (one, or one per pose), the latencies, and with their priors (`BundlePriors`)
-the microphones' own delays, the speakers' rig offsets, the off-axis move b and the print
-scale. Residuals are whitened: corner pixels by a per-camera sigma (times each view's noise
+the microphones' own delays, the speakers' rig offsets, the off-axis move b, the print
+scale and the emission delays g_s of speakers on a lent reference recording. Residuals are whitened: corner pixels by a per-camera sigma (times each view's noise
 relative to its camera's, as the camera calibration estimated it:
 `BundleProblem.corner_sigma_px`), times of flight by their predicted std times a per-kind
 scale; both are estimated from the residual scatter (median absolute deviation) at the start
@@ -194,6 +195,10 @@ class BundlePriors:
             (prior mean 0).
         mic_delay_std_s: standard deviation of each microphone's own delay (capsule and
             channel group delay) about the mean of its board.
+        speaker_delay_std_s: (n_speaker,) standard deviation of each speaker's emission delay
+            g_s (prior mean 0): FIXED for a speaker correlated with its own reference
+            recording, a wide one for a speaker measured on another's (whose driver and cable
+            delay the lent recording does not hold); None: every one FIXED.
         speed_of_sound: (c, std) a known speed of sound (a thermometer), m/s, as a prior on
             the session's mean c; None: unknown.
         speed_of_sound_step_m_s: standard deviation of the change of c from one pose to the
@@ -208,6 +213,7 @@ class BundlePriors:
     print_scale_std: float = FIXED
     off_axis_std_m: float = FIXED
     mic_delay_std_s: float = FIXED
+    speaker_delay_std_s: np.ndarray | None = None
     speed_of_sound: SpeedOfSoundPrior | None = None
     speed_of_sound_step_m_s: float = 0.01
     intrinsics_mean: np.ndarray | None = None
@@ -237,6 +243,7 @@ class BundleState:
         print_scale: the printed pattern's scale relative to the stated one.
         off_axis_m: b, how far the speakers' acoustic centre moves forward off axis (at
             theta: b (1 - cos theta) along the normal).
+        speaker_delays_s: (n_speaker,) each speaker's emission delay g_s (empty: zeros).
     """
 
     intrinsics: np.ndarray
@@ -250,6 +257,7 @@ class BundleState:
     speaker_offsets_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     print_scale: float = 1.0
     off_axis_m: float = 0.0
+    speaker_delays_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def speed_of_sound_m_s(self) -> float:
@@ -260,11 +268,13 @@ class BundleState:
         """The state with its optional unknowns filled in (zeros where empty)."""
         delays = np.asarray(self.mic_delays_s, float)
         offsets = np.asarray(self.speaker_offsets_m, float).reshape(-1, 3)
+        emission = np.asarray(self.speaker_delays_s, float)
         return replace(
             self,
             speeds_of_sound_m_s=np.atleast_1d(np.asarray(self.speeds_of_sound_m_s, float)),
             mic_delays_s=delays if delays.size else np.zeros(len(self.microphones_m)),
             speaker_offsets_m=offsets if offsets.size else np.zeros((n_speaker, 3)),
+            speaker_delays_s=emission if emission.size else np.zeros(n_speaker),
         )
 
 
@@ -278,7 +288,8 @@ class BundleSolution:
         covariance: full covariance of the parameter vector (see `parameter_slices`).
         parameter_slices: name -> slice of the parameter vector ("intrinsics", "extrinsics",
             "poses", "microphones", "reference", "c", "latencies", "mic_delays",
-            "speaker_offsets", "print_scale", "off_axis"); fixed unknowns have zero
+            "speaker_offsets", "print_scale", "off_axis", "speaker_delays"); fixed unknowns
+            have zero
             variance.
         sigmas: noise group -> estimated sigma: pixels per coordinate for a camera's corners,
             a factor on the predicted std for the times of flight (estimated per microphone;
@@ -356,7 +367,7 @@ class _Layout:
             "reference": (3,), "c": state.speeds_of_sound_m_s.shape,
             "latencies": state.latencies_s.shape, "mic_delays": state.mic_delays_s.shape,
             "speaker_offsets": state.speaker_offsets_m.shape, "print_scale": (1,),
-            "off_axis": (1,),
+            "off_axis": (1,), "speaker_delays": state.speaker_delays_s.shape,
         }  # fmt: skip
         slices, start = {}, 0
         for name, shape in shapes.items():
@@ -367,13 +378,13 @@ class _Layout:
 
     @property
     def size(self) -> int:
-        return self.slices["off_axis"].stop
+        return self.slices["speaker_delays"].stop
 
     def pack(self, s: BundleState) -> np.ndarray:
         return np.concatenate([s.intrinsics.ravel(), s.extrinsics.ravel(), s.poses.ravel(),
                                s.microphones_m.ravel(), s.reference_m, s.speeds_of_sound_m_s,
                                s.latencies_s, s.mic_delays_s, s.speaker_offsets_m.ravel(),
-                               [s.print_scale], [s.off_axis_m]])  # fmt: skip
+                               [s.print_scale], [s.off_axis_m], s.speaker_delays_s])  # fmt: skip
 
     def unpack(self, x: np.ndarray) -> BundleState:
         part = {n: x[sl].reshape(self.shapes[n]) for n, sl in self.slices.items()}
@@ -381,7 +392,7 @@ class _Layout:
                            part["microphones"], part["reference"], part["c"],
                            part["latencies"], part["mic_delays"], part["speaker_offsets"],
                            float(part["print_scale"][0]),
-                           float(part["off_axis"][0]))  # fmt: skip
+                           float(part["off_axis"][0]), part["speaker_delays"])  # fmt: skip
 
     def columns(self, name: str, index: np.ndarray, width: int) -> np.ndarray:
         """(n, width) parameter columns of blocks `index` of the named unknowns."""
@@ -665,8 +676,9 @@ class _Model:
             c_col = c_of_source[src]
             c = s.speeds_of_sound_m_s[c_col]
             flight = dist - b * off_axis - d_ref[src]
+            emission = s.speaker_delays_s[p.speaker_of_source[src]]
             parts.append(flight / c + d_ref[src] / p.tof_speed_of_sound_m_s + lat + own
-                         - measured)
+                         + emission - measured)
             if trip is not None:
                 rows = start + np.arange(src.size)
                 # d(flight)/d(diff): the distance's unit vector, less b d(off_axis)/d(diff)
@@ -689,6 +701,8 @@ class _Model:
                 has = lat_col >= 0
                 trip.add(rows[has], lay.slices["latencies"].start + lat_col[has, None],
                          np.ones((has.sum(), 1)))
+                trip.add(rows, lay.slices["speaker_delays"].start
+                         + p.speaker_of_source[src, None], np.ones((src.size, 1)))
                 if name == "microphones":
                     trip.add(rows, lay.slices["mic_delays"].start + self.mic[:, None],
                              np.ones((src.size, 1)))
@@ -741,6 +755,10 @@ class _Priors:
         for j in range(n_spk):
             for a in range(3):
                 prior(offsets + 3 * j + a, float(mean[j, a]), float(std[j, a]))
+        emission = (np.zeros(n_spk) if priors.speaker_delay_std_s is None
+                    else np.broadcast_to(priors.speaker_delay_std_s, (n_spk,)))
+        for j in range(n_spk):
+            prior(layout.slices["speaker_delays"].start + j, 0.0, float(emission[j]))
         prior(layout.slices["print_scale"].start, 1.0, priors.print_scale_std)
         prior(layout.slices["off_axis"].start, 0.0, priors.off_axis_std_m)
         if priors.intrinsics_mean is not None and priors.intrinsics_std is not None:

@@ -17,6 +17,7 @@ from scipy.spatial.transform import Rotation
 
 from micam.cli import main
 from calibration.solve.bundle import (
+    BundlePriors,
     BundleProblem,
     BundleSolution,
     BundleState,
@@ -127,8 +128,8 @@ def fitted(scene: Scene) -> BundleSolution:
 
 def test_jacobian_matches_central_differences() -> None:
     """Every unknown's analytic derivatives, the optional ones included (c per pose, the
-    reference distance, speaker offsets, print scale, the off-axis move, microphone delays),
-    away from their neutral values."""
+    reference distance, speaker offsets, print scale, the off-axis move, microphone delays,
+    speakers' emission delays), away from their neutral values."""
     small = make_scene(n_pose=3, seed=1, n_mic=5)
     problem = replace(small.problem, reference_distance_m=np.full(18, 0.002),
                       speed_of_sound_of_pose=np.array([0, 1, 2]))
@@ -136,7 +137,8 @@ def test_jacobian_matches_central_differences() -> None:
                     speeds_of_sound_m_s=np.array([343.1, 343.3, 343.6]),
                     mic_delays_s=np.linspace(-1e-6, 1e-6, 5),
                     speaker_offsets_m=np.linspace(-3e-3, 3e-3, 18).reshape(6, 3),
-                    print_scale=1.001, off_axis_m=2e-3)
+                    print_scale=1.001, off_axis_m=2e-3,
+                    speaker_delays_s=np.linspace(-2e-6, 2e-6, 6))
     layout = _Layout.of(start)
     model = _Model(problem, layout)
     x = layout.pack(start)
@@ -147,6 +149,7 @@ def test_jacobian_matches_central_differences() -> None:
     step[layout.slices["c"]] = 1e-4
     step[layout.slices["latencies"]] = 1e-9
     step[layout.slices["mic_delays"]] = 1e-9
+    step[layout.slices["speaker_delays"]] = 1e-9
     numeric = np.empty_like(jac)
     for j in range(x.size):
         dx = np.zeros(x.size)
@@ -173,6 +176,31 @@ def test_joint_fit_corrects_the_focal_length_and_the_array(scene: Scene,
     assert np.all(np.abs(est.latencies_s - LATENCIES_S) < 4 * std.latencies_s)
     ext_error = est.extrinsics[0] - CAM1_FROM_CAM0
     assert np.all(np.abs(ext_error) < 5 * std.extrinsics[0])
+
+
+def test_a_speakers_emission_delay_is_fitted_where_it_is_free(scene: Scene) -> None:
+    """Speakers 1 and 4 emit 3 and -2 us late (measured on another speaker's reference
+    recording, whose driver is not theirs): with their emission delays free, the fit finds
+    both within 4 sigma and the array as without the delays; with every delay fixed, the
+    array bends (the test can fail)."""
+    late = np.zeros(6)
+    late[[1, 4]] = [3e-6, -2e-6]
+    delayed = replace(scene.problem,
+                      tof_s=scene.problem.tof_s + late[scene.problem.speaker_of_source, None],
+                      reference_tof_s=(scene.problem.reference_tof_s
+                                       + late[scene.problem.speaker_of_source]))
+    free = np.where(late != 0.0, 1e-4, 0.0)
+    fitted = fit_bundle(replace(delayed, priors=replace(BundlePriors.none(6),
+                                                        speaker_delay_std_s=free)),
+                        frozen_camera_start(scene.truth))
+    est, std = fitted.state, fitted.std
+    assert np.all(np.abs(est.speaker_delays_s - late) <= 4 * std.speaker_delays_s)
+    assert np.all(std.speaker_delays_s[late == 0.0] == 0.0)  # fixed: not unknowns
+    error = np.linalg.norm(est.microphones_m - scene.truth.microphones_m, axis=1)
+    assert error.mean() < 0.05e-3
+    fixed = fit_bundle(delayed, frozen_camera_start(scene.truth)).state
+    bent = np.linalg.norm(fixed.microphones_m - scene.truth.microphones_m, axis=1)
+    assert bent.mean() > 10 * error.mean()
 
 
 def test_covariance_matches_the_errors(scene: Scene, fitted: BundleSolution) -> None:

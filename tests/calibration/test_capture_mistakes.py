@@ -14,7 +14,6 @@ from __future__ import annotations
 import json
 import re
 import warnings
-from collections.abc import Callable
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -43,6 +42,7 @@ from calibration.checks.fit_checks import (
     REFERENCE_LEVEL_DB,
     REFERENCE_OFFSET_US,
     SourceResiduals,
+    SpeakerSwap,
     gross_speakers,
     reference_offset,
     speaker_findings,
@@ -202,13 +202,24 @@ def test_an_intermittent_microphone_loses_only_its_dropped_recordings(playback, 
     assert _error_mm(run, truth) <= 1.5 * _error_mm(clean[1], clean[2])
 
 
-def test_swapped_speakers_are_named_and_left_out(rig, clean) -> None:
+def test_swapped_speakers_are_named_and_corrected_on_a_lent_reference(rig, clean) -> None:
+    """The two swapped speakers' recordings are exchanged, measured on a sound speaker's
+    reference recording and kept, each with an emission delay that the data decide."""
     _, run, truth = rig
     swapped = [f for f in run.result.findings if f.kind == "swapped-speakers"]
     assert len(swapped) == 1 and swapped[0].speakers == [4, 5]
-    assert "look swapped" in swapped[0].evidence
-    rows = run.measurements.located
-    assert np.isnan(run.measurements.tofs.tof_s[rows][:, [4, 5]]).all()
+    assert "look swapped" in swapped[0].evidence and swapped[0].action == "corrected"
+    lent = run.measurements.lent_references
+    lender = lent[4].lender
+    assert sorted(lent) == [4, 5] and lent[5].lender == lender and lender < 4
+    assert f"speaker {lender}'s reference recording" in swapped[0].advice
+    # in result.json: the two drivers' emission delays after the lender's, measured
+    assert run.result.rig is not None
+    said = {r.speaker: r for r in run.result.rig.lent_references}
+    assert sorted(said) == [4, 5] and all(r.reference_of == lender for r in said.values())
+    assert all(0.0 < r.emission_delay_std_s < 1e-7 for r in said.values())
+    rows = [r for r in run.measurements.located if r != 2]  # pose 2 moved: left out
+    assert np.isfinite(run.measurements.tofs.tof_s[rows][:, [4, 5]]).mean() > 0.9
     assert _error_mm(run, truth) <= 1.5 * _error_mm(clean[1], clean[2])
 
 
@@ -362,18 +373,19 @@ def test_a_distorted_speaker_is_named_and_left_out(wiring) -> None:
     assert np.isfinite(tofs.tof_s[:, 0]).mean() > 0.9  # the others are kept
 
 
-def test_a_misplaced_reference_microphone_is_named_and_its_speaker_left_out(playback,
-                                                                           clean) -> None:
+def test_a_misplaced_reference_microphone_is_named_and_its_speaker_measured_on_another(
+        playback, clean) -> None:
     _, run, truth = playback
     misplaced = [f for f in run.result.findings if f.kind == "misplaced-reference-microphone"]
     assert len(misplaced) == 1 and misplaced[0].speakers == [3]
-    assert misplaced[0].action == "left out"
+    assert misplaced[0].action == "corrected"
     # the distance it says, from the offset alone: 6 mm more than stated, to 1.5 mm
     said_mm = float(misplaced[0].evidence.split("about ")[1].split(" mm")[0])
     assert abs(said_mm - 6.0) < 1.5 and "further from" in misplaced[0].evidence
+    lent = run.measurements.lent_references
+    assert list(lent) == [3] and lent[3].lender not in (2, 3)
     tofs = run.measurements.tofs
-    assert np.isnan(tofs.tof_s[run.measurements.located][:, 3]).all()
-    assert np.isnan(tofs.reference_tof_s[:, 3]).all()
+    assert np.isfinite(tofs.tof_s[run.measurements.located][:, 3]).mean() > 0.8
     assert _error_mm(run, truth) <= 1.5 * _error_mm(clean[1], clean[2])
 
 
@@ -495,10 +507,10 @@ def test_gross_speakers_are_found_beside_a_silent_one() -> None:
 
 
 def _swapped(silent: int, swap: tuple[int, int]
-             ) -> tuple[list, np.ndarray, SourceResiduals, Callable]:
+             ) -> tuple[list, np.ndarray, SpeakerSwap | None]:
     """Times of flight of 6 poses, 6 speakers and 20 microphones with speakers `swap`
-    exchanged and speaker `silent` without any (0.3 us of noise; outliers beyond 10 us), a
-    solver that takes them against the true ones, and speaker_findings' answer."""
+    exchanged and speaker `silent` without any (0.3 us of noise; outliers beyond 10 us),
+    against a solver that takes them against the true ones: speaker_findings' answer."""
     rng = np.random.default_rng(3)
     expected = rng.uniform(1e-3, 5e-3, (6, 6, 20))
     order = list(range(6))
@@ -513,25 +525,27 @@ def _swapped(silent: int, swap: tuple[int, int]
                                outliers=np.nan_to_num(np.abs(residual)) > 10e-6)
 
     residuals = SourceResiduals.of(resolve(tof, std), 6, 6)  # type: ignore[arg-type]
-    findings, left_out = speaker_findings(tof, std, residuals, resolve)  # type: ignore[arg-type]
-    return findings, left_out, residuals, resolve
+    return speaker_findings(tof, std, residuals, resolve)  # type: ignore[arg-type]
 
 
 def test_a_swap_beside_a_silent_speaker_is_named() -> None:
     """Speakers 4 and 5 swapped while speaker 2 did not play: the swap is named. The silent
     speaker's NaN scatter once made the others' typical scatter NaN, and two "misplaced"
     speakers were named instead (before that, the session was refused for its outliers)."""
-    findings, left_out, _, _ = _swapped(2, (4, 5))
+    findings, left_out, swap = _swapped(2, (4, 5))
     assert [f.kind for f in findings] == ["swapped-speakers"]
     assert findings[0].speakers == [4, 5] and left_out.tolist() == [4, 5]
+    assert swap == SpeakerSwap((4, 5), (4, 5))
 
 
 def test_a_swap_with_the_silent_speaker_is_named() -> None:
     """Speakers 4 and 5 swapped, and the speaker on 4's cable silent: 4 has no time of
     flight and 5's fit 4's place. Named as the swap, not as a misplaced speaker 5."""
-    findings, left_out, _, _ = _swapped(4, (4, 5))
+    findings, left_out, swap = _swapped(4, (4, 5))
     assert [f.kind for f in findings] == ["swapped-speakers"]
     assert findings[0].speakers == [4, 5] and left_out.tolist() == [5]
+    # the recordings made as 5 hold a burst, which belongs at 4
+    assert swap is not None and sorted(swap.speakers) == [4, 5] and swap.heard == (5,)
     assert "speaker 5's times of flight fit" in findings[0].evidence
     assert "the speaker on 4's cable did not play" in findings[0].evidence
 

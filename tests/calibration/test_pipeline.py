@@ -297,3 +297,63 @@ def test_a_result_whose_times_of_flight_are_mostly_too_faint_reads_back(
     document = json.loads(out.read_text())
     document["tof_quality"]["median_predicted_std_s"] = None
     assert CalibrationResult.model_validate(document).tof_quality.median_predicted_std_s is None
+
+
+def test_a_lent_reference_recording_measures_a_speaker_as_its_own_does(measurements) -> None:
+    """Speaker 0's bursts correlated with speaker 3's reference recording (every speaker plays
+    the same burst through the same kind of driver) give its times of flight to within their
+    noise, less one constant; the memo keeps the two apart."""
+    from calibration.acoustic.times_of_flight import TofMemo, measure_session_tofs
+
+    data, own = measurements.data, measurements.tofs
+    memo = TofMemo(64)
+    first = measure_session_tofs(data, 343.0, memo=memo)
+    lent = measure_session_tofs(data, 343.0, memo=memo, templates=np.array([3, 1, 2, 3, 4, 5]))
+    assert np.array_equal(lent.tof_s[:, 1:], first.tof_s[:, 1:])
+    difference = lent.tof_s[:, 0] - first.tof_s[:, 0]
+    assert not np.array_equal(difference, np.zeros_like(difference))  # measured again
+    scatter = np.nanstd(difference - np.nanmedian(difference))
+    assert scatter < 2 * np.nanmedian(own.std_s[:, 0])
+    assert abs(np.nanmedian(difference)) < 50e-9  # the simulated drivers are alike
+
+
+def test_speakers_measured_again_keep_what_was_left_out_and_exchange_whole() -> None:
+    """`with_speakers_from` takes a speaker's new measurements but keeps its left-out ones
+    (NaN) left out; `exchanged` moves every array of the two speakers, the reference
+    microphone's too."""
+    from calibration.acoustic.times_of_flight import SessionTofs
+
+    shape = (2, 3, 4)
+
+    def tofs(value: float) -> SessionTofs:
+        full = np.full(shape, value) + np.arange(3)[None, :, None]
+        return SessionTofs(full, full, full, full, full[..., 0], full[..., 0], full[..., None],
+                           full, 2.0, full, full, full, full, np.ones(shape[2]))
+
+    old, new = tofs(0.0), tofs(10.0)
+    old.tof_s[0, 1, 2] = np.nan
+    taken = old.with_speakers_from(new, [1])
+    assert np.isnan(taken.tof_s[0, 1, 2]) and taken.tof_s[1, 1, 2] == 11.0
+    assert np.all(taken.tof_s[:, [0, 2]] == old.tof_s[:, [0, 2]])
+    assert np.all(taken.snr_db[:, 1] == 11.0) and np.all(taken.reference_tof_s[:, 1] == 11.0)
+    swapped = taken.exchanged(0, 1)
+    assert np.isnan(swapped.tof_s[0, 0, 2]) and np.all(swapped.impulses[:, 1] == 0.0)
+    assert np.all(swapped.reference_std_s[:, 0] == 11.0) and np.all(swapped.tof_s[:, 2] == 2.0)
+
+
+def test_a_spoiled_speaker_is_not_measured_again_without_a_sound_one_to_lend(
+        measurements) -> None:
+    """With no sound speaker left to lend its reference recording, the spoiled speaker is
+    not measured again: the caller leaves it out."""
+    from calibration.checks.fit_checks import SourceResiduals
+    from calibration.pipeline import _on_lent_reference, solve
+
+    options = CalibrationOptions()
+    n_speaker = measurements.data.n_speakers
+    residuals = SourceResiduals.of(solve(measurements, options), len(measurements.located),
+                                   n_speaker)
+    nobody = np.zeros(n_speaker, dtype=bool)
+    assert _on_lent_reference(measurements, options, None, residuals, 2, nobody) is None
+    lent = _on_lent_reference(measurements, options, None, residuals, 2, ~nobody)
+    assert lent is not None and list(lent[0].lent_references) == [2] and lent[2] != 2
+    assert lent[0].lent_references[2].lender == lent[2]
