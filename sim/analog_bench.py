@@ -307,6 +307,9 @@ class AcousticBench:
                                           w.lab.directivity)
             radiated = self.mistakes.radiated(speaker, np.fft.rfft(drive, n_fft) * response,
                                               n_fft)
+            if lab.driver_delays_s.size:
+                radiated = radiated * linear_phase(lab.driver_delays_s[speaker:speaker + 1],
+                                                   freqs[1], freqs.size)[0]
             spectra += transfer * radiated[None, :]
         spectra *= w.speaker_pressure_gain
         if w.lab.ambient_noise is not None:

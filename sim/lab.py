@@ -27,6 +27,9 @@ Effects (names as `micam simulate --effect NAME` takes them):
   directions plus an incoherent part.
 - directivity: each speaker radiates as a baffled piston of its stated diameter (off-axis
   roll-off at high frequencies).
+- driver-delays: each speaker's driver, amplifier and output sound a little earlier or later
+  than the others' (units of one kind differ). Its own reference recording holds the same
+  delay, so it cancels, except for a speaker measured on another's reference recording.
 - air-sensor: the lab has a calibrated thermometer and hygrometer beside the array, read at
   every pose; each has a fixed calibration error drawn from its stated accuracy.
 - the cameras' effects (sim.optics.CAMERA_EFFECTS): sensor-noise, fixed-pattern, defocus,
@@ -44,10 +47,17 @@ from .geometry import Rig
 from .optics import CAMERA_EFFECTS, CameraEffects
 
 EFFECTS = ("acoustic-centres", "rig-tolerance", "print-scale", "mic-responses", "air-drift",
-           "room", "ambient-noise", "directivity", "air-sensor", *CAMERA_EFFECTS)
+           "room", "ambient-noise", "directivity", "driver-delays", "air-sensor",
+           *CAMERA_EFFECTS)
 """Every effect's name, in the order of docs/simulation.md's tables ("air-sensor" is not an
 error but the lab's instrument: a thermometer and hygrometer beside the array; the cameras'
 effects last)."""
+
+
+DRIVER_DELAY_STD_S = 2e-6
+"""The driver-delays effect's spread of the speakers' emission delays, seconds: drivers of one
+kind differ in their resonance by 10-20 %, which moves their group delay in the band by a few
+microseconds; the amplifier channels and outputs of one board differ by far less."""
 
 
 @dataclass(frozen=True)
@@ -178,6 +188,8 @@ class LabEffects:
         room: image sources of a room (None: free field).
         ambient_noise: low-frequency ambient noise (None: none).
         directivity: speakers radiate as baffled pistons (False: omnidirectional).
+        driver_delay_std_s: standard deviation of each speaker's emission delay about the
+            others' (a pure delay: driver, amplifier, output channel).
         air_sensor: the lab's air sensor (None: none, the speed of sound is not measured).
         camera: the cameras' effects (sim.optics; default: none, the ideal camera).
     """
@@ -190,6 +202,7 @@ class LabEffects:
     room: RoomModel | None = None
     ambient_noise: AmbientNoiseModel | None = None
     directivity: bool = False
+    driver_delay_std_s: float = 0.0
     air_sensor: AirSensorModel | None = None
     camera: CameraEffects = field(default_factory=CameraEffects)
 
@@ -219,6 +232,7 @@ class LabEffects:
             room=RoomModel() if "room" in on else None,
             ambient_noise=AmbientNoiseModel() if "ambient-noise" in on else None,
             directivity="directivity" in on,
+            driver_delay_std_s=DRIVER_DELAY_STD_S if "driver-delays" in on else 0.0,
             air_sensor=AirSensorModel() if "air-sensor" in on else None,
             camera=CameraEffects(on=frozenset(on & set(CAMERA_EFFECTS))),
         )
@@ -235,6 +249,7 @@ class LabEffects:
             "room": self.room is not None,
             "ambient-noise": self.ambient_noise is not None,
             "directivity": self.directivity,
+            "driver-delays": self.driver_delay_std_s > 0,
             "air-sensor": self.air_sensor is not None,
         } | {name: self.camera.has(name) for name in CAMERA_EFFECTS}
         return tuple(n for n in EFFECTS if on[n])
@@ -259,6 +274,8 @@ class LabTruth:
         sensor_errors: (3,) the air sensor's fixed errors: kelvin, relative humidity, pascal.
         board_sag_m: the plate's bow (sim.geometry.Rig.sag_m; its sign drawn: towards the
             printed face's side or away; 0 without the board-bow effect).
+        driver_delays_s: (n_speakers,) each speaker's emission delay (zeros without the
+            driver-delays effect).
     """
 
     effects: LabEffects
@@ -274,6 +291,7 @@ class LabTruth:
     ambient_directions: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     sensor_errors: np.ndarray = field(default_factory=lambda: np.zeros(3))
     board_sag_m: float = 0.0
+    driver_delays_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @classmethod
     def draw(cls, effects: LabEffects, n_speakers: int, n_mics: int,
@@ -289,6 +307,7 @@ class LabTruth:
         directions = rng.normal(size=(8, 3))
         z_sensor = rng.normal(size=3)
         sign_sag = rng.choice([-1.0, 1.0])
+        z_driver = rng.normal(size=n_speakers)  # drawn last: the earlier draws stay the same
         ac = effects.acoustic_centres
         offsets = (np.zeros(n_speakers) if ac is None
                    else ac.offset_range_m[0] + u_centre * np.subtract(*ac.offset_range_m[::-1]))
@@ -318,6 +337,7 @@ class LabTruth:
                  effects.air_sensor.pressure_std_pa])),
             board_sag_m=(float(sign_sag * effects.camera.board_bow_m)
                          if effects.camera.has("board-bow") else 0.0),
+            driver_delays_s=z_driver * effects.driver_delay_std_s,
         )
 
     def physical_rig(self, stated: Rig) -> Rig:
@@ -383,6 +403,7 @@ class LabTruth:
             "board_bow": {"sag_m": self.board_sag_m,
                           "shape": "Z = sag_m (1 - rho^2 / rho_c^2), rho from the plate's "
                                    "centre, rho_c its half-diagonal (sim.geometry.Rig.sag_m)"},
+            "driver_delays_s": self.driver_delays_s.tolist(),
             "camera": self.effects.camera.to_json(),
         }
 
