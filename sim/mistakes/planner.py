@@ -360,11 +360,17 @@ class _Planner:
     # -- the speakers ------------------------------------------------------------------------
 
     def _silent_speaker(self, spec: MistakeSpec, rng: np.random.Generator) -> dict:
+        poses = [int(p) for p in spec.args[1:]]
+        # silent all session, a speaker whose reference microphone was misplaced would hide
+        # that mistake: nothing it recorded could show it
         s = self._index(spec, 0, self.n_speakers, "speaker", rng,
-                        [k for k in range(self.n_speakers) if k not in self.silent])
+                        [k for k in range(self.n_speakers) if k not in self.silent
+                         and (poses or k not in self.reference_m)])
         if s in self.silent:
             raise self._fail(spec, f"speaker {s} is silent already; ask for it once")
-        poses = [int(p) for p in spec.args[1:]]
+        if not poses and s in self.reference_m:
+            raise self._fail(spec, f"contradicts the reference microphone misplaced at speaker "
+                                   f"{s}: silent all session, it never plays to show it")
         for p in poses:
             if not 0 <= p < self.n_poses:
                 raise self._fail(spec, f"there is no pose {p} ({_numbers('pose', self.n_poses)})")

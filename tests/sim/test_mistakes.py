@@ -443,6 +443,8 @@ def test_motion_blur_is_the_stated_linear_blur(files: _Files) -> None:
     (("board-shift", "board-shift=-1"), "board-shift is asked for twice"),
     (("swap-speakers=0,1", "swap-speakers=1,2"), "contradicts 'swap-speakers=0,1'"),
     (("silent-speaker=2", "distorted-speaker=2"), "contradicts the silent speaker 2"),
+    (("refmic-far=1", "silent-speaker=1"),
+     "contradicts the reference microphone misplaced at speaker 1"),
     (("board-shift=4",), "puts every microphone back on its own input"),
 ])
 def test_a_mistake_the_world_cannot_make_is_refused(mistakes: tuple[str, ...],
@@ -485,6 +487,17 @@ def test_any_two_mistakes_of_their_defaults_can_be_made_together() -> None:
             continue
         records = plan_mistakes((a, b), context).records
         assert [r["kind"] for r in records] == [a, b]
+
+
+def test_a_speaker_silent_all_session_is_not_drawn_where_the_reference_was_misplaced() -> None:
+    """Silent all session, the speaker whose reference microphone stood too far would hide
+    that mistake (the grid of every pair drew both on speaker 0 for seed 1): the default draw
+    avoids it; silent at some poses only, it may fall there."""
+    for seed in range(8):
+        options = _options("refmic-far", "silent-speaker").model_copy(update={"seed": seed})
+        far, silent = build_simulated_capture(options).mistakes.records
+        assert far["speakers"] != silent["speakers"]
+    build_simulated_capture(_options("refmic-far=1", "silent-speaker=1,0"))
 
 
 def test_cable_mistakes_compose_and_truth_says_where_each_microphone_ends() -> None:
