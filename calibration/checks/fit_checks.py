@@ -47,7 +47,8 @@ joint fit takes out); a reference microphone 4 mm further than stated puts its s
 11.9 us off."""
 
 REFERENCE_LEVEL_DB = 6.0
-"""A speaker whose reference recording is this much (dB) weaker than the median speaker's,
+"""A speaker whose reference recording is this much (dB) weaker than the median speaker's
+(of those still in the fit),
 with its times of flight shorter than the others' geometry (or stronger, and longer), has its
 reference microphone further (nearer) than stated, even within `REFERENCE_OFFSET_US`: a
 point source's level falls 6 dB at twice the distance (2 mm stated, 4 mm true: 5.8 us, less
@@ -248,8 +249,10 @@ def reference_offset(residuals: SourceResiduals, speed_of_sound_m_s: float,
     index = np.arange(usable.size)
     relative = np.array([offset_us[k] - np.median(offset_us[usable & (index != k)])
                          for k in index])
-    level_db = (np.zeros(usable.size) if reference_levels_db is None
-                else np.asarray(reference_levels_db, dtype=float))
+    level_db = np.zeros(usable.size)
+    if reference_levels_db is not None:  # against the speakers still judged: a silent one's
+        levels = np.asarray(reference_levels_db, dtype=float)  # and a swap's drag the median
+        level_db = levels - np.median(levels[usable])
     heard_further = (level_db <= -REFERENCE_LEVEL_DB) & (relative < 0)
     heard_nearer = (level_db >= REFERENCE_LEVEL_DB) & (relative > 0)
     far = usable & ((np.abs(relative) > REFERENCE_OFFSET_US) | heard_further | heard_nearer)

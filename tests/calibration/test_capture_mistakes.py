@@ -498,6 +498,16 @@ def test_a_weaker_reference_recording_names_a_smaller_offset() -> None:
     assert reference_offset(offsets, 343.0, stated, everyone, -levels) is None
     assert reference_offset(offsets, 343.0, stated, everyone,
                             np.array([0.0, 0.0, 0.0, -0.9 * REFERENCE_LEVEL_DB, 0, 0])) is None
+    # judged against the speakers still in the fit: a silent speaker (0) and a swap's two
+    # reference recordings (4, 5: 50 dB down) once pulled the median 6 dB down, and a clean
+    # speaker 2 us long was named "nearer than stated" (the grid of every pair, seed 1)
+    dragged = np.array([-60.0, 6.0, 6.0, 6.0, -44.0, -44.0])
+    dragged_offsets = _offsets([np.nan, 2.1, 0.0, -0.5, 0.0, 0.0])
+    judged = np.array([False, True, True, True, False, False])
+    assert reference_offset(dragged_offsets, 343.0, stated, judged, dragged) is None
+    found = reference_offset(dragged_offsets, 343.0, stated, judged,
+                             dragged + np.array([0, REFERENCE_LEVEL_DB + 0.5, 0, 0, 0, 0]))
+    assert found is not None and found[1] == 1 and "nearer to" in found[0].evidence
 
 def test_gross_speakers_are_found_beside_a_silent_one() -> None:
     """Speakers 1 and 4 with most of their times of flight outliers (a swap), speaker 2 silent
