@@ -357,3 +357,22 @@ def test_a_spoiled_speaker_is_not_measured_again_without_a_sound_one_to_lend(
     lent = _on_lent_reference(measurements, options, None, residuals, 2, ~nobody)
     assert lent is not None and list(lent[0].lent_references) == [2] and lent[2] != 2
     assert lent[0].lent_references[2].lender == lent[2]
+
+
+def test_impulses_of_a_lent_speaker_move_back_by_its_emission_delay(measurements) -> None:
+    """A speaker on a lent reference recording has its impulses moved back by its emission
+    delay (the camera-frozen shift plus the joint fit's own), so that the responses read
+    them as they read a speaker correlated with its own recording; no other moves."""
+    from types import SimpleNamespace
+
+    from calibration.pipeline import LentReference, _emission_aligned
+
+    lent = replace(measurements, lent_references={2: LentReference(0, 1.0e-6)})
+    delays = np.array([0.0, 0.0, 0.5e-6, 0.0, 0.0, 0.0])
+    bundle = SimpleNamespace(state=SimpleNamespace(speaker_delays_s=delays))
+    aligned = _emission_aligned(lent, bundle)  # type: ignore[arg-type]
+    before = measurements.tofs.impulse_first_lag
+    moved = before[:, 2] - aligned.tofs.impulse_first_lag[:, 2]
+    assert np.allclose(moved, 1.5e-6 * measurements.data.fs)
+    others = [0, 1, 3, 4, 5]
+    assert np.array_equal(aligned.tofs.impulse_first_lag[:, others], before[:, others])
