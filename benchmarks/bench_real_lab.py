@@ -65,6 +65,7 @@ MAGNITUDES = {
     "room": "7 image sources, absorption 0.3 (table 0.1)",
     "ambient-noise": "30 mV below 80 Hz",
     "directivity": "26 mm baffled piston",
+    "driver-delays": "2 us RMS per speaker",
     "sensor-noise": "shot + 5 e- read noise, gain 16",
     "fixed-pattern": "PRNU 1 %, DSNU 4 e-",
     "defocus": "f/2 focused at 1.2 m",

@@ -374,7 +374,12 @@ def test_a_distorted_speaker_is_named_and_left_out(wiring) -> None:
     _, run, _ = wiring
     distorted = [f for f in run.result.findings if f.kind == "distorted-speaker"]
     assert len(distorted) == 1 and distorted[0].speakers == [1]
-    assert distorted[0].action == "left out" and "48 dB below its peak" in distorted[0].evidence
+    assert distorted[0].action == "left out"
+    # drive 3: a floor near -48 dB (a fractional sample of delay moves it by a dB), against
+    # the clean speakers' -83 dB
+    floor = re.search(r"a floor (\d+) dB below its peak where .* lies (\d+) dB below",
+                      distorted[0].evidence)
+    assert floor is not None and 44 <= int(floor[1]) <= 52 and int(floor[2]) >= 80
     tofs = run.measurements.tofs
     assert np.isnan(tofs.tof_s[:, 1]).all() and np.isnan(tofs.reference_tof_s[:, 1]).all()
     assert np.isfinite(tofs.tof_s[:, 0]).mean() > 0.9  # the others are kept
