@@ -134,6 +134,7 @@ from .solve.solver import (
     latency_columns,
     solve_microphones,
 )
+from .camera.recovered_views import recover_views
 from .camera.speakers import (
     ReferenceMicrophonePosition,
     RigPoseInCam0,
@@ -571,7 +572,8 @@ def _placed_by_their_bursts(m: Measurements, solution: MicrophoneSolution) -> Me
     its views left out) placed by its own times of flight (calibration.solve.acoustic_pose),
     from the camera-frozen `solution`'s microphones, latencies and c, with a note for each;
     `m` itself when there is none to place. The joint fit then holds such a pose by its times
-    of flight alone: its bursts are kept, its images stay out."""
+    of flight alone: its bursts are kept, and of its images the corners that can be found
+    again where that pose puts them (calibration.camera.recovered_views)."""
     located = set(m.located)
     # the speakers the checks left out at every located pose (a swap, a misplaced reference
     # microphone) are left out of the placed poses too
@@ -599,6 +601,8 @@ def _placed_by_their_bursts(m: Measurements, solution: MicrophoneSolution) -> Me
                      "and its bursts were used (its images were not)")
     if not placed:
         return m
+    cameras, recovered = recover_views(m.cameras, m.data.reader, {
+        p.step: p.rig_to_cam0.transform for p in placed.values()})
     by_row = {**dict(zip(m.located, m.speakers.poses, strict=True)), **placed}
     rows = sorted(by_row)
     poses = [by_row[r] for r in rows]
@@ -607,8 +611,8 @@ def _placed_by_their_bursts(m: Measurements, solution: MicrophoneSolution) -> Me
                                 np.stack([c for _, c in where]),
                                 [s for s in m.speakers.unlocated
                                  if s not in {p.step for p in placed.values()}])
-    return replace(m, speakers=speakers, located=rows, notes=[*m.notes, *notes],
-                   tofs=replace(m.tofs, tof_s=tof, std_s=std))
+    return replace(m, speakers=speakers, located=rows, notes=[*m.notes, *notes, *recovered],
+                   tofs=replace(m.tofs, tof_s=tof, std_s=std), cameras=cameras)
 
 
 def _session_ids(data: SessionData) -> np.ndarray:

@@ -151,15 +151,16 @@ def corner_residuals(run: CalibrationRun) -> list[CornerResiduals]:
     names = list(cams.intrinsics)
     if run.bundle is not None:
         view_camera, view_pose, corners = board_views(cams, _bundle_steps(run.measurements)[0])
-        kept = ~run.bundle.corner_outliers
         residuals = run.bundle.corner_residuals_px
+        # neither the outliers nor the corners a view recovered in part lacks (NaN)
+        kept = ~run.bundle.corner_outliers & np.isfinite(residuals).all(axis=2)
     else:
         keys = list(cams.views)
         view_camera = np.array([names.index(name) for name, _ in keys])
         view_pose = np.arange(len(keys))
         corners = np.array([cams.views[k].corners_px for k in keys])
         residuals = np.array([_reprojection_residual(run, k) for k in keys])
-        kept = np.ones(corners.shape[:2], dtype=bool)
+        kept = np.isfinite(corners).all(axis=2)
     out = []
     for i, name in enumerate(names):
         views = view_camera == i

@@ -99,7 +99,8 @@ class BoardView:
     Attributes:
         camera: camera name ("cam0", ...).
         step: session step of the image ("pose/0003", "refmic").
-        corners_px: (n_corners, 2) refined corner pixels in rig order (X fastest).
+        corners_px: (n_corners, 2) refined corner pixels in rig order (X fastest); NaN
+            where a view recovered in part lacks a corner (`partial_view`).
         rig_to_cam: the board pose in this camera's frame; its covariance comes from the
             Jacobian of the reprojection scaled by the view's corner noise (`sigma_px`), and
             includes the uncertainty of the camera's intrinsics (see `_pose_covariances`).
@@ -589,6 +590,29 @@ def _calibrate_camera(
     intr = CameraIntrinsics(camera, size[0], size[1], K, dist, intrinsics_cov, rms, len(steps),
                             noise)
     return intr, views
+
+
+def partial_view(camera: str, step: str, corners_px: np.ndarray, intr: CameraIntrinsics,
+                 points: np.ndarray, start: RigidTransform) -> BoardView:
+    """The board view of an image where only some corners were found (`corners_px`,
+    (n_corners, 2), NaN where not): its pose fitted to those corners with the camera's
+    intrinsics `intr` (solvePnP from `start`, the pose in that camera's frame), its covariance
+    as a whole view's (the camera's corner noise, the intrinsics' uncertainty included).
+    `points` are the board's corners in the rig frame, metres."""
+    have = np.isfinite(corners_px).all(axis=1)
+    ok, rvec, tvec = cv2.solvePnP(points[have], corners_px[have].reshape(-1, 1, 2), intr.K,
+                                  intr.dist, start.rotvec.reshape(3, 1).copy(),
+                                  start.t.reshape(3, 1).copy(), useExtrinsicGuess=True,
+                                  flags=cv2.SOLVEPNP_ITERATIVE)
+    if not ok:
+        raise CameraCalibrationError(f"no board pose fits the corners found in part at {step} "
+                                     f"in {camera}")
+    fit = _view_fit(corners_px[have], rvec.ravel(), tvec.ravel(), intr.K, intr.dist,
+                    points[have])
+    variance = intr.noise.sigma_px**2
+    cov = _pose_covariances([fit], np.array([variance]), intr.cov)[0]
+    return BoardView(camera, step, corners_px, Pose(fit.rig_to_cam, cov), fit.rms_px,
+                     intr.noise.sigma_px)
 
 
 def _corner_noise(fits: list[_ViewFit], information: np.ndarray | None) -> CornerNoise:

@@ -239,6 +239,15 @@ def _refine(grey: np.ndarray, corners: np.ndarray, board: Checkerboard) -> np.nd
     return np.where(ok[:, None], fitted, np.where(ok_again[:, None], again, predicted))
 
 
+def fit_corners_from(grey: np.ndarray, starts: np.ndarray, board: Checkerboard
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Corners (n, 2) refined from `starts` (every corner of the board, rig order, pixels) as
+    `_refine` refines a detector's, and a mask (n,) of those whose model fit succeeded: the
+    others are not corners to believe (no fallback here, unlike `_refine`). For corners that
+    no detector found, predicted instead (calibration.camera.recovered_views)."""
+    return _fit_corners(grey, _subpix(grey, starts, board), board)
+
+
 _MIN_PREDICTING = 6
 """Fewest fitted corners a homography predicts a failed one from (4 determine it; a few more
 average their noise)."""

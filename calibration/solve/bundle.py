@@ -124,7 +124,8 @@ class BundleProblem:
         board_points_m: (n_corner, 3) checkerboard inner corners in the rig frame (the scale).
         speakers_rig_m: (n_speaker, 3) speaker positions in the rig frame.
         view_camera, view_pose: (n_view,) camera index and pose index of every board view.
-        corners_px: (n_view, n_corner, 2) detected corners in rig order.
+        corners_px: (n_view, n_corner, 2) detected corners in rig order, NaN where a view
+            lacks a corner (a view recovered in part: calibration.camera.recovered_views).
         pose_of_source, speaker_of_source: (n_src,) pose and speaker of every source.
         tof_s, tof_std_s: (n_src, n_mic) array times of flight and their predicted std, NaN
             where missing (an infinite std, no signal, counts as missing).
@@ -294,11 +295,13 @@ class BundleSolution:
         sigmas: noise group -> estimated sigma: pixels per coordinate for a camera's corners,
             a factor on the predicted std for the times of flight (estimated per microphone;
             "tof" is their median).
-        corner_residuals_px: (n_view, n_corner, 2) detected minus modelled corners.
+        corner_residuals_px: (n_view, n_corner, 2) detected minus modelled corners, NaN where
+            a view lacks the corner.
         tof_residuals_s: (n_src, n_mic) measured minus modelled times of flight, NaN where
             missing.
         reference_residuals_s: (n_src,) the same for the reference microphone.
-        corner_outliers: (n_view, n_corner) corners left out as outliers.
+        corner_outliers: (n_view, n_corner) corners left out as outliers (not those a view
+            lacks).
         corner_rms_px: (n_camera,) RMS reprojection error per kept corner of each camera.
         tof_outliers: (n_src, n_mic) times of flight left out as outliers.
         reference_outliers: (n_src,) reference times of flight left out.
@@ -513,6 +516,10 @@ class _Model:
         self.ref_valid = np.flatnonzero(_measured(problem.reference_tof_s,
                                                   problem.reference_std_s))
         self.n_rows = self.n_corner_rows + self.src.size + self.ref_valid.size
+        # rows with a measurement: every TOF row (the missing ones have none), and the
+        # corners a view has (a view recovered in part lacks some)
+        self.measured = np.ones(self.n_rows, dtype=bool)
+        self.measured[:self.n_corner_rows] = np.isfinite(problem.corners_px).ravel()
         self.groups = self._groups()
         self._pattern: _Pattern | None = None  # the Jacobian's, found at its first evaluation
 
@@ -591,7 +598,8 @@ class _Model:
             out[views] = projected.reshape(len(views), n_corner, 2) - p.corners_px[views]
             if trip is not None:
                 self._corner_jacobian(trip, i, views, k, s, Y, jac, R_pose)
-        return out.ravel()
+        # a corner a view lacks: residual 0 (never kept, so it weighs nothing)
+        return np.where(self.measured[:self.n_corner_rows], out.ravel(), 0.0)
 
     def _corner_jacobian(self, trip: _Triplets, i: int, views: np.ndarray, k: np.ndarray,
                          s: BundleState, Y: np.ndarray, jac: np.ndarray,
@@ -1042,7 +1050,7 @@ def _fit(problem: BundleProblem, start: BundleState, options: BundleOptions) -> 
     model = _Model(problem, layout)
     priors = _Priors.of(problem, layout)
     x = layout.pack(start)
-    keep = np.ones(model.n_rows, dtype=bool)
+    keep = model.measured.copy()
     sigma = _estimate_sigmas(model, model.evaluate(x, jacobian=False)[0], keep)
     iterations = 0
     settling = replace(options, tolerance=options.pass_tolerance)
@@ -1108,10 +1116,11 @@ def _check(problem: BundleProblem, start: BundleState) -> None:
 
 
 def _inliers(model: _Model, e: np.ndarray, threshold: float) -> np.ndarray:
-    """Rows whose whitened residual group is within `threshold` sigmas."""
-    keep = np.ones(model.n_rows, dtype=bool)
+    """Rows with a measurement whose whitened residual group is within `threshold`
+    sigmas."""
+    keep = model.measured.copy()
     for g in model.groups:
-        keep[g.index] = _group_norms(e[g.index], g.width) <= threshold
+        keep[g.index] &= _group_norms(e[g.index], g.width) <= threshold
     return keep
 
 
@@ -1129,9 +1138,11 @@ def _solution(model: _Model, x: np.ndarray, residual: np.ndarray, keep: np.ndarr
     ref_res[model.ref_valid] = -residual[n_c + model.src.size:]
     ref_out = np.zeros(p.reference_tof_s.shape, dtype=bool)
     ref_out[model.ref_valid] = ~keep[n_c + model.src.size:]
-    corner_res = -residual[:n_c].reshape(n_view, n_corner, 2)
-    corner_out = np.asarray(~keep[:n_c].reshape(n_view, n_corner, 2).all(axis=2))
-    sq = np.where(corner_out, np.nan, np.sum(corner_res**2, axis=2))
+    lacking = np.asarray(~model.measured[:n_c].reshape(n_view, n_corner, 2).all(axis=2))
+    corner_res = np.where(lacking[..., None], np.nan,
+                          -residual[:n_c].reshape(n_view, n_corner, 2))
+    corner_out = np.asarray(~keep[:n_c].reshape(n_view, n_corner, 2).all(axis=2)) & ~lacking
+    sq = np.where(corner_out | lacking, np.nan, np.sum(corner_res**2, axis=2))
     corner_rms = np.array([np.sqrt(np.nanmean(sq[p.view_camera == i]))
                            for i in range(p.n_camera)])
     sigmas, per_mic = {}, []

@@ -401,3 +401,32 @@ def test_a_noisier_camera_and_view_are_weighted_by_their_noise(scene: Scene,
     untold = fit_bundle(replace(p, corners_px=blurred), frozen_camera_start(scene.truth))
     assert told.corner_outliers[3].sum() == 0 and untold.corner_outliers[3].sum() > 20
     assert told.sigmas["cam0"] == pytest.approx(CORNER_NOISE_PX, rel=0.15)
+
+
+def test_corners_a_view_lacks_weigh_nothing_and_are_no_outliers(scene: Scene) -> None:
+    """A view recovered in part (calibration.camera.recovered_views) lacks some corners, NaN
+    in `corners_px`: a view lacking every corner fits exactly as the problem without that
+    view, and a view lacking a few has NaN residuals there, no outliers, and the rest
+    fitted."""
+    p = scene.problem
+    gone = p.view_camera.size // 2 + 3  # cam1's view of pose 3
+    lacking = p.corners_px.copy()
+    lacking[gone] = np.nan
+    lacking[2, :20] = np.nan
+    without = np.delete(np.arange(p.view_camera.size), gone)
+    fewer = p.corners_px[without].copy()
+    fewer[2, :20] = np.nan
+    start = frozen_camera_start(scene.truth)
+    a = fit_bundle(replace(p, corners_px=lacking), start)
+    b = fit_bundle(replace(p, view_camera=p.view_camera[without], view_pose=p.view_pose[without],
+                           corners_px=fewer), start)
+    np.testing.assert_allclose(a.state.microphones_m, b.state.microphones_m, atol=1e-10)
+    np.testing.assert_allclose(a.std.microphones_m, b.std.microphones_m, rtol=1e-6)
+    assert a.sigmas["cam1"] == pytest.approx(b.sigmas["cam1"], rel=1e-9)
+    assert np.isnan(a.corner_residuals_px[gone]).all()
+    assert np.isnan(a.corner_residuals_px[2, :20]).all()
+    assert np.isfinite(a.corner_residuals_px[2, 20:]).all()
+    assert not a.corner_outliers[gone].any() and not a.corner_outliers[2].any()
+    assert np.isfinite(a.corner_rms_px).all()
+    errors = np.linalg.norm(a.state.microphones_m - scene.truth.microphones_m, axis=1)
+    assert errors.mean() < 1e-4
