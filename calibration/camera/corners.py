@@ -244,8 +244,14 @@ def fit_corners_from(grey: np.ndarray, starts: np.ndarray, board: Checkerboard
     """Corners (n, 2) refined from `starts` (every corner of the board, rig order, pixels) as
     `_refine` refines a detector's, and a mask (n,) of those whose model fit succeeded: the
     others are not corners to believe (no fallback here, unlike `_refine`). For corners that
-    no detector found, predicted instead (calibration.camera.recovered_views)."""
-    return _fit_corners(grey, _subpix(grey, starts, board), board)
+    no detector found, predicted instead (calibration.camera.recovered_views): a start
+    outside the image (a board running off it) is not refined, and not kept."""
+    height, width = grey.shape[:2]
+    inside = np.all((starts >= 0) & (starts <= np.array([width - 1, height - 1])), axis=1)
+    if not inside.any():
+        return starts, inside
+    fitted, ok = _fit_corners(grey, _subpix(grey, starts, board, inside), board)
+    return fitted, ok & inside
 
 
 _MIN_PREDICTING = 6
@@ -272,23 +278,27 @@ def _predicted(fitted: np.ndarray, ok: np.ndarray, board: Checkerboard) -> np.nd
     return predicted
 
 
-def _subpix(grey: np.ndarray, corners: np.ndarray, board: Checkerboard) -> np.ndarray:
+def _subpix(grey: np.ndarray, corners: np.ndarray, board: Checkerboard,
+            which: np.ndarray | None = None) -> np.ndarray:
     """Corners refined by cornerSubPix with a window sized to the smallest corner spacing
-    (0.02-0.05 px RMS from the truth on the simulated images: the start of `_fit_corners`)."""
+    (0.02-0.05 px RMS from the truth on the simulated images: the start of `_fit_corners`);
+    only those of the mask `which` where given (the others as they are)."""
     grid = corners.reshape(board.corners_y, board.corners_x, 2)
     spacing = min(
         np.linalg.norm(np.diff(grid, axis=0), axis=2).min(),
         np.linalg.norm(np.diff(grid, axis=1), axis=2).min(),
     )
     half = int(np.clip(round(_SUBPIX_WINDOW_FRACTION * spacing), *_SUBPIX_HALF_WINDOW_PX))
-    refined = cv2.cornerSubPix(
+    chosen = np.ones(len(corners), dtype=bool) if which is None else which
+    refined = corners.astype(np.float64)
+    refined[chosen] = cv2.cornerSubPix(
         grey,
-        corners.astype(np.float32).reshape(-1, 1, 2),
+        corners[chosen].astype(np.float32).reshape(-1, 1, 2),
         (half, half),
         (-1, -1),
         _SUBPIX_CRITERIA,
-    )
-    return refined.reshape(-1, 2).astype(np.float64)
+    ).reshape(-1, 2)
+    return refined
 
 
 def _fit_corners(grey: np.ndarray, corners: np.ndarray, board: Checkerboard

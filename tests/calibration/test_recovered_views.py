@@ -133,3 +133,19 @@ def test_a_board_behind_the_camera_is_not_predicted() -> None:
     behind = RigidTransform(FACING_CAMERA, np.array([0.0, 0.0, -0.5]))
     assert recover_view(image, BOARD, BOARD.object_points(), _intrinsics(), STEP,
                         behind) is None
+
+
+def test_a_board_running_off_the_image_keeps_the_corners_inside() -> None:
+    """The rig predicted half out of the image (as another camera's pose puts it): the
+    corners predicted outside are not refined, those well inside are kept and true."""
+    shifted = _pose((-660.0, 0.0))
+    image = render_rig_image(CAMERA, RIG, shifted, np.random.default_rng(3), 2.0)
+    truth = CAMERA.project(shifted.apply(RIG.corner_points()))
+    nudged = RigidTransform(shifted.R, shifted.t + np.array([1.2, -0.8, 0.0]) * 0.75 / 1000)
+    found = recover_view(image, BOARD, BOARD.object_points(), _intrinsics(), STEP, nudged)
+    outside = truth[:, 0] < 0
+    assert outside.sum() >= 6 and found is not None
+    kept = np.isfinite(found.view.corners_px).all(axis=1)
+    assert not kept[outside].any() and kept.sum() >= BOARD.n_corners // 3
+    error = np.linalg.norm(found.view.corners_px[kept] - truth[kept], axis=1)
+    assert error.max() < 5 * SIGMA_PX * np.sqrt(2)
