@@ -134,7 +134,7 @@ from .solve.solver import (
     latency_columns,
     solve_microphones,
 )
-from .camera.recovered_views import recover_views
+from .camera.recovered_views import recover_views, recovery_note, with_recovery
 from .camera.speakers import (
     ReferenceMicrophonePosition,
     RigPoseInCam0,
@@ -603,6 +603,8 @@ def _placed_by_their_bursts(m: Measurements, solution: MicrophoneSolution) -> Me
         return m
     cameras, recovered = recover_views(m.cameras, m.data.reader, {
         p.step: p.rig_to_cam0.transform for p in placed.values()})
+    notes += [recovery_note(key, found, cameras.board.n_corners)
+              for key, found in recovered.items()]
     by_row = {**dict(zip(m.located, m.speakers.poses, strict=True)), **placed}
     rows = sorted(by_row)
     poses = [by_row[r] for r in rows]
@@ -611,8 +613,9 @@ def _placed_by_their_bursts(m: Measurements, solution: MicrophoneSolution) -> Me
                                 np.stack([c for _, c in where]),
                                 [s for s in m.speakers.unlocated
                                  if s not in {p.step for p in placed.values()}])
-    return replace(m, speakers=speakers, located=rows, notes=[*m.notes, *notes, *recovered],
-                   tofs=replace(m.tofs, tof_s=tof, std_s=std), cameras=cameras)
+    return replace(m, speakers=speakers, located=rows, notes=[*m.notes, *notes],
+                   tofs=replace(m.tofs, tof_s=tof, std_s=std), cameras=cameras,
+                   findings=[with_recovery(f, recovered) for f in m.findings])
 
 
 def _session_ids(data: SessionData) -> np.ndarray:

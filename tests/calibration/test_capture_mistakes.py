@@ -387,6 +387,12 @@ def test_a_hidden_or_glared_view_is_recovered_in_part_and_a_blurred_one_not(imag
         np.isfinite(v.corners_px).all(axis=1).sum() for v in cams.views.values())
     assert sum("found again where the rig's times of flight put them" in note
                for note in run.result.notes) == 2
+    # the findings that left those views out say how much came back; the blur's does not
+    found = {f.kind: f.evidence for f in run.result.findings}
+    for kind, step in (("hidden-board", "pose/0001"), ("glare", "pose/0005")):
+        assert (f"({kept[step].sum()} of the corners at {step} in cam0 were found again"
+                in found[kind])
+    assert "found again" not in found["motion-blur"]
     # the report's corner figure takes the corners they lack for none
     drawn = corner_residuals(run)[0]
     drawable = np.isfinite(residuals).all(axis=2) & ~run.bundle.corner_outliers
