@@ -13,9 +13,9 @@ fit (`TRIM_SIGMAS`). The joint fit then uses the view's kept corners with the ot
 left empty; what was left of a view is in the calibration's notes.
 
 Started 1-2.5 px off, the corners of the realistic lab's found boards come back within 2e-6 px
-of the detector's. On the glared views of its 20-pose sessions (seeds 1-5), 24-29 of the 54
-corners are kept, and against the truth they are as good as a found view's (seed 5: 0.035 px
-RMS per coordinate, the other views 0.025-0.043); the half-hidden boards keep 23 or more.
+of the detector's. On its 20-pose sessions the glared views of seeds 1 and 5 keep 29 and 24 of
+the 54 corners, as true as a found view's (seed 5: 0.035 px RMS per coordinate from the
+truth, the other views 0.025-0.043), and the half-hidden board of seed 5 keeps 23.
 """
 
 from __future__ import annotations
