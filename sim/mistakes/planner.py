@@ -429,11 +429,18 @@ class _Planner:
                 "speakers_m_bursts": speakers, "diaphragms_m_bursts": diaphragms}
 
     def _refmic_far(self, spec: MistakeSpec, rng: np.random.Generator) -> dict:
+        # a swapped speaker's reference recording is of the other speaker, a hand's width
+        # away: a few millimetres more in front of its own diaphragm could not show there
         s = self._index(spec, 0, self.n_speakers, "speaker", rng,
-                        [k for k in range(self.n_speakers) if k not in self.reference_m])
+                        [k for k in range(self.n_speakers)
+                         if k not in self.reference_m and k not in self.swapped])
         if s in self.reference_m:
             raise self._fail(spec, f"the reference microphone's distance from speaker {s} is "
                                    "set already; ask for it once")
+        if s in self.swapped:
+            raise self._fail(spec, f"contradicts {self.swapped[s]!r}: speaker {s}'s reference "
+                                   "recording is of the other speaker, which nothing of a "
+                                   "misplaced microphone could show")
         distance = 1e-3 * self._value(spec, 1, 6.0)
         self.reference_m[s] = distance
         return {"speakers": [s], "steps": [reference_step(s)], "distance_m": distance,

@@ -446,6 +446,8 @@ def test_motion_blur_is_the_stated_linear_blur(files: _Files) -> None:
     (("refmic-far=1", "silent-speaker=1"),
      "contradicts the reference microphone misplaced at speaker 1"),
     (("board-shift=4",), "puts every microphone back on its own input"),
+    (("swap-speakers=0,1", "refmic-far=1"),
+     "contradicts 'swap-speakers=0,1': speaker 1's reference recording is of the other"),
 ])
 def test_a_mistake_the_world_cannot_make_is_refused(mistakes: tuple[str, ...],
                                                     message: str) -> None:
@@ -498,6 +500,17 @@ def test_a_speaker_silent_all_session_is_not_drawn_where_the_reference_was_mispl
         far, silent = build_simulated_capture(options).mistakes.records
         assert far["speakers"] != silent["speakers"]
     build_simulated_capture(_options("refmic-far=1", "silent-speaker=1,0"))
+
+
+def test_a_misplaced_reference_microphone_is_not_drawn_at_a_swapped_speaker() -> None:
+    """A swapped speaker's reference recording is of the other speaker, a hand's width away,
+    which a few millimetres more in front of its own diaphragm cannot change (the grid of
+    every pair drew both on speaker 2 for seed 3, and nothing named `refmic-far`): the default
+    draw avoids the swapped speakers."""
+    for seed in range(8):
+        options = _options("swap-speakers", "refmic-far").model_copy(update={"seed": seed})
+        swap, far = build_simulated_capture(options).mistakes.records
+        assert not set(far["speakers"]) & set(swap["speakers"])
 
 
 def test_cable_mistakes_compose_and_truth_says_where_each_microphone_ends() -> None:
