@@ -593,20 +593,20 @@ def _calibrate_camera(
 
 
 def partial_view(camera: str, step: str, corners_px: np.ndarray, intr: CameraIntrinsics,
-                 points: np.ndarray, start: RigidTransform) -> BoardView:
+                 points: np.ndarray, start: RigidTransform) -> BoardView | None:
     """The board view of an image where only some corners were found (`corners_px`,
     (n_corners, 2), NaN where not): its pose fitted to those corners with the camera's
     intrinsics `intr` (solvePnP from `start`, the pose in that camera's frame), its covariance
     as a whole view's (the camera's corner noise, the intrinsics' uncertainty included).
-    `points` are the board's corners in the rig frame, metres."""
+    `points` are the board's corners in the rig frame, metres. None where no pose fits: the
+    view is then not used (that is no reason to refuse the session)."""
     have = np.isfinite(corners_px).all(axis=1)
     ok, rvec, tvec = cv2.solvePnP(points[have], corners_px[have].reshape(-1, 1, 2), intr.K,
                                   intr.dist, start.rotvec.reshape(3, 1).copy(),
                                   start.t.reshape(3, 1).copy(), useExtrinsicGuess=True,
                                   flags=cv2.SOLVEPNP_ITERATIVE)
     if not ok:
-        raise CameraCalibrationError(f"no board pose fits the corners found in part at {step} "
-                                     f"in {camera}")
+        return None
     fit = _view_fit(corners_px[have], rvec.ravel(), tvec.ravel(), intr.K, intr.dist,
                     points[have])
     variance = intr.noise.sigma_px**2

@@ -94,6 +94,8 @@ def recover_view(grey: np.ndarray, board: Checkerboard, points: np.ndarray,
     while keep.sum() >= needed:
         corners = np.where(keep[:, None], fitted, np.nan)
         view = partial_view(intr.name, step, corners, intr, points, rig_to_cam)
+        if view is None:
+            return None
         miss = _misfit_px(view, intr, points)
         worst = int(np.nanargmax(miss))
         if miss[worst] <= TRIM_SIGMAS * intr.noise.sigma_px:

@@ -149,3 +149,14 @@ def test_a_board_running_off_the_image_keeps_the_corners_inside() -> None:
     assert not kept[outside].any() and kept.sum() >= BOARD.n_corners // 3
     error = np.linalg.norm(found.view.corners_px[kept] - truth[kept], axis=1)
     assert error.max() < 5 * SIGMA_PX * np.sqrt(2)
+
+
+def test_a_view_whose_pose_does_not_fit_is_not_used_and_refuses_nothing(monkeypatch) -> None:
+    """Where no pose fits the kept corners (solvePnP fails), the view is simply not
+    recovered: the session is not refused for it."""
+    import calibration.camera.camera_calibration as camera_calibration
+
+    image, _ = _render()
+    monkeypatch.setattr(camera_calibration.cv2, "solvePnP",
+                        lambda *args, **kwargs: (False, None, None))
+    assert _recovered(image) is None
