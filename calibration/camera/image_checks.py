@@ -29,6 +29,7 @@ from ..memo import LruMemo
 from .image_measures import (
     edge_sharpness,
     jpeg_quantisation,
+    saturated_reach,
     saturated_share,
     x_corner_response,
     x_corners,
@@ -60,7 +61,10 @@ corners of its found views."""
 
 VISIBLE_SHARE = 0.9
 """An image with fewer of the board's corners visible than this share, none of them near the
-image's edge, shows a board partly hidden (a board merely missed shows them all)."""
+image's edge, shows a board partly hidden (a board merely missed shows them all). In glare,
+the corners within a square of its saturated pixels (`saturated_reach`) count as visible: a
+highlight alone left 40-48 of 54 visible with a reach of 14-30 squares (58-72 together); a
+board 40 % hidden and in glare, 32 with 13 (45)."""
 
 EDGE_MARGIN_SQUARES = 1.5
 """A visible X-corner within this many squares of the image's edge means the board ran off
@@ -224,20 +228,22 @@ def _missed(view: ViewImage, image: np.ndarray, board: Checkerboard, response: f
     visible = x_corners(image, X_CORNER_LEVEL * response, spacing_px)
     if len(visible) < MIN_VISIBLE:
         return _blurred(view, image, response, spacing_px)
-    saturated = saturated_share(image, visible)
-    if saturated > GLARE_SHARE:
-        return [_glare(view, saturated)]
     height, width = image.shape[:2]
     margin = EDGE_MARGIN_SQUARES * spacing_px
     near_edge = np.any((visible < margin) | (visible > np.array([width, height]) - 1 - margin))
-    share = len(visible) / board.n_corners
-    if near_edge or share >= VISIBLE_SHARE:
-        return []
-    return [Finding(
+    saturated = saturated_share(image, visible)
+    glare = [_glare(view, saturated)] if saturated > GLARE_SHARE else []
+    # the corners a highlight hides are not hidden by anything in front of the board
+    glared = saturated_reach(image, spacing_px) if glare else 0.0
+    if near_edge or len(visible) + glared >= VISIBLE_SHARE * board.n_corners:
+        return glare
+    beside = (f", {glared:.0f} more within a square of the glare's saturated pixels"
+              if glare else "")
+    return [*glare, Finding(
         kind="hidden-board", action="left out", cameras=[view.camera], poses=[view.step],
         evidence=f"the board was half hidden at {view.step} in {view.camera}: "
-                 f"{len(visible)} of its {board.n_corners} corners visible, none near the "
-                 "image's edge, and the board not found",
+                 f"{len(visible)} of its {board.n_corners} corners visible{beside}, none near "
+                 "the image's edge, and the board not found",
         advice=f"that view was left out; keep the whole board in view of {view.camera} "
                "(nothing in front of it) while the cameras expose")]
 
