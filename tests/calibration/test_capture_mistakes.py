@@ -308,7 +308,7 @@ def test_levels_count_samples_at_the_rail_and_blocks_that_dropped_out() -> None:
     burst = rng.standard_normal((1, 3, 16 * DROPOUT_BLOCK)) * 8000
     burst[0, 1] = np.clip(burst[0, 1] * 3, -32768, 32767)  # overdriven: runs at the rail
     burst[0, 2, 3 * DROPOUT_BLOCK:5 * DROPOUT_BLOCK] *= 1e-3  # two blocks at idle noise
-    levels = channel_levels(burst.astype(np.float32), full_scale_of(np.int16(0)))
+    levels = channel_levels(burst.astype(np.float32), full_scale_of(np.zeros(1, np.int16)))
     assert levels.rail_samples[0, 0] < CLIPPED_SAMPLES <= levels.rail_samples[0, 1]
     np.testing.assert_allclose(levels.dropout_share[0], [0.0, 0.0, 2 / 16])
     # a quiet channel reaches its own maximum often, but nowhere near full scale
