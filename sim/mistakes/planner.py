@@ -386,13 +386,19 @@ class _Planner:
                 "steps": steps, "recorded_as_speaker": files, **self._output_fields([s])}
 
     def _distorted_speaker(self, spec: MistakeSpec, rng: np.random.Generator) -> dict:
+        # a distortion shows in the speaker's reference recording, made at its diaphragm; a
+        # swapped speaker's is made at the other speaker, a hand's width away
         s = self._index(spec, 0, self.n_speakers, "speaker", rng,
-                        [k for k in range(self.n_speakers)
-                         if k not in self.saturation and not self._never_plays(k)])
+                        [k for k in range(self.n_speakers) if k not in self.saturation
+                         and not self._never_plays(k) and k not in self.swapped])
         if s in self.saturation:
             raise self._fail(spec, f"speaker {s} is distorted already; ask for it once")
         if self._never_plays(s):
             raise self._fail(spec, f"contradicts the silent speaker {s}: it never plays")
+        if s in self.swapped:
+            raise self._fail(spec, f"contradicts {self.swapped[s]!r}: speaker {s}'s reference "
+                                   "recording is made at the other speaker, and a distortion "
+                                   "shows only at its own diaphragm")
         drive = self._value(spec, 1, 3.0)
         self.saturation[s] = drive
         return {"speakers": [s], "drive": drive, "recorded_as_speaker": self._driven_by(s),
@@ -498,8 +504,14 @@ class _Planner:
             return [c for c in range(len(cameras)) if (pose, c, kind) not in self.scene_kinds
                     and self._board_in(c, pose) is not None]
 
+        # a rig moved after its images shows only against a view the calibration measures,
+        # and a view hidden, blurred or in glare is left out
         p = self._index(spec, 0, self.n_poses, "pose", rng,
-                        [k for k in range(self.n_poses) if free(k)])
+                        [k for k in range(self.n_poses) if free(k) and k not in self.moved])
+        if p in self.moved:
+            raise self._fail(spec, f"contradicts the moved pose {p}: a rig moved after its "
+                                   "images shows only against a view the calibration "
+                                   f"measures, and a view with {kind} is left out")
         seeing = [c for c in range(len(cameras)) if self._board_in(c, p) is not None]
         if not seeing:
             raise self._fail(spec, f"no camera sees the whole board at pose {p}; choose "

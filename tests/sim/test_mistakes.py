@@ -448,6 +448,9 @@ def test_motion_blur_is_the_stated_linear_blur(files: _Files) -> None:
     (("board-shift=4",), "puts every microphone back on its own input"),
     (("swap-speakers=0,1", "refmic-far=1"),
      "contradicts 'swap-speakers=0,1': speaker 1's reference recording is of the other"),
+    (("swap-speakers=0,1", "distorted-speaker=1"),
+     "contradicts 'swap-speakers=0,1': speaker 1's reference recording is made at the other"),
+    (("moved-pose=1", "glare=1,0"), "contradicts the moved pose 1"),
 ])
 def test_a_mistake_the_world_cannot_make_is_refused(mistakes: tuple[str, ...],
                                                     message: str) -> None:
@@ -511,6 +514,28 @@ def test_a_misplaced_reference_microphone_is_not_drawn_at_a_swapped_speaker() ->
         options = _options("swap-speakers", "refmic-far").model_copy(update={"seed": seed})
         swap, far = build_simulated_capture(options).mistakes.records
         assert not set(far["speakers"]) & set(swap["speakers"])
+
+
+def test_a_distortion_is_not_drawn_at_a_swapped_speaker() -> None:
+    """A distortion shows in the speaker's reference recording, made at its diaphragm; a
+    swapped speaker's is made at the other speaker (every pair, seed 5, drew the distortion
+    on a swapped speaker, and nothing could name it): the default draw avoids them."""
+    for seed in range(8):
+        options = _options("swap-speakers", "distorted-speaker").model_copy(
+            update={"seed": seed})
+        swap, distorted = build_simulated_capture(options).mistakes.records
+        assert not set(distorted["speakers"]) & set(swap["speakers"])
+
+
+@pytest.mark.parametrize("image", ["hidden-board", "motion-blur", "glare"])
+def test_an_image_mistake_is_not_drawn_at_a_moved_pose(image: str) -> None:
+    """A rig moved after its images shows only against a view the calibration measures; a
+    view hidden, blurred or in glare is left out, and the pose is placed by its own bursts
+    (every pair, seed 5, drew glare at the moved pose, and nothing could name the move)."""
+    for seed in range(8):
+        options = _options("moved-pose", image).model_copy(update={"seed": seed})
+        moved, spoiled = build_simulated_capture(options).mistakes.records
+        assert spoiled["poses"] != moved["poses"]
 
 
 def test_cable_mistakes_compose_and_truth_says_where_each_microphone_ends() -> None:
