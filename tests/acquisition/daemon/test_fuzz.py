@@ -27,7 +27,7 @@ from hypothesis import strategies as st
 
 from acquisition.daemon.endpoints import beside, ipc_path
 from acquisition.daemon.files import MAX_FETCH_BYTES
-from acquisition.contracts.protocol import Reply
+from acquisition.contracts.protocol import Reply, StatusResult
 from acquisition.daemon.server import control_hard_limit
 from acquisition.contracts.session import SessionReader
 
@@ -159,6 +159,12 @@ def test_random_input_at_every_socket_during_a_capture(daemon: ThreadDaemon) -> 
     every = max(1, EXAMPLES // started["steps_total"])  # spread the steps over the examples
     captures = {"asked": 0, "examples": 0}
 
+    def idle(status: StatusResult) -> bool:
+        """Waiting for the operator, and the last capture asked for has ended (its state
+        stays waiting for a moment after the request, until the capture starts)."""
+        finished = status.last_capture.number if status.last_capture else 0
+        return status.state in WAITING and status.captures_requested == finished
+
     @settings(max_examples=EXAMPLES, deadline=None, database=None, derandomize=not LONG,
               suppress_health_check=list(HealthCheck))
     @given(where=targets, message=messages)
@@ -166,14 +172,14 @@ def test_random_input_at_every_socket_during_a_capture(daemon: ThreadDaemon) -> 
         target.throw(where, message)
         status = client.status()  # must answer after every example
         captures["examples"] += 1
-        finished = status.last_capture.number if status.last_capture else 0
-        if (captures["examples"] % every == 0 and status.state in WAITING
-                and status.captures_requested == finished):  # the last capture has ended
+        if captures["examples"] % every == 0 and idle(status):
             captures["asked"] = client.request("capture")["number"]  # keep the capture going
 
     try:
         one()
-        status = client.wait_until(lambda s: s.session is None or s.state in WAITING, 60.0)
+        # a capture asked for by the last examples may not have started yet: "cannot
+        # capture while capturing" once failed the run below
+        status = client.wait_until(lambda s: s.session is None or idle(s), 60.0)
         if status.session is not None:
             status = capture_all(client)
     finally:
