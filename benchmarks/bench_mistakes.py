@@ -33,8 +33,11 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
+from calibration.checks.coverage import coverage
 from calibration.errors import CalibrationInputError
-from calibration.pipeline import CalibrationOptions, calibrate
+from calibration.pipeline import CalibrationOptions, CalibrationRun, calibrate
 from calibration.result import compare_with_truth
 from calibration.truth import nominal_layout_of
 from micam.cluster import add_cluster_options, cluster_map
@@ -75,8 +78,8 @@ def _session(root: Path, name: str, seed: int, poses: int, array: str,
 
 
 def _calibrated(path: Path, layout: bool) -> dict:
-    """Findings, error and run time of one calibration (or its refusal), given the array's
-    nominal layout or not."""
+    """Findings, error, its cover by the stated uncertainty and run time of one calibration
+    (or its refusal), given the array's nominal layout or not."""
     truth = json.loads((path / "truth.json").read_text())
     start = time.perf_counter()
     try:
@@ -85,9 +88,27 @@ def _calibrated(path: Path, layout: bool) -> dict:
     except CalibrationInputError as exc:
         return {"refused": str(exc), "findings": [], "error_mm": None,
                 "seconds": round(time.perf_counter() - start, 2)}
+    seconds = round(time.perf_counter() - start, 2)
     return {"refused": None, "findings": [f.kind for f in run.result.findings],
             "error_mm": round(1e3 * compare_with_truth(run.result, truth)["mean_mic_error_m"], 4),
-            "seconds": round(time.perf_counter() - start, 2)}
+            **_covered(run, truth), "seconds": seconds}
+
+
+def _covered(run: CalibrationRun, truth: dict) -> dict:
+    """How the result's stated uncertainty covers its errors (calibration.checks.coverage):
+    the share of the located microphones inside their 95.4 % ellipsoid, and the chi-square
+    of the array's common motion (7 degrees of freedom); empty without the joint fit."""
+    if run.bundle is None:
+        return {}
+    true = {m["id"]: np.array(m["position_m"]) for m in truth["microphones"]}
+    error = run.solution.positions_m - np.array([true[int(i)] for i in run.data.mic_ids])
+    located = np.flatnonzero(np.isfinite(error).all(axis=1))
+    mics = run.bundle.parameter_slices["microphones"]
+    index = (3 * located[:, None] + np.arange(3)).ravel()
+    split = coverage(error[located], run.bundle.covariance[mics, mics][np.ix_(index, index)],
+                     run.solution.positions_m[located])
+    return {"within_2_sigma": round(split.within_2_sigma, 3),
+            "common_chi2": round(split.common_chi2, 1)}
 
 
 def cell(root: Path, seed: int, combo: tuple[str, ...], poses: int, array: str,
@@ -96,10 +117,23 @@ def cell(root: Path, seed: int, combo: tuple[str, ...], poses: int, array: str,
     kept there, and calibrated: a task of its own, so that the grid runs on a cluster."""
     name = "+".join(combo) or "clean"
     got = _calibrated(_session(root, name, seed, poses, array, combo), layout)
-    wanted = {EXPECTED[m] for m in combo}
+    wanted = {EXPECTED[_kind(m)] for m in combo}
     return {"mistakes": list(combo), "seed": seed, **got,
             "found": wanted <= set(got["findings"]) if combo else None,
             "false_findings": sorted(set(got["findings"]) - wanted)}
+
+
+def _kind(mistake: str) -> str:
+    """The kind of a mistake as `micam simulate --mistake` takes it: NAME or NAME=ARGS."""
+    return mistake.partition("=")[0]
+
+
+def _mistake(text: str) -> str:
+    """A --mistakes entry, checked: a kind of `EXPECTED`, with arguments or not."""
+    if _kind(text) not in EXPECTED:
+        raise argparse.ArgumentTypeError(
+            f"unknown mistake {_kind(text)!r}; one of: {', '.join(EXPECTED)}")
+    return text
 
 
 def combinations(mistakes: list[str], pairs: str | None) -> list[tuple[str, ...]]:
@@ -120,8 +154,9 @@ def main() -> None:
     parser.add_argument("--poses", type=int, default=8)
     parser.add_argument("--seeds", type=int, nargs="+", default=[1])
     parser.add_argument("--array", default="scatter48")
-    parser.add_argument("--mistakes", nargs="+", default=list(EXPECTED), choices=list(EXPECTED),
-                        metavar="MISTAKE")
+    parser.add_argument("--mistakes", nargs="+", default=list(EXPECTED), type=_mistake,
+                        metavar="MISTAKE[=ARGS]",
+                        help="as `micam simulate --mistake` takes them, e.g. mjpeg=70")
     parser.add_argument("--pairs", nargs="?", const="next", choices=["next", "all"],
                         help="also two mistakes at a time: each with the next one of the list "
                              "(--pairs) or every pair (--pairs all)")
@@ -154,16 +189,19 @@ def main() -> None:
 
 def table(rows: list[dict]) -> str:
     """The rows as a markdown table: mistake, seed, found, false findings, error with and
-    without the mistake, their ratio and the calibration's run time."""
-    lines = ["| mistakes | seed | found | false findings | error mm | clean mm | ratio | s |",
-             "|---|---|---|---|---|---|---|---|"]
+    without the mistake, their ratio, the share of microphones inside their stated 2-sigma
+    ellipsoids with the common motion's chi-square, and the calibration's run time."""
+    lines = ["| mistakes | seed | found | false findings | error mm | clean mm | ratio "
+             "| within 2 sigma | common chi2 (7 dof) | s |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for row in rows:
         said = {None: "-", True: "yes", False: "NO"}[row["found"]]
         error = "refused" if row["refused"] else f"{row['error_mm']:.3f}"
         clean = "-" if row["clean_error_mm"] is None else f"{row['clean_error_mm']:.3f}"
         lines.append(f"| {' + '.join(row['mistakes']) or '(none)'} | {row['seed']} | {said} | "
                      f"{', '.join(row['false_findings']) or '-'} | {error} | {clean} | "
-                     f"{row['ratio']} | {row['seconds']:.1f} |")
+                     f"{row['ratio']} | {row.get('within_2_sigma', '-')} | "
+                     f"{row.get('common_chi2', '-')} | {row['seconds']:.1f} |")
     return "\n".join(lines)
 
 

@@ -40,3 +40,15 @@ def test_the_mistakes_benchmark_pairs_each_mistake_with_its_neighbours_or_every_
                                                          ("a", "d")]
     assert len(bench.combinations(names, "all")) == 4 + 6
     assert bench.combinations(["a", "b"], "next") == [("a",), ("b",), ("a", "b")]
+
+
+def test_the_mistakes_benchmark_takes_a_mistake_with_its_arguments() -> None:
+    import argparse
+
+    import pytest
+
+    bench = _load("bench_mistakes")
+    assert bench._mistake("mjpeg=70") == "mjpeg=70"
+    assert bench._kind("mjpeg=70") == "mjpeg"
+    with pytest.raises(argparse.ArgumentTypeError, match="unknown mistake 'jpeg'"):
+        bench._mistake("jpeg=70")
