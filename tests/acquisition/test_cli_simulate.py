@@ -42,6 +42,7 @@ def test_simulate_writes_session_and_truth(tmp_path: Path) -> None:
 )
 def test_bad_options_are_explained(tmp_path: Path, capsys: pytest.CaptureFixture,
                                    args: list[str], message: str) -> None:
+    status: int | str | None
     try:  # a value out of its option's range is argparse's usage error, the rest micam's
         status = main(["simulate", "--out", str(tmp_path / "s"), "--quiet", *args])
     except SystemExit as exc:

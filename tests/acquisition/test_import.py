@@ -75,8 +75,9 @@ def test_a_plain_folder_becomes_a_verified_session(tmp_path: Path) -> None:
     assert rate == FS and np.array_equal(codes, original)  # 16-bit: bit for bit
     meta = reader.steps()["pose/0000"].files["speaker_1.wav"].meta
     assert meta["import_scale"] is None and meta["source"] == "p0s1.wav"
-    assert np.array_equal(reader.read_image("pose/0000", "cam0.png"),
-                          cv2.imread(str(tmp_path / "p0.png"), cv2.IMREAD_UNCHANGED))
+    image = cv2.imread(str(tmp_path / "p0.png"), cv2.IMREAD_UNCHANGED)
+    assert image is not None
+    assert np.array_equal(reader.read_image("pose/0000", "cam0.png"), image)
     record = reader.read_json("import", "import.json")
     assert record["description_toml"] == spec.read_text()
     assert set(record["sources_sha256"]) == {"ref0.wav", "ref1.wav", "p0s0.wav", "p0s1.wav",

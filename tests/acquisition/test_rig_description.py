@@ -37,7 +37,7 @@ def _with(path: str, value: Any) -> dict[str, Any]:
     """The valid description with `path` (dotted, [i] for list items) set (None: removed)."""
     doc = copy.deepcopy(_valid())
     keys = [int(k) if k.isdigit() else k for k in re.split(r"\.|\[|\]\.?", path) if k]
-    target = doc
+    target: Any = doc
     for key in keys[:-1]:
         target = target[key]
     if value is None:

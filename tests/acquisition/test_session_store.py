@@ -17,6 +17,7 @@ import traceback
 from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -25,6 +26,7 @@ import soundfile as sf
 from acquisition.contracts.session import (
     JOURNAL_NAME,
     MANIFEST_NAME,
+    Record,
     SessionError,
     SessionManifest,
     SessionReader,
@@ -178,12 +180,12 @@ def test_abandoned_attempt_is_retried_in_a_new_directory(tmp_path: Path) -> None
 CRASH_SITES = ("journal", "before_rename", "after_rename", "after_mkdir")
 
 
-def _hooked(site: str, on_hit: Callable[[], None]) -> tuple[object, str, Callable]:
+def _hooked(site: str, on_hit: Callable[[], object]) -> tuple[object, str, Callable]:
     """(owner, attribute, replacement) that calls `on_hit` at each occurrence of `site`."""
     if site == "journal":
         append = JournalWriter.append
 
-        def hooked_append(self: JournalWriter, record: object) -> None:
+        def hooked_append(self: JournalWriter, record: Record) -> None:
             append(self, record)
             on_hit()
 
@@ -191,7 +193,7 @@ def _hooked(site: str, on_hit: Callable[[], None]) -> tuple[object, str, Callabl
     original = os.rename if "rename" in site else os.mkdir
     before = site == "before_rename"
 
-    def hooked(*args: object, **kwargs: object) -> None:
+    def hooked(*args: Any, **kwargs: Any) -> None:
         if before:
             on_hit()
         original(*args, **kwargs)

@@ -51,6 +51,7 @@ def test_the_cameras_alone_give_previews_and_refuse_a_capture(tmp_path: Path) ->
             assert shown is not None and shown.camera == "cam0"
             image = cv2.imdecode(np.frombuffer(base64.b64decode(shown.jpeg_b64), np.uint8),
                                  cv2.IMREAD_GRAYSCALE)
+            assert image is not None
             assert image.shape[1] == shown.width and image.std() > 10  # the rig, not a blank
             for command, what in (("session.start", "a capture"), ("live.start", "live mode")):
                 message = _refused(client, command)

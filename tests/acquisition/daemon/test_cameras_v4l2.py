@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import cv2
 import numpy as np
@@ -123,8 +123,9 @@ def fake_cv2(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(v4l2.cv2, "VideoCapture", FakeCapture)
 
 
-def _camera(**kwargs) -> V4L2Camera:
-    args = {"name": "cam0", "device": "/dev/video0", "width": 1280, "height": 720} | kwargs
+def _camera(**kwargs: Any) -> V4L2Camera:
+    args: dict[str, Any] = {"name": "cam0", "device": "/dev/video0", "width": 1280,
+                            "height": 720} | kwargs
     return V4L2Camera(**args)
 
 

@@ -32,6 +32,7 @@ def test_toml_then_environment(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) 
     monkeypatch.setenv("MICAM_DAEMON_SOCKETS__CONTROL", "ipc:///run/other")
     monkeypatch.setenv("MICAM_DAEMON_QUALITY__AUTO_RETRIES", "3")
     config = load_config(path)
+    assert isinstance(config, DaemonConfig)  # the simulated world's, with its [simulation]
     assert config.session_root == Path("/data/s")
     assert config.sockets.control == "ipc:///run/other"  # the environment wins
     assert config.simulation.poses == 4 and config.simulation.array == "scatter48"

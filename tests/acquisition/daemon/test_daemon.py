@@ -17,7 +17,9 @@ from acquisition.daemon.config import CurveConfig, HandsFreeConfig, QualityConfi
 from acquisition.contracts.keys import make_keys
 from acquisition.contracts.protocol import RedoRequest
 from acquisition.daemon.translog import read_transitions
-from acquisition.contracts.session import SessionReader, SessionWriter, journal_records
+from acquisition.contracts.session import (SessionReader, SessionStop, SessionWriter,
+                                           journal_records)
+from sim.cameras import SimulatedCamera
 from sim.capture import SimulationOptions, build_simulated_capture
 
 from .helpers import ThreadDaemon, capture, small_config, wait_state
@@ -49,7 +51,8 @@ def test_bad_input_gets_clear_errors_and_the_daemon_keeps_serving(client: Daemon
     ]
     for frames, code, words in cases:
         reply = client.exchange(frames)
-        assert not reply.ok and reply.error.code == code and words in reply.error.message
+        assert not reply.ok and reply.error is not None
+        assert reply.error.code == code and words in reply.error.message
     assert "micam session start" in _refused(client, "capture", "wrong_state")
     assert "no session is open" in _refused(client, "session.abort", "wrong_state")
     assert client.request("ping")["pong"] is True
@@ -78,6 +81,7 @@ def test_session_with_pause_refusals_stop_and_journal(daemon: ThreadDaemon,
     assert reader.status == "complete" and reader.verify() == []
     assert "pose/0000" in reader.steps() and "pose/0001" not in reader.steps()
     stop = journal_records(reader.path / "journal.jsonl")[-1]
+    assert isinstance(stop, SessionStop)
     assert "after 1 of 2 poses" in stop.reason
     states = [t["state"] for t in read_transitions(reader.path)]
     assert states[:3] == ["session_open", "references", "paused"]
@@ -110,6 +114,7 @@ def test_failed_quality_check_retries_then_waits_for_the_operator(tmp_path: Path
         with running.client() as client:
             path = Path(client.request("session.start")["session"]["path"])
             status = capture(client)
+            assert status.last_capture is not None
             assert status.last_capture.outcome == "abandoned"
             assert "snr" in status.last_capture.reason and status.state == "references"
             abandoned = [r for r in journal_records(path / "journal.jsonl")
@@ -129,6 +134,7 @@ def test_warn_policy_keeps_the_step_with_its_warnings(tmp_path: Path) -> None:
         with running.client() as client:
             path = Path(client.request("session.start")["session"]["path"])
             status = capture(client)
+            assert status.last_capture is not None
             assert status.last_capture.outcome == "complete"
             assert status.last_capture.warnings and "snr" in status.last_capture.warnings[0]
             client.request("session.abort")
@@ -145,13 +151,18 @@ def test_camera_failure_and_redo_wait_for_a_new_capture(daemon: ThreadDaemon,
     path = Path(client.request("session.start")["session"]["path"])
     for _ in range(REFERENCE_STEPS - 1):
         capture(client)
-    daemon.hardware.cameras[0].fail_next_grabs = 1
+    camera = daemon.hardware.cameras[0]
+    assert isinstance(camera, SimulatedCamera)  # the daemon runs the simulated world
+    camera.fail_next_grabs = 1
     status = capture(client)
+    assert status.last_capture is not None
     assert status.last_capture.outcome == "abandoned" and status.step == "refmic"
     assert "CameraTimeoutError" in status.last_capture.reason
-    assert capture(client).last_capture.outcome == "complete"
+    last = capture(client).last_capture
+    assert last is not None and last.outcome == "complete"
 
     group = daemon.hardware.group
+    assert group is not None
     original = group.acquire
     calls = {"n": 0}
 
@@ -161,11 +172,13 @@ def test_camera_failure_and_redo_wait_for_a_new_capture(daemon: ThreadDaemon,
             daemon.daemon._handle(RedoRequest())
         return original(*args, **kwargs)
 
-    group.acquire = acquire_then_redo
+    group.acquire = acquire_then_redo  # type: ignore[method-assign]  # asks for a redo
     status = capture(client)
+    assert status.last_capture is not None
     assert status.last_capture.outcome == "abandoned"
     assert "redo" in status.last_capture.reason and status.state == "waiting_for_pose"
-    assert capture(client).last_capture.outcome == "complete"
+    last = capture(client).last_capture
+    assert last is not None and last.outcome == "complete"
     assert SessionReader(path).steps()["pose/0000"].attempt == 2
     client.request("session.abort")
     wait_state(client, "idle")

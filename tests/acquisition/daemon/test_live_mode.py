@@ -18,6 +18,7 @@ from acquisition.daemon.client import DaemonError
 from acquisition.contracts.protocol import SAMPLES_TOPIC, SamplesHeader
 from acquisition.live.record import ACOULAR_FILE, RECORDING, STEP, read_live_recording
 from acquisition.contracts.session import SessionReader
+from sim.boards import SimulatedBoard
 
 from .helpers import WAIT_S, ThreadDaemon, next_event
 
@@ -79,7 +80,7 @@ def test_live_mode_refuses_and_is_refused_beside_a_session(daemon: ThreadDaemon)
 
 def test_the_time_data_is_published_in_order(daemon: ThreadDaemon) -> None:
     with daemon.client() as client:
-        sub = zmq.Context.instance().socket(zmq.SUB)
+        sub: zmq.Socket = zmq.Context.instance().socket(zmq.SUB)
         sub.setsockopt(zmq.SUBSCRIBE, SAMPLES_TOPIC.encode())
         sub.setsockopt(zmq.RCVTIMEO, 10_000)
         sub.connect(client.events_endpoint())
@@ -100,7 +101,10 @@ def test_the_time_data_is_published_in_order(daemon: ThreadDaemon) -> None:
 
 @pytest.mark.parametrize("fault", ["overrun_at_sample", "unplug_at_sample"])
 def test_a_board_fault_ends_live_mode_with_an_event(daemon: ThreadDaemon, fault: str) -> None:
-    board = daemon.hardware.group.boards[1]
+    group = daemon.hardware.group
+    assert group is not None
+    board = group.boards[1]
+    assert isinstance(board, SimulatedBoard)  # the daemon runs the simulated world
     with daemon.client() as client, closing(client.subscribe()) as events:
         client.request("live.start")
         setattr(board.faults, fault, 20_000)

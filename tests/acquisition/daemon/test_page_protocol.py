@@ -63,6 +63,7 @@ def test_previews_only_while_asked_for(daemon: ThreadDaemon) -> None:
             assert 1 <= len(shown) <= 1.2 * daemon.config.previews.fps + 1
             image = cv2.imdecode(np.frombuffer(base64.b64decode(shown[0].jpeg_b64), np.uint8),
                                  cv2.IMREAD_COLOR)
+            assert image is not None
             assert image.shape[1] == shown[0].width <= daemon.config.previews.width
             assert shown[0].step is None and shown[0].camera == "cam0"
             assert not [e for e in _events(plain, 0.2) if isinstance(e, PreviewEvent)]
@@ -111,6 +112,7 @@ def test_session_files_stay_inside_the_calibration_directory(daemon: ThreadDaemo
     with daemon.client() as client:
         client.request("session.start", poses=1)
         session = client.status().session
+        assert session is not None
         calibration = daemon.daemon.session_root / session.id / "calibration"
         calibration.mkdir()
         (calibration / "result.json").write_text('{"a": 1}')

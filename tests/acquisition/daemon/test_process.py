@@ -173,6 +173,7 @@ def test_resume_at_start_auto_continues_the_interrupted_session(tmp_path: Path) 
     try:
         with process.client() as client:
             status = client.wait_until(lambda s: s.session is not None, 30.0)
+            assert status.session is not None
             assert status.session.id == path.name and status.state == "references"
             capture_all(client)
     finally:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Literal
+
 import numpy as np
 import pytest
 
@@ -39,6 +41,7 @@ def test_a_burst_late_by_an_interfaces_latency_is_measured_where_it_arrived() ->
     late[: PRE] = on_time[: PRE]
     late[PRE + 1024:] = on_time[PRE: PRE + late.shape[0] - PRE - 1024]
     levels = measure(late, PRE, BURST, clip_fraction=0.999)
+    assert levels.snr_db is not None
     assert levels.rms_dbfs[0] == pytest.approx(20 * np.log10(3000 / 32768), abs=0.3)
     assert levels.snr_db[1] == pytest.approx(20 * np.log10(300 / 30), abs=0.5)
 
@@ -56,6 +59,7 @@ def test_a_burst_cut_off_by_the_end_of_the_recording_fails_with_the_cause() -> N
 
 def test_levels_and_snr_match_the_signal() -> None:
     levels = measure(_recording([3000.0, 300.0, 0.0]), PRE, BURST, clip_fraction=0.999)
+    assert levels.snr_db is not None
     assert levels.rms_dbfs[0] == pytest.approx(20 * np.log10(3000 / 32768), abs=0.2)
     assert levels.snr_db[0] == pytest.approx(20 * np.log10(3000 / 30), abs=0.5)
     assert levels.snr_db[1] == pytest.approx(20 * np.log10(300 / 30), abs=0.5)
@@ -108,6 +112,7 @@ def test_checkerboard_found_in_a_rendered_pose_and_not_in_an_empty_view() -> Non
     [({"cam0": True, "cam1": False}, "any", False), ({"cam0": True, "cam1": False}, "all", True),
      ({"cam0": False, "cam1": False}, "any", True), ({}, "all", False)],
 )
-def test_checkerboard_rule(found: dict[str, bool], rule: str, fails: bool) -> None:
+def test_checkerboard_rule(found: dict[str, bool], rule: Literal["any", "all"],
+                           fails: bool) -> None:
     failures = judge_images(found, QualityConfig(checkerboard_in=rule))
     assert bool(failures) is fails

@@ -11,6 +11,7 @@ from __future__ import annotations
 import time
 from contextlib import ExitStack, closing
 from pathlib import Path
+from typing import cast
 
 import pytest
 import zmq
@@ -36,9 +37,9 @@ MARGIN_BYTES = 8 * 2**20
 def _check_queues(sockets: list[zmq.Socket], whose: str) -> None:
     assert sockets, f"{whose} has no sockets"
     for sock in sockets:
-        kind = zmq.SocketType(sock.type).name
+        kind = zmq.SocketType(cast(int, sock.type)).name  # pyzmq types options int | bytes
         for option in ("sndhwm", "rcvhwm"):
-            value = sock.get(getattr(zmq, option.upper()))
+            value = cast(int, sock.get(getattr(zmq, option.upper())))
             assert 1 <= value <= MAX_QUEUE, f"{whose}'s {kind} socket has {option} {value}"
 
 

@@ -78,7 +78,8 @@ def test_a_journal_pointing_outside_its_session_is_refused(
     with daemon.client() as client:
         reply = client.exchange([json.dumps({"v": 2, "command": "session.start",
                                              "args": {"resume": "s1"}}).encode()])
-        assert not reply.ok and reply.error.code == "session_error"
+        assert not reply.ok and reply.error is not None
+        assert reply.error.code == "session_error"
         assert "journal.jsonl" in reply.error.message
         assert client.status().state == "idle"
 
@@ -154,7 +155,8 @@ def test_the_file_server_serves_no_link_and_no_fifo(tmp_path: Path, kind: str, w
                     session_path=str(session), poses=0,
                     journal=JournalPrefix(bytes=1, sha256="0" * 64),
                     files=[JobFile(path="refmic-a1/cam0.png", bytes=15, sha256="0" * 64)],
-                    created_utc=NOW, updated_utc=NOW)
+                    created_utc=datetime.fromisoformat(NOW),
+                    updated_utc=datetime.fromisoformat(NOW))
     context = zmq.Context()
     router = context.socket(zmq.ROUTER)
     router.bind(f"ipc://{tmp_path}/files")
