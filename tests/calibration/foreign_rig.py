@@ -33,6 +33,7 @@ def same_world_natively(world: ForeignWorld, session: Path) -> dict:
     DT9816-A, 6 microphones each, and the reference microphone on a DT9816-A of its own,
     recorded on every burst, with its image on the stand). Returns its truth."""
     from acquisition.contracts.burst import BurstConfig
+    from acquisition.contracts.camera import Camera
     from acquisition.sequencer import CaptureSequencer
     from acquisition.contracts.session import SessionWriter
     from daq import SyncGroup
@@ -61,7 +62,7 @@ def same_world_natively(world: ForeignWorld, session: Path) -> dict:
     sim_world = World(layout=layout, rig=rig, temperature_c=TEMPERATURE_C,
                       relative_humidity=HUMIDITY, sample_rate_hz=FS, seed=world.seed)
     bench = AcousticBench(sim_world)
-    cameras = [SimulatedCamera(camera, sim_world, 0)]
+    cameras: list[Camera] = [SimulatedCamera(camera, sim_world, 0)]
     operator = SimulatedOperator(sim_world, world.poses, reference_stand_position(camera, 0.6))
     config = capture_config_for(
         layout, rig, len(world.poses), FS,

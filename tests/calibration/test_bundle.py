@@ -72,12 +72,12 @@ def make_scene(n_pose: int, seed: int, n_mic: int = 72) -> Scene:
     board = _board()
     intrinsics = np.tile([*K_TRUE, *DIST_TRUE], (2, 1))
     K = np.array([[K_TRUE[0], 0, K_TRUE[2]], [0, K_TRUE[1], K_TRUE[3]], [0, 0, 1.0]])
-    corners = []
+    views = []
     for camera in (0, 1):
         X = _to_cam(poses, camera, board).reshape(-1, 3)
         pixels = cv2.projectPoints(X, np.zeros(3), np.zeros(3), K, np.array(DIST_TRUE))[0]
-        corners.append(pixels.reshape(n_pose, -1, 2))
-    corners = np.concatenate(corners) + CORNER_NOISE_PX * rng.standard_normal((2 * n_pose, 54, 2))
+        views.append(pixels.reshape(n_pose, -1, 2))
+    corners = np.concatenate(views) + CORNER_NOISE_PX * rng.standard_normal((2 * n_pose, 54, 2))
     mics = fibonacci_sphere(n_mic)
     reference = np.array([-0.5, 0.4, 0.8])
     sources = _to_cam(poses, 0, PAPER_SPEAKERS_M).reshape(-1, 3)
@@ -96,8 +96,8 @@ def make_scene(n_pose: int, seed: int, n_mic: int = 72) -> Scene:
         reference_std_s=np.full(ref_tof.shape, 8e-9), latency_column=latency_column,
         n_latency=2, camera_names=("cam0", "cam1"),
     )  # fmt: skip
-    truth = BundleState(intrinsics, np.array([CAM1_FROM_CAM0]), poses, mics, reference, C_TRUE,
-                        np.array(LATENCIES_S))  # fmt: skip
+    truth = BundleState(intrinsics, np.array([CAM1_FROM_CAM0]), poses, mics, reference,
+                        np.array([C_TRUE]), np.array(LATENCIES_S))  # fmt: skip
     return Scene(problem, truth)
 
 
@@ -348,6 +348,7 @@ def test_pipeline_joint_fit_beats_the_frozen_camera_against_the_truth(session: P
     assert run.result.joint_fit is not None and run.result.joint_fit.tof_outliers == 0
 
     no_joint = calibrate(session, CalibrationOptions(joint=False)).result
+    assert run.result.camera_frozen is not None
     assert no_joint.camera_frozen is None and no_joint.joint_fit is None
     # The frozen solution kept beside the joint one is the --no-joint result (to rounding:
     # OpenCV's calibration is not bit-reproducible across runs).

@@ -225,6 +225,6 @@ def test_a_calibration_is_reproducible_to_the_last_bit(
     for name, first in calibration.intrinsics.items():
         assert np.array_equal(first.K, again.intrinsics[name].K), name
         assert np.array_equal(first.dist, again.intrinsics[name].dist), name
-    for name, first in calibration.cam_from_cam0.items():
-        assert np.array_equal(first.cam0_to_cam.R,
+    for name, extrinsics in calibration.cam_from_cam0.items():
+        assert np.array_equal(extrinsics.cam0_to_cam.R,
                               again.cam_from_cam0[name].cam0_to_cam.R), name

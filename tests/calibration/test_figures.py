@@ -10,6 +10,7 @@ import os
 import re
 from itertools import combinations
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 import pytest
@@ -47,6 +48,13 @@ def truth(session: Path) -> dict:
     return json.loads((session / "truth.json").read_text())
 
 
+def _number(pattern: str, text: str) -> float:
+    """Group 1 of `pattern`'s first match in `text`, a number."""
+    found = re.search(pattern, text)
+    assert found is not None, pattern
+    return float(found.group(1))
+
+
 def _views(fig):
     return [ax for ax in fig.axes if (ax.get_gid() or "").startswith("view-")]
 
@@ -73,13 +81,16 @@ def test_geometry_views_are_equal_aspect_and_show_every_camera(run: CalibrationR
         assert not any(a.overlaps(b) for a, b in combinations(boxes, 2))
     # The error vectors are the errors against the truth, magnified by the stated factor.
     legend = " ".join(t.get_text() for t in fig.legends[0].get_texts())
-    factor = float(re.search(r"error \S (\d+)", legend).group(1))
+    factor = _number(r"error \S (\d+)", legend)
     front = views[0]
     quiver = next(c for c in front.collections if isinstance(c, Quiver))
     true_ids = {m["id"]: m["position_m"] for m in truth["microphones"]}
     errors = run.result.positions() - np.array([true_ids[m.id] for m in run.result.microphones])
-    np.testing.assert_allclose(quiver.U, 1e3 * factor * errors[:, 0], rtol=1e-9)
-    np.testing.assert_allclose(quiver.V, 1e3 * factor * errors[:, 1], rtol=1e-9)
+    # matplotlib types U and V as any array-like; they are masked arrays
+    np.testing.assert_allclose(cast(np.ndarray, quiver.U), 1e3 * factor * errors[:, 0],
+                               rtol=1e-9)
+    np.testing.assert_allclose(cast(np.ndarray, quiver.V), 1e3 * factor * errors[:, 1],
+                               rtol=1e-9)
     # The largest magnified (3-D) error spans 5-12 % of the array: visible, not overwhelming.
     extent = np.ptp(run.result.positions(), axis=0).max()
     assert 0.048 <= factor * np.linalg.norm(errors, axis=1).max() / extent <= 0.12
@@ -93,8 +104,8 @@ def test_ellipses_much_larger_than_the_errors_get_their_own_factor() -> None:
     cov = np.broadcast_to(np.diag([1e-4, 1e-4, 4e-4]) ** 2, (40, 3, 3))
     fig = geometry_figure(ArrayPicture(mics + errors, cov, mics, "simulated truth"))
     legend = " ".join(t.get_text() for t in fig.legends[0].get_texts())
-    error_factor = float(re.search(r"error \S (\d+)", legend).group(1))
-    ellipse_factor = float(re.search(r"uncertainty \S (\d+)", legend).group(1))
+    error_factor = _number(r"error \S (\d+)", legend)
+    ellipse_factor = _number(r"uncertainty \S (\d+)", legend)
     assert ellipse_factor < error_factor and "smaller" in legend
     assert "36 of 40 errors inside their 95 % uncertainty ellipsoid" in fig._suptitle.get_text()
     assert inside_ellipsoids(errors, None) is None
@@ -129,7 +140,7 @@ def test_console_numbers_keep_their_significant_digits(run: CalibrationRun,
     steps = ["pose/0001", "pose/0002", "pose/0003", "pose/0009", "refmic"]
     assert report.step_ranges(steps) == "pose/0001-0003, pose/0009, refmic"
     line = next(ln for ln in report.summary_lines(run, truth) if "c error" in ln)
-    printed = float(re.search(r"c error ([-+][\d.]+) m/s", line.split(";")[-1]).group(1))
+    printed = _number(r"c error ([-+][\d.]+) m/s", line.split(";")[-1])
     true_error = run.result.speed_of_sound_m_s - truth["speed_of_sound_m_s"]
     assert printed == pytest.approx(true_error, rel=0.06)  # never "+0.000"
 

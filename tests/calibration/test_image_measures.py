@@ -35,7 +35,7 @@ def _inner_corners(squares: int) -> set[tuple[int, int]]:
             for a in range(1, squares) for b in range(1, squares)}
 
 
-def _found(image: np.ndarray) -> set[tuple[int, int]]:
+def _found(image: np.ndarray) -> set[tuple[int, ...]]:
     inner = np.array(sorted(_inner_corners(5)))
     response = x_corner_response(image)
     level = 0.3 * float(np.median(response[inner[:, 1], inner[:, 0]]))
@@ -75,6 +75,7 @@ def test_jpeg_is_told_from_raw_frames_however_noisy(noise_grey: float) -> None:
         ok, encoded = cv2.imencode(".jpg", raw, [cv2.IMWRITE_JPEG_QUALITY, quality])
         assert ok
         decoded = cv2.imdecode(encoded, cv2.IMREAD_GRAYSCALE)
+        assert decoded is not None
         assert jpeg_quantisation(decoded) > 1.5 * MJPEG_QUANTISATION, quality
 
 

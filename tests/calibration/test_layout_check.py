@@ -13,6 +13,7 @@ import json
 from dataclasses import replace
 from pathlib import Path
 from types import SimpleNamespace
+from typing import cast
 
 import numpy as np
 import pytest
@@ -165,13 +166,16 @@ def test_a_tolerance_without_any_layout_is_refused(small_session: Path) -> None:
 def test_the_options_layout_replaces_the_description_s_and_says_so(small_session: Path) -> None:
     """The layout of the options (--layout, else --prior), else the description's; the
     tolerance option applies to whichever is used; the notes say which."""
-    from calibration.pipeline import CalibrationOptions, _layout_notes, _nominal_layout
+    from calibration.pipeline import (CalibrationOptions, Measurements, _layout_notes,
+                                      _nominal_layout)
     from calibration.solve.solver import PriorGeometry
 
-    m = SimpleNamespace(data=load_session(small_session))
+    # a stand-in: the layout is chosen from the measurements' session data alone
+    m = cast(Measurements, SimpleNamespace(data=load_session(small_session)))
     described = m.data.description.layout
     assert described is not None and described.source == "the simulated array scatter48"
     own = _nominal_layout(m, CalibrationOptions())
+    assert own is not None
     np.testing.assert_array_equal(own.positions_m, described.positions_m)
     assert own.tolerance_m == LAYOUT_TOLERANCE_M
     assert "in the session's description (the simulated array scatter48)" in \
@@ -181,6 +185,7 @@ def test_the_options_layout_replaces_the_description_s_and_says_so(small_session
                     CalibrationOptions(prior=PriorGeometry(given.of(m.data.mic_ids), None),
                                        layout_tolerance_m=0.002)):
         used = _nominal_layout(m, options)
+        assert used is not None
         np.testing.assert_array_equal(used.of(m.data.mic_ids), given.of(m.data.mic_ids))
         assert used.tolerance_m == 0.002
         assert "replaces the nominal layout in the session's description" in \

@@ -170,7 +170,7 @@ def test_paper_method_is_not_better():
     )
 
 
-def test_analytic_jacobian_matches_finite_differences():
+def test_analytic_jacobian_matches_finite_differences() -> None:
     scene = make_scene(2, 6, sigma_t=1e-6, pose_std=(1e-3, 1e-4))
     rig: RigSources = scene.measured_sources
     n_mic = scene.mics.shape[0]

@@ -11,6 +11,7 @@ import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TypeVar
 
 import pytest
 import zmq
@@ -31,6 +32,7 @@ from acquisition.daemon.outbox import JobRecord
 from calibration.worker import Worker, WorkerSettings
 
 WAIT_S = 60.0
+Message = TypeVar("Message")
 
 
 @pytest.fixture
@@ -51,7 +53,7 @@ class ScriptedDaemon:
         self.files = FileServer(files, self.records.get)
         self.worker: bytes | None = None
 
-    def receive(self, kind: type) -> tuple[object, list[bytes]]:
+    def receive(self, kind: type[Message]) -> tuple[Message, list[bytes]]:
         """The next worker message of `kind` (heartbeats and progress skipped), serving file
         requests meanwhile. Bounded in time and count."""
         deadline = time.monotonic() + WAIT_S
@@ -193,7 +195,7 @@ def test_an_oversized_frame_from_the_daemon_is_dropped_unread(daemon: ScriptedDa
     daemon cannot make it buffer gigabytes); it carries on once reconnected."""
     daemon.send(b"\xff" * (32 * 2**20))
     deadline = time.monotonic() + WAIT_S
-    answers: list[object] = []
+    answers: list[WorkerError] = []
     while time.monotonic() < deadline and not answers:
         daemon.send(b'{"v": 2, "type": "nonsense"}')  # to its identity, once it is back
         while daemon.jobs.poll(100):

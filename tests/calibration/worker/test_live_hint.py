@@ -28,6 +28,7 @@ def test_the_hint_lies_in_camera_0s_image_and_the_poses_taken_are_where_they_wer
     options = CalibrationOptions(allow_interrupted=True, joint=False)
     m = measure(five_poses, options)
     update = live_update("s", m, solve(m, options))
+    assert update.image_size is not None
     width, height = update.image_size
     hint = update.suggestion
     assert hint is not None and len(hint.outline_px) == 4
