@@ -8,7 +8,7 @@ server (skipped with the install command when the audio stack is missing)."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 
 import numpy as np
 import pytest
@@ -53,6 +53,7 @@ def emulated_usb() -> tuple[Board, ScanConfig]:
                         pytest.param("audio", marks=pytest.mark.slow)])  # a JACK server, 3 s
 def board(request: pytest.FixtureRequest) -> Iterator[tuple[Board, ScanConfig]]:
     """A fresh board of each implementation and a scan it can do; closed at the end."""
+    made: Board
     if request.param == "audio":
         request.getfixturevalue("jack_server")
         from daq.audio import AudioBoard, find_device
@@ -65,7 +66,7 @@ def board(request: pytest.FixtureRequest) -> Iterator[tuple[Board, ScanConfig]]:
         yield made, config
 
 
-def refused(calls: dict[str, Callable[[], object]],
+def refused(calls: Mapping[str, Callable[[], object]],
             error: type[Exception] = BoardStateError) -> None:
     """Each of `calls` raises `error` (its message naming the state the board is in)."""
     for name, call in calls.items():

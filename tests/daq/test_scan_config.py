@@ -1,5 +1,7 @@
 """Scan configurations the hardware cannot do are refused with errors that say why."""
 
+from typing import Any
+
 import pytest
 
 from daq import (
@@ -14,8 +16,8 @@ from daq import (
 )
 
 
-def _cfg(**kw) -> ScanConfig:
-    base = {"inputs": (InputChannel(channel=0),), "sample_rate_hz": 96_000.0}
+def _cfg(**kw: Any) -> ScanConfig:
+    base: dict[str, Any] = {"inputs": (InputChannel(channel=0),), "sample_rate_hz": 96_000.0}
     base.update(kw)
     return ScanConfig(**base)
 

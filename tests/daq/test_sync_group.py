@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from daq import (
+    Block,
     BoardStateError,
     ConfigurationError,
     DeviceDisconnectedError,
@@ -96,8 +97,8 @@ def test_misaligned_board_is_a_sync_error() -> None:
     board = boards[3]
     original = board.read
 
-    def skip_ahead(n: int, timeout_s: float):
-        block = original(n, timeout_s)
+    def skip_ahead(n_samples: int, timeout_s: float) -> Block:
+        block = original(n_samples, timeout_s)
         return type(block)(block.codes, block.start_index + 1, block.board)
 
     board.read = skip_ahead  # type: ignore[method-assign]

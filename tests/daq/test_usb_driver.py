@@ -114,6 +114,7 @@ def test_synchronized_scan_with_outputs_seen_in_inputs() -> None:
 def test_channel_order_and_range_follow_the_scan_config() -> None:
     bench = LoopbackBench({("1", 1): ("1", 3)})
     [board] = emulated_boards(bench, [("DT9836-6-2", "1")])
+    assert isinstance(board, UsbBoard)
     config = ScanConfig(inputs=(InputChannel(channel=5, range_v=2.0),
                                 InputChannel(channel=3, range_v=2.0),
                                 InputChannel(channel=0, range_v=2.0)),

@@ -28,6 +28,7 @@ from daq import (
 from daq.audio import (
     AudioBoard,
     AudioConfig,
+    AudioDeviceConfig,
     AudioDeviceInfo,
     DeviceNotFoundError,
     find_device,
@@ -61,7 +62,7 @@ def world(jack_server) -> Iterator[WorldProcess]:  # noqa: ANN001
 @pytest.fixture(scope="module")
 def group(world: WorldProcess) -> Iterator[SyncGroup]:
     group = SyncGroup(open_audio_boards(
-        AudioConfig(devices=[{"label": "A", "name": world.name}]), ["A"]))
+        AudioConfig(devices=(AudioDeviceConfig(label="A", name=world.name),)), ["A"]))
     group.configure([scan()])
     yield group
     group.close()
@@ -170,7 +171,7 @@ def test_a_device_another_program_holds_is_named_as_such() -> None:
 
 
 def test_a_rate_the_device_refuses_is_a_configuration_error(world: WorldProcess) -> None:
-    with open_audio_boards(AudioConfig(devices=[{"label": "A", "name": world.name}]),
+    with open_audio_boards(AudioConfig(devices=(AudioDeviceConfig(label="A", name=world.name),)),
                            ["A"])[0] as board, pytest.raises(
             ConfigurationError, match=r"refuses the sample rate 48000 S/s .*its default is "
                                       r"96000 S/s"):
@@ -178,7 +179,7 @@ def test_a_rate_the_device_refuses_is_a_configuration_error(world: WorldProcess)
 
 
 def test_a_channel_the_device_lacks_is_a_configuration_error(world: WorldProcess) -> None:
-    with open_audio_boards(AudioConfig(devices=[{"label": "A", "name": world.name}]),
+    with open_audio_boards(AudioConfig(devices=(AudioDeviceConfig(label="A", name=world.name),)),
                            ["A"])[0] as board, pytest.raises(
             ConfigurationError, match=r"input channel 16 does not exist; the device has "
                                       r"inputs 0\.\.15"):
@@ -193,7 +194,8 @@ def test_an_interface_that_is_not_there_is_named(jack_server) -> None:  # noqa: 
 
 def test_several_interfaces_need_one_word_clock() -> None:
     with pytest.raises(ValueError, match="2 interfaces need one word clock"):
-        AudioConfig(devices=[{"label": "A", "name": "x"}, {"label": "B", "name": "y"}])
+        AudioConfig(devices=(AudioDeviceConfig(label="A", name="x"),
+                             AudioDeviceConfig(label="B", name="y")))
 
 
 def test_a_jack_device_that_quits_is_a_disconnection_not_silence(group: SyncGroup,

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -26,7 +27,7 @@ from ...acquisition.daemon.helpers import DaemonProcess, capture_all
 
 pytestmark = pytest.mark.slow  # every test here: a JACK server and the world as its client
 
-WORLD = {"array": "scatter15", "poses": 6, "mls_order": 10, "seed": 3, "backend": "audio"}
+WORLD: dict[str, Any] = {"array": "scatter15", "poses": 6, "mls_order": 10, "seed": 3, "backend": "audio"}
 """15 microphones and the reference on the 16 inputs, 6 poses, bursts of 1023 samples."""
 SIMULATED_BOARDS_MM = 0.041
 """`micam simulate --array scatter15 --poses 6 --mls-order 10 --seed 3` (the same world on

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from daq import InputChannel, OutputChannel, OverrunError, ScanConfig, SyncError, SyncGroup
-from daq.audio import AudioConfig, open_audio_boards
+from daq.audio import AudioConfig, AudioDeviceConfig, open_audio_boards
 from daq.audio import _clock
 from sim.jack_world import WorldProcess
 
@@ -26,8 +26,8 @@ N = PERIOD + 4096
 @pytest.fixture(scope="module")
 def two(jack_server) -> Iterator[SyncGroup]:  # noqa: ANN001
     world = WorldProcess(OPTIONS.model_dump_json(), "micam-test-world-clock")
-    config = AudioConfig(word_clock=True, devices=[{"label": "A", "name": world.name},
-                                                   {"label": "B", "name": "system"}])
+    config = AudioConfig(word_clock=True, devices=(AudioDeviceConfig(label="A", name=world.name),
+                                                   AudioDeviceConfig(label="B", name="system")))
     group = SyncGroup(open_audio_boards(config, ["A", "B"]))
     group.configure([
         ScanConfig(inputs=tuple(InputChannel(channel=c) for c in range(16)),
