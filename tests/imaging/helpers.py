@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
+from imaging import Component
 from sim.arrays import array_layout
 from sim.analog_bench import AcousticBench
 from sim.geometry import RigidTransform
@@ -13,7 +15,7 @@ from sim.world import World
 C = 343.0
 
 
-def point_source_csm(mics: np.ndarray, sources: np.ndarray, powers: np.ndarray, freq_hz: float,
+def point_source_csm(mics: np.ndarray, sources: np.ndarray, powers: ArrayLike, freq_hz: float,
                      c: float = C) -> np.ndarray:
     """Exact CSM (M, M) of uncorrelated monopoles: sum_s P_s a_s a_s^H with
     a_m = exp(-i k r_m) / r_m (so P_s is the source's power at 1 m)."""
@@ -24,6 +26,12 @@ def point_source_csm(mics: np.ndarray, sources: np.ndarray, powers: np.ndarray, 
         a = np.exp(-1j * k * r) / r
         csm += p * np.outer(a, a.conj())
     return csm
+
+
+def subgrid(component: Component) -> tuple[float, float]:
+    """`component`'s fractional grid index, which a map on a 2-D grid gives every component."""
+    assert component.subgrid is not None
+    return component.subgrid
 
 
 def sphere_bench(seed: int = 0, distance_m: float = 0.8) -> AcousticBench:

@@ -116,6 +116,7 @@ def _document(**changes) -> dict:
 def test_responses_from_a_result_document_and_its_errors() -> None:
     assert responses_from_document({}, (0, 1, 2), "result.json") is None
     read = responses_from_document(_document(), (2, 0, 1), "result.json")
+    assert read is not None
     assert read.responses.shape == (2, 3)
     assert read.responses[1, 0] == pytest.approx(1.1 * np.exp(0.02j))  # in the asked order
     bad = {

@@ -54,6 +54,7 @@ def test_image_command_writes_a_small_figure(session: Path, capsys: pytest.Captu
                                "--pose", "0", "--speaker", "4", "--band", "8000",
                                "--out", str(out)]) == 0
     picture = cv2.imread(str(out))
+    assert picture is not None
     assert 1000 <= picture.shape[1] <= 1100 and picture.shape[0] < 600  # a page, not 2560 px
     assert out.stat().st_size < 200_000
     printed = capsys.readouterr().out
@@ -78,7 +79,9 @@ def test_map_figure_marks_speakers_and_sources_at_their_pixels(session: Path,
     assert drawn.speaker_in_view
     fig = drawn.figure
     path = save(fig, tmp_path / "map.png")
-    rgb = cv2.imread(str(path))[..., ::-1].astype(float)
+    image = cv2.imread(str(path))
+    assert image is not None
+    rgb = image[..., ::-1].astype(float)
     das, clean = (next(a for a in fig.axes if a.get_gid() == f"map-{k}") for k in (0, 1))
     bar = next(a for a in fig.axes if a.get_gid() == "colour-bar")
     assert "dB" in bar.get_ylabel() and bar.get_ylim() == pytest.approx((-20.0, 0.0))

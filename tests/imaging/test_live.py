@@ -148,8 +148,8 @@ def test_the_calibrated_microphone_responses_are_corrected(world) -> None:
     mics = world.layout.mic_positions_m
     delays = 1e-4 * mics[:, 0]  # seconds: +-15 us across the sphere
     where = np.array([0.05, 0.0, 1.0])
-    volts = LiveScene(world, [LiveSource(Trajectory.still(where), 0.05, 4000.0)]).mic_volts(
-        0, 12_000)
+    source = LiveSource(Trajectory.still(where.tolist()), 0.05, 4000.0)
+    volts = LiveScene(world, [source]).mic_volts(0, 12_000)
     spectra = np.fft.rfft(volts, axis=0)
     freqs = np.fft.rfftfreq(volts.shape[0], 1 / FS)
     delayed = np.fft.irfft(spectra * np.exp(-2j * np.pi * np.outer(freqs, delays)),
