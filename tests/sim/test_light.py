@@ -84,7 +84,8 @@ def test_corners_match_for_a_moved_camera_with_strong_distortion() -> None:
         "cam1",
         focal_px=700.0,
         dist=(-0.3, 0.1, 0.002, -0.001, 0.0),
-        cam0_to_cam=RigidTransform(rotation_from_rotvec([0.0, 0.1, 0.0]), np.array([-0.2, 0, 0])),
+        cam0_to_cam=RigidTransform(rotation_from_rotvec(np.array([0.0, 0.1, 0.0])),
+                                   np.array([-0.2, 0, 0])),
     )
     pose = _pose(rig, np.array([0.2, -0.3, 0.2]), np.array([0.2, 0.15, 0.6]), FACING_CAMERA)
     image = render_rig_image(camera, rig, pose, np.random.default_rng(6))

@@ -13,6 +13,7 @@ import pytest
 from acquisition.contracts.camera import CameraError
 from acquisition.contracts.session import SessionReader
 from micam.simulated import prepare_simulated_capture, record_simulated_session
+from sim.cameras import SimulatedCamera
 from sim.capture import SimulationOptions
 
 
@@ -40,10 +41,12 @@ def test_a_resumed_capture_records_what_an_uninterrupted_one_does(
 
     cut = tmp_path / "cut"
     sim, sequencer = prepare_simulated_capture(cut, options)
+    camera = sim.cameras[0]
+    assert isinstance(camera, SimulatedCamera)
 
     def fail_the_next_pose(progress) -> None:
         if progress.step == "pose/0000":
-            sim.cameras[0].fail_next_grabs = 1  # pose/0001 fails at its first image
+            camera.fail_next_grabs = 1  # pose/0001 fails at its first image
 
     sequencer.on_progress = fail_the_next_pose
     with pytest.raises(CameraError):

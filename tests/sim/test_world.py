@@ -19,6 +19,7 @@ def test_sphere_is_wired_as_in_the_paper() -> None:
     models = [b.model for b in layout.boards]
     assert models[:9] == ["DT9836-12-2"] * 3 + ["DT9816-A"] * 6
     assert layout.n_mics == 72 and len(layout.cameras) == 3
+    assert layout.body is not None
     radii = np.linalg.norm(layout.mic_positions_m - layout.body.centre_m, axis=1)
     assert np.allclose(radii, 0.15)
     used = {(r.board, r.channel) for r in layout.mic_inputs}
