@@ -329,6 +329,7 @@ def test_sigterm_to_simulate_ends_it_as_interrupted_and_resumable(tmp_path: Path
                              "--array", "scatter48", "--poses", "20", "--mls-order", "9",
                              "--quiet"], stderr=subprocess.PIPE, text=True,
                             env={**os.environ, "PYTHONPATH": str(Path(cli.__file__).parents[1])})
+    assert proc.stderr is not None
     deadline = time.monotonic() + 60
     while not list(out.glob("references/*")):  # a step under way: the capture has begun
         assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read()

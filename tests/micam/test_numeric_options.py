@@ -69,6 +69,7 @@ def test_every_numeric_option_is_bounded(name: str) -> None:
     action = OPTIONS[name]
     if action.choices is not None:
         return  # argparse refuses anything but the choices
+    assert callable(action.type)  # not a name of argparse's registry
     for syntax in SYNTAXES:
         try:
             sample = action.type(syntax.format("1"))

@@ -7,7 +7,7 @@ import asyncio
 import json
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 from starlette.types import ASGIApp, Message
 
@@ -50,6 +50,10 @@ class FakeBridge:
         self.files = files if files is not None else {}
         self.requests: list[tuple[str, dict[str, Any]]] = []
         self.browsers: set[Browser] = set()
+
+    def as_bridge(self) -> Bridge:
+        """This fake where the page takes the daemon's bridge: a stand-in for it."""
+        return cast(Bridge, self)
 
     async def start(self) -> None:
         pass

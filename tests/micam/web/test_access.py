@@ -26,7 +26,7 @@ COMMAND = {"command": "session.start", "args": {"poses": 2}}
 
 def _client(token: str | None) -> tuple[TestClient, FakeBridge]:
     bridge = FakeBridge()
-    app = create_app(bridge, token, SERVED, 5.0)
+    app = create_app(bridge.as_bridge(), token, SERVED, 5.0)
     return TestClient(app, base_url=f"http://{HOST}"), bridge
 
 
@@ -94,7 +94,7 @@ def test_a_foreign_host_is_refused_in_every_mode(token: str | None) -> None:
 
 def test_the_host_header_must_be_there_once_and_well_formed() -> None:
     run, close = runner()
-    app = create_app(FakeBridge(), None, SERVED, 5.0)
+    app = create_app(FakeBridge().as_bridge(), None, SERVED, 5.0)
     try:
         for headers in ([], [(b"host", HOST.encode()), (b"host", HOST.encode())],
                         [(b"host", b"local host:8765")], [(b"host", b"[::1:8765")]):

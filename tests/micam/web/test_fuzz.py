@@ -77,7 +77,7 @@ bodies = st.one_of(
     st.integers(10, 5000).map(lambda n: b'{"command": "capture", "n": ' + b"9" * n + b"}"),
     st.sampled_from([b"NaN", b"-Infinity", b"1e999", b'"\\ud800"', b'{"command": "\\udfff"}',
                      b"\xef\xbb\xbf{}", b"\xff\xfe{\x00}\x00", b" " * 5000]))
-segment = st.text(alphabet=st.characters(exclude_categories=("Cs",)), min_size=0, max_size=20)
+segment = st.text(alphabet=st.characters(exclude_categories=["Cs"]), min_size=0, max_size=20)
 session_ids = st.sampled_from([SESSION, "..", ".hidden", "a/b", "", "x" * 300]) | segment
 file_paths = st.sampled_from(["calibration/result.json", "calibration/live.json",
                               "calibration/report.md", "calibration/figures/a.png",
@@ -178,7 +178,7 @@ def test_no_request_gets_a_500(run: Callable[..., Answer], method: str, path: st
                                token: str | None, result: bytes, live: bytes) -> None:
     bridge = FakeBridge({"calibration/result.json": result, "calibration/live.json": live,
                          "calibration/report.md": body})
-    app = create_app(bridge, token, ServedHosts(PORT, "127.0.0.1"), 5.0)
+    app = create_app(bridge.as_bridge(), token, ServedHosts(PORT, "127.0.0.1"), 5.0)
     kind = "websocket" if websocket else "http"
     answer = run(app, scope_of(method, path, _flatten(headers), query, kind, denial),
                  _split(body, cuts))

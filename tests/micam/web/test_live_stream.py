@@ -108,5 +108,7 @@ def _map_area(b: Chromium, band: str, range_db: str) -> float:
            what=f"a map of {band} Hz, {range_db} dB")
     src = b.js(f"return {MAP}.getAttribute('src')")
     jpeg = np.frombuffer(base64.b64decode(src.partition(",")[2]), np.uint8)
-    hsv = cv2.cvtColor(cv2.imdecode(jpeg, cv2.IMREAD_COLOR), cv2.COLOR_BGR2HSV)
+    image = cv2.imdecode(jpeg, cv2.IMREAD_COLOR)
+    assert image is not None
+    hsv = cv2.cvtColor(image, cv2.COLOR_BGR2HSV)
     return float(np.mean(hsv[:, :, 1] > 60))

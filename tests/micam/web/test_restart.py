@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 
+from acquisition.contracts.protocol import StatusResult
 from acquisition.contracts.session import SessionReader, journal_records
 
 from micam.web.bridge import LIVE_FILE
@@ -38,25 +39,32 @@ def _wait_state(url: str, done, timeout_s: float = 60.0) -> dict:
 def test_killing_the_page_never_disturbs_a_capture(stack: Stack) -> None:
     with stack.loop.client() as client:
         client.request("session.start", poses=POSES)
-        session = Path(client.status().session.path)
-        total = client.status().session.steps_total
+        opened = client.status().session
+        assert opened is not None
+        session, total = Path(opened.path), opened.steps_total
         killed_during = None
         for n in range(total):
             number = client.request("capture")["number"]
+
+            def capturing(s: StatusResult, number: int = number) -> bool:
+                return s.state == "capturing" or (
+                    s.last_capture is not None and s.last_capture.number >= number)
+
+            def captured(s: StatusResult, number: int = number) -> bool:
+                return s.session is None or (
+                    s.last_capture is not None and s.last_capture.number >= number)
+
             if n == total - 2:  # the last pose but one: kill the page while it is captured
-                client.wait_until(lambda s, number=number: s.state == "capturing" or (
-                    s.last_capture is not None and s.last_capture.number >= number), 30,
-                    interval_s=0.01)
+                client.wait_until(capturing, 30, interval_s=0.01)
                 killed_during = client.status().state
                 stack.web.kill()
-            client.wait_until(lambda s, number=number: s.session is None or (
-                s.last_capture is not None and s.last_capture.number >= number), 60,
-                interval_s=0.02)
+            client.wait_until(captured, 60, interval_s=0.02)
             if n == total - 2:
                 web = stack.restart_web()  # restarted while the session is open
                 state = _wait_state(web.url, lambda s: s["status"] is not None
                                     and s["status"]["session"] is not None)
                 status = client.status()
+                assert status.session is not None
                 assert state["status"]["session"]["id"] == session.name
                 assert state["status"]["session"]["steps_done"] == status.session.steps_done
                 assert state["status"]["state"] == status.state

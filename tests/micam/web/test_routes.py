@@ -20,7 +20,7 @@ LIVE = "calibration/live.json"
 
 
 def _client(files: dict[str, bytes]) -> TestClient:
-    app = create_app(FakeBridge(files), None, ServedHosts(PORT, "127.0.0.1"), 5.0)
+    app = create_app(FakeBridge(files).as_bridge(), None, ServedHosts(PORT, "127.0.0.1"), 5.0)
     return TestClient(app, base_url=f"http://{HOST}")
 
 
@@ -69,7 +69,7 @@ def test_every_refusal_of_a_route_says_why() -> None:
 
 
 def _view(bridge: FakeBridge, args: dict) -> tuple[int, dict]:
-    app = create_app(bridge, None, ServedHosts(PORT, "127.0.0.1"), 5.0)
+    app = create_app(bridge.as_bridge(), None, ServedHosts(PORT, "127.0.0.1"), 5.0)
     reply = TestClient(app, base_url=f"http://{HOST}").post(
         "/api/command", json={"command": "live.view", "args": args})
     return reply.status_code, reply.json()

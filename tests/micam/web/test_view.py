@@ -64,7 +64,7 @@ def test_levels_are_named_by_microphone_and_board_with_the_reference_apart() -> 
 def test_a_camera_on_course_to_stay_uncalibrated_is_warned_about(
         seen: int, done: int, n: int, warned: str | None) -> None:
     warning = camera_warning(seen, n - done, seen, done, 4)
-    assert (warning is None) if warned is None else (warned in warning)
+    assert (warning is None) if warned is None else (warning is not None and warned in warning)
 
 
 def test_the_refmic_image_counts_as_a_board_view() -> None:
@@ -116,7 +116,7 @@ def test_a_result_is_summed_up() -> None:
     json.dumps(view, allow_nan=False)
 
 
-BAD_RESULTS = [
+BAD_RESULTS: list[tuple[object, str]] = [
     ([], "valid dictionary"),
     ({}, "microphones"),
     (_result(speed_of_sound_m_s=float("nan")), "speed_of_sound_m_s"),
