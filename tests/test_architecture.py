@@ -3,7 +3,8 @@
 CI runs exactly the test command of README.md, so these checks live in the test suite:
 `lint-imports` with the contracts of pyproject.toml, a cycle search over the graph of the
 top-level packages (import-linter's own `acyclic_siblings` covers the siblings inside each
-package), and mypy over every package (its cache in .venv, so a second run takes seconds).
+package), and mypy over every package and the tests (its cache in .venv, so a second run takes
+seconds).
 """
 
 from __future__ import annotations
